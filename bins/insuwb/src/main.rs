@@ -1,0 +1,2 @@
+//! The `insuwb` command line.
+fn main() {}

@@ -1,0 +1,2 @@
+//! Evaluation: metrics against ground truth (RMSE, ranges, NEES, NIS), the in-process runner and plots.
+#![warn(missing_docs)]

@@ -1,0 +1,543 @@
+//! Every sample type exchanged between insuwb stages, and every service setting.
+//!
+//! This crate owns the wire vocabulary of the system: the fixed-layout
+//! (`#[repr(C)]`, [`ZeroCopySend`]) samples that travel over iceoryx2 shared
+//! memory, that the logger records (serde), that the simulator and dataset
+//! readers produce and that `insuwb eval` consumes. One type per topic, used
+//! everywhere, so the same input is the same bytes in process, in replay and
+//! in the pipeline.
+//!
+//! Conventions:
+//! - times are CLOCK_MONOTONIC nanoseconds (`_ns`); in logs and simulations
+//!   they are nanoseconds since the start of the recording;
+//! - the navigation frame is ENU (x east, y north, z up), yaw counter-clockwise
+//!   from east; the body frame is x forward, y left, z up (FLU);
+//! - quaternions are `[w, x, y, z]`, rotating body vectors into ENU;
+//! - accelerometers report specific force (about +9.81 m/s^2 on body z at rest).
+//!
+//! ```
+//! use insuwb_msg::{Header, ImuSample, LAYOUT_VERSION};
+//! let s = ImuSample { header: Header::new(7, 1_000_000), accel_mps2: [0.0, 0.0, 9.81], gyro_rps: [0.0; 3] };
+//! assert_eq!(s.header.layout_version, LAYOUT_VERSION);
+//! ```
+#![warn(missing_docs)]
+
+pub mod qos;
+
+use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
+
+/// Version of every sample layout in this crate (and of the log format's records).
+/// Bump it whenever a field, its order or its meaning changes.
+pub const LAYOUT_VERSION: u16 = 1;
+
+/// Header common to every sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::Header")]
+pub struct Header {
+    /// [`LAYOUT_VERSION`] of the writer; a reader drops samples of another version.
+    pub layout_version: u16,
+    /// Identifier of the producing source (stage id, sensor id).
+    pub source_id: u16,
+    /// Type-specific flag bits (see each type's `FLAG_*` constants).
+    pub flags: u32,
+    /// Start generation of the publisher: a restarted publisher counts up.
+    pub generation: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Sequence number, per publisher and generation, counting up from 0.
+    pub seq: u64,
+    /// When the quantity was measured (CLOCK_MONOTONIC ns).
+    pub meas_time_ns: u64,
+    /// When the sample was published (CLOCK_MONOTONIC ns); 0 before publishing.
+    pub pub_time_ns: u64,
+}
+
+impl Header {
+    /// A header of the current layout version with the given sequence number and measurement time.
+    #[must_use]
+    pub fn new(seq: u64, meas_time_ns: u64) -> Self {
+        Self {
+            layout_version: LAYOUT_VERSION,
+            seq,
+            meas_time_ns,
+            ..Self::default()
+        }
+    }
+}
+
+/// Raw inertial sample from the IMU driver (topic [`topics::IMU`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::ImuSample")]
+pub struct ImuSample {
+    /// Common header.
+    pub header: Header,
+    /// Specific force in the body frame, m/s^2.
+    pub accel_mps2: [f64; 3],
+    /// Angular rate in the body frame, rad/s.
+    pub gyro_rps: [f64; 3],
+}
+
+/// One UWB time-difference-of-arrival measurement (topic [`topics::UWB_TDOA`]).
+///
+/// `diff_m = |p - anchor_b| - |p - anchor_a|` (the UTIL / Crazyflie convention).
+/// The anchor positions travel with the sample so every consumer uses the
+/// same survey as the driver that stamped it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::UwbTdoa")]
+pub struct UwbTdoa {
+    /// Common header.
+    pub header: Header,
+    /// Id of anchor A.
+    pub anchor_a: u32,
+    /// Id of anchor B.
+    pub anchor_b: u32,
+    /// Range difference `|p - b| - |p - a|`, metres.
+    pub diff_m: f64,
+    /// Surveyed position of anchor A (ENU, m).
+    pub anchor_a_pos_m: [f64; 3],
+    /// Surveyed position of anchor B (ENU, m).
+    pub anchor_b_pos_m: [f64; 3],
+}
+
+impl UwbTdoa {
+    /// Last measurement of a group taken at the same instant (a TDOA system
+    /// that measures all pairs at once, as the simulator does): the fix
+    /// builder may close the epoch without waiting for the next one.
+    pub const FLAG_EPOCH_END: u32 = 1;
+}
+
+/// A UWB position (and velocity) fix from multilateration (topic [`topics::UWB_FIX`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::UwbFix")]
+pub struct UwbFix {
+    /// Common header; `meas_time_ns` is the fix epoch.
+    pub header: Header,
+    /// Position, ENU, m.
+    pub pos_m: [f64; 3],
+    /// Velocity, ENU, m/s (valid when [`UwbFix::FLAG_VEL_VALID`] is set).
+    pub vel_mps: [f64; 3],
+    /// Position covariance, m^2 (row-major 3 x 3).
+    pub pos_cov_m2: [[f64; 3]; 3],
+    /// Velocity covariance, (m/s)^2 (row-major 3 x 3).
+    pub vel_cov: [[f64; 3]; 3],
+    /// Geometric dilution of precision of this fix.
+    pub gdop: f64,
+    /// Number of TDOA measurements used.
+    pub n_meas: u32,
+    /// Solver iterations used.
+    pub iterations: u32,
+}
+
+impl UwbFix {
+    /// The velocity fields hold a valid estimate.
+    pub const FLAG_VEL_VALID: u32 = 1;
+    /// The fix is two-dimensional (height held fixed).
+    pub const FLAG_2D: u32 = 2;
+}
+
+/// Output of INS mechanisation for one IMU sample (topic [`topics::NAV`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::NavState")]
+pub struct NavState {
+    /// Common header: `seq` and `meas_time_ns` are those of the IMU sample integrated last.
+    pub header: Header,
+    /// Id of the last correction folded into this state (0: none).
+    pub correction_id: u64,
+    /// Generation of the IMU driver whose samples were integrated.
+    pub imu_generation: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Position, ENU, m.
+    pub pos_m: [f64; 3],
+    /// Velocity, ENU, m/s.
+    pub vel_mps: [f64; 3],
+    /// Attitude quaternion `[w, x, y, z]`, body to ENU.
+    pub quat: [f64; 4],
+    /// Kinematic acceleration in ENU (gravity removed, biases compensated), m/s^2.
+    pub accel_nav_mps2: [f64; 3],
+    /// Angular rate in ENU (biases compensated), rad/s.
+    pub omega_nav_rps: [f64; 3],
+    /// Estimated accelerometer bias (body), m/s^2.
+    pub accel_bias_mps2: [f64; 3],
+    /// Estimated gyro bias (body), rad/s.
+    pub gyro_bias_rps: [f64; 3],
+}
+
+impl NavState {
+    /// The INS is aligned and integrating.
+    pub const FLAG_ALIGNED: u32 = 1;
+    /// The INS was re-initialised from a fused state (after a restart).
+    pub const FLAG_REINIT: u32 = 2;
+}
+
+/// Correction from fusion to INS (topic [`topics::CORRECTION`]).
+///
+/// A correction names the INS sample (`apply_at_seq` of generation
+/// `imu_generation`) after which it applies: the INS applies it to its state
+/// at that sample and re-propagates the samples after it, so the result does
+/// not depend on when the correction arrives. Ids count up; an INS applies
+/// each id once.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::InsCorrection")]
+pub struct InsCorrection {
+    /// Common header.
+    pub header: Header,
+    /// Correction id, counting up from 1.
+    pub correction_id: u64,
+    /// INS (IMU) sequence number after which the correction applies.
+    pub apply_at_seq: u64,
+    /// IMU generation that `apply_at_seq` refers to.
+    pub imu_generation: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Position error to remove (INS minus truth), ENU, m.
+    pub d_pos_m: [f64; 3],
+    /// Velocity error to remove, ENU, m/s.
+    pub d_vel_mps: [f64; 3],
+    /// Attitude error to remove, small-angle rotation vector in ENU, rad.
+    pub d_att_rad: [f64; 3],
+    /// Accelerometer bias increment (body), m/s^2.
+    pub d_accel_bias_mps2: [f64; 3],
+    /// Gyro bias increment (body), rad/s.
+    pub d_gyro_bias_rps: [f64; 3],
+    /// With [`InsCorrection::FLAG_RESET`]: full state to take (pos, vel, quat).
+    pub reset_pos_m: [f64; 3],
+    /// Reset velocity, ENU, m/s.
+    pub reset_vel_mps: [f64; 3],
+    /// Reset attitude `[w, x, y, z]`.
+    pub reset_quat: [f64; 4],
+}
+
+impl InsCorrection {
+    /// Replace the INS state by the `reset_*` fields instead of adding the deltas.
+    pub const FLAG_RESET: u32 = 1;
+}
+
+/// The fused navigation solution (topic [`topics::FUSED`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::FusedState")]
+pub struct FusedState {
+    /// Common header: `meas_time_ns` is the epoch of the estimate.
+    pub header: Header,
+    /// Position, ENU, m.
+    pub pos_m: [f64; 3],
+    /// Velocity, ENU, m/s.
+    pub vel_mps: [f64; 3],
+    /// Attitude `[w, x, y, z]`, body to ENU.
+    pub quat: [f64; 4],
+    /// Heading (yaw counter-clockwise from east), rad.
+    pub yaw_rad: f64,
+    /// Covariance of `[pos e, n, u, vel e, n, u]` (row-major 6 x 6).
+    pub cov: [[f64; 6]; 6],
+    /// Frame id of `pos_m`/`vel_mps`, NUL-padded ASCII (e.g. `map`).
+    pub frame_id: [u8; 16],
+    /// Sequence number of the UWB sample that triggered this output.
+    pub uwb_seq: u64,
+    /// Measurement time of that UWB sample.
+    pub uwb_meas_time_ns: u64,
+    /// Publish time of that UWB sample.
+    pub uwb_pub_time_ns: u64,
+    /// Sequence number of the INS state used.
+    pub ins_seq: u64,
+    /// Measurement time of that INS state.
+    pub ins_meas_time_ns: u64,
+    /// Publish time of that INS state.
+    pub ins_pub_time_ns: u64,
+    /// Filter that produced it (see [`FilterKind`] codes).
+    pub filter_kind: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+}
+
+impl FusedState {
+    /// The pose is valid (aligned INS, converged filter, inputs fresh).
+    pub const FLAG_VALID: u32 = 1;
+    /// No UWB update for longer than the configured timeout: INS-only coasting.
+    pub const FLAG_DEGRADED: u32 = 2;
+    /// The INS input is stale: the pose is not built on fresh inertial data.
+    pub const FLAG_STALE: u32 = 4;
+    /// The state was restored from a checkpoint after a restart.
+    pub const FLAG_RESUMED: u32 = 8;
+    /// The filter was reset from UWB after divergence.
+    pub const FLAG_RESET: u32 = 16;
+}
+
+/// Codes for [`FusedState::filter_kind`] and [`FilterDiag::filter_kind`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[repr(u32)]
+pub enum FilterKind {
+    /// Plain Kalman filter.
+    Kf = 1,
+    /// Simplified Sage-Husa adaptive filter.
+    Shaf = 2,
+    /// Strong tracking filter.
+    Stf = 3,
+    /// Improved adaptive Kalman filter (the paper's).
+    Iakf = 4,
+    /// Tightly coupled TDOA filter.
+    IakfTdoa = 5,
+}
+
+/// Filter diagnostics after each update (topic [`topics::DIAG`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::FilterDiag")]
+pub struct FilterDiag {
+    /// Common header.
+    pub header: Header,
+    /// Innovation (measurement minus prediction); unused entries zero.
+    pub innovation: [f64; 8],
+    /// Innovation variance `S_ii`.
+    pub innovation_var: [f64; 8],
+    /// Outlier weight per component (1: accepted as is).
+    pub lambda: [f64; 8],
+    /// Measurement noise diagonal in use.
+    pub r_diag: [f64; 8],
+    /// Normalised innovation squared of this update.
+    pub nis: f64,
+    /// Fading factor applied (1: none).
+    pub fading: f64,
+    /// Number of valid entries in the arrays.
+    pub dim: u32,
+    /// Filter code ([`FilterKind`]).
+    pub filter_kind: u32,
+}
+
+impl FilterDiag {
+    /// The divergence test fired on this update.
+    pub const FLAG_DIVERGENCE: u32 = 1;
+    /// At least one component was weighted as an outlier.
+    pub const FLAG_OUTLIER: u32 = 2;
+    /// The filter was reset.
+    pub const FLAG_RESET: u32 = 4;
+}
+
+/// Ground truth (topic [`topics::TRUTH`]); published only by the simulator and
+/// replay sources, for evaluation and the log. Fusion never reads it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::GroundTruth")]
+pub struct GroundTruth {
+    /// Common header.
+    pub header: Header,
+    /// Position, ENU, m.
+    pub pos_m: [f64; 3],
+    /// Velocity, ENU, m/s (zero when the source has none).
+    pub vel_mps: [f64; 3],
+    /// Attitude `[w, x, y, z]`, body to ENU.
+    pub quat: [f64; 4],
+}
+
+impl GroundTruth {
+    /// `vel_mps` is valid.
+    pub const FLAG_VEL_VALID: u32 = 1;
+}
+
+/// Stage health and heartbeat (topic [`topics::HEALTH`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::Health")]
+pub struct Health {
+    /// Common header (`source_id` is the stage id).
+    pub header: Header,
+    /// Stage name, NUL-padded ASCII.
+    pub stage: [u8; 16],
+    /// Process id.
+    pub pid: u32,
+    /// Stage state code (see `STATE_*`).
+    pub state: u32,
+    /// Samples received.
+    pub received: u64,
+    /// Samples published.
+    pub published: u64,
+    /// Samples dropped for a wrong layout version.
+    pub dropped_version: u64,
+    /// Samples dropped for a NaN, infinity or out-of-range value.
+    pub dropped_invalid: u64,
+    /// Samples dropped for a timestamp going backwards or repeated.
+    pub dropped_time: u64,
+    /// Sequence gaps seen on inputs (samples missing).
+    pub seq_gaps: u64,
+    /// Other stage-specific counter (e.g. outliers flagged, records written).
+    pub extra: [u64; 4],
+}
+
+impl Health {
+    /// Running normally.
+    pub const STATE_OK: u32 = 0;
+    /// Running with degraded inputs.
+    pub const STATE_DEGRADED: u32 = 1;
+    /// Input source disconnected.
+    pub const STATE_DISCONNECTED: u32 = 2;
+    /// Shutting down.
+    pub const STATE_STOPPING: u32 = 3;
+}
+
+/// Copies an ASCII name into a NUL-padded fixed field (truncating).
+#[must_use]
+pub fn fixed_name<const N: usize>(name: &str) -> [u8; N] {
+    let mut out = [0u8; N];
+    for (o, b) in out.iter_mut().zip(name.bytes()) {
+        *o = b;
+    }
+    out
+}
+
+/// Reads a NUL-padded fixed field back as a string (lossy).
+#[must_use]
+pub fn name_str(field: &[u8]) -> String {
+    let end = field.iter().position(|&b| b == 0).unwrap_or(field.len());
+    String::from_utf8_lossy(&field[..end]).into_owned()
+}
+
+/// Topic names (relative to the deployment's service prefix).
+pub mod topics {
+    /// Raw IMU samples ([`crate::ImuSample`]).
+    pub const IMU: &str = "imu";
+    /// Raw UWB TDOA measurements ([`crate::UwbTdoa`]).
+    pub const UWB_TDOA: &str = "uwb_tdoa";
+    /// UWB fixes ([`crate::UwbFix`]).
+    pub const UWB_FIX: &str = "uwb_fix";
+    /// INS navigation states ([`crate::NavState`]).
+    pub const NAV: &str = "nav";
+    /// Fused states ([`crate::FusedState`]).
+    pub const FUSED: &str = "fused";
+    /// Filter diagnostics ([`crate::FilterDiag`]).
+    pub const DIAG: &str = "diag";
+    /// INS corrections ([`crate::InsCorrection`]).
+    pub const CORRECTION: &str = "correction";
+    /// Stage health ([`crate::Health`]).
+    pub const HEALTH: &str = "health";
+    /// Ground truth ([`crate::GroundTruth`]).
+    pub const TRUTH: &str = "truth";
+}
+
+/// Anything carrying a [`Header`].
+pub trait HasHeader {
+    /// The sample's header.
+    fn header(&self) -> &Header;
+    /// The sample's header, mutable.
+    fn header_mut(&mut self) -> &mut Header;
+}
+
+macro_rules! impl_has_header {
+    ($($t:ty),*) => {$(
+        impl HasHeader for $t {
+            fn header(&self) -> &Header { &self.header }
+            fn header_mut(&mut self) -> &mut Header { &mut self.header }
+        }
+    )*};
+}
+impl_has_header!(
+    ImuSample,
+    UwbTdoa,
+    UwbFix,
+    NavState,
+    InsCorrection,
+    FusedState,
+    FilterDiag,
+    GroundTruth,
+    Health
+);
+
+#[cfg(test)]
+mod layout_tests {
+    use super::*;
+    use core::mem::{align_of, offset_of, size_of};
+
+    #[test]
+    fn header_layout_is_pinned() {
+        assert_eq!(size_of::<Header>(), 40);
+        assert_eq!(align_of::<Header>(), 8);
+        assert_eq!(offset_of!(Header, layout_version), 0);
+        assert_eq!(offset_of!(Header, source_id), 2);
+        assert_eq!(offset_of!(Header, flags), 4);
+        assert_eq!(offset_of!(Header, generation), 8);
+        assert_eq!(offset_of!(Header, seq), 16);
+        assert_eq!(offset_of!(Header, meas_time_ns), 24);
+        assert_eq!(offset_of!(Header, pub_time_ns), 32);
+    }
+
+    #[test]
+    fn sample_layouts_are_pinned() {
+        assert_eq!(size_of::<ImuSample>(), 88);
+        assert_eq!(offset_of!(ImuSample, accel_mps2), 40);
+        assert_eq!(offset_of!(ImuSample, gyro_rps), 64);
+
+        assert_eq!(size_of::<UwbTdoa>(), 104);
+        assert_eq!(offset_of!(UwbTdoa, anchor_a), 40);
+        assert_eq!(offset_of!(UwbTdoa, anchor_b), 44);
+        assert_eq!(offset_of!(UwbTdoa, diff_m), 48);
+        assert_eq!(offset_of!(UwbTdoa, anchor_a_pos_m), 56);
+        assert_eq!(offset_of!(UwbTdoa, anchor_b_pos_m), 80);
+
+        assert_eq!(size_of::<UwbFix>(), 248);
+        assert_eq!(offset_of!(UwbFix, pos_m), 40);
+        assert_eq!(offset_of!(UwbFix, vel_mps), 64);
+        assert_eq!(offset_of!(UwbFix, pos_cov_m2), 88);
+        assert_eq!(offset_of!(UwbFix, vel_cov), 160);
+        assert_eq!(offset_of!(UwbFix, gdop), 232);
+        assert_eq!(offset_of!(UwbFix, n_meas), 240);
+
+        assert_eq!(size_of::<NavState>(), 232);
+        assert_eq!(offset_of!(NavState, correction_id), 40);
+        assert_eq!(offset_of!(NavState, pos_m), 56);
+        assert_eq!(offset_of!(NavState, quat), 104);
+        assert_eq!(offset_of!(NavState, gyro_bias_rps), 208);
+
+        assert_eq!(size_of::<InsCorrection>(), 264);
+        assert_eq!(offset_of!(InsCorrection, apply_at_seq), 48);
+        assert_eq!(offset_of!(InsCorrection, d_pos_m), 64);
+        assert_eq!(offset_of!(InsCorrection, reset_quat), 232);
+
+        assert_eq!(size_of::<FusedState>(), 488);
+        assert_eq!(offset_of!(FusedState, cov), 128);
+        assert_eq!(offset_of!(FusedState, frame_id), 416);
+        assert_eq!(offset_of!(FusedState, uwb_seq), 432);
+        assert_eq!(offset_of!(FusedState, filter_kind), 480);
+
+        assert_eq!(size_of::<FilterDiag>(), 320);
+        assert_eq!(offset_of!(FilterDiag, lambda), 168);
+        assert_eq!(offset_of!(FilterDiag, dim), 312);
+
+        assert_eq!(size_of::<GroundTruth>(), 120);
+        assert_eq!(size_of::<Health>(), 144);
+        assert_eq!(offset_of!(Health, pid), 56);
+        assert_eq!(offset_of!(Health, extra), 112);
+        for a in [
+            align_of::<ImuSample>(),
+            align_of::<UwbTdoa>(),
+            align_of::<UwbFix>(),
+            align_of::<NavState>(),
+            align_of::<InsCorrection>(),
+            align_of::<FusedState>(),
+            align_of::<FilterDiag>(),
+            align_of::<GroundTruth>(),
+            align_of::<Health>(),
+        ] {
+            assert_eq!(a, 8);
+        }
+    }
+
+    #[test]
+    fn samples_round_trip_through_postcard() {
+        let mut f = FusedState {
+            header: Header::new(3, 42),
+            ..FusedState::default()
+        };
+        f.cov[5][4] = 1.5;
+        f.frame_id = fixed_name("map");
+        let bytes = postcard::to_stdvec(&f).unwrap();
+        let back: FusedState = postcard::from_bytes(&bytes).unwrap();
+        assert_eq!(back, f);
+        assert_eq!(name_str(&back.frame_id), "map");
+    }
+}
