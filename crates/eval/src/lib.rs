@@ -1,2 +1,8 @@
-//! Evaluation: metrics against ground truth (RMSE, ranges, NEES, NIS), the in-process runner and plots.
+//! Evaluation: runs every solution on a dataset in process, computes the
+//! metrics of the paper's Table 1 (and more) against ground truth, formats
+//! tables and draws figures.
 #![warn(missing_docs)]
+
+pub mod metrics;
+pub mod run;
+pub mod scenario;

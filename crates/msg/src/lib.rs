@@ -145,10 +145,12 @@ impl UwbFix {
 #[repr(C)]
 #[type_name("insuwb::NavState")]
 pub struct NavState {
-    /// Common header: `seq` and `meas_time_ns` are those of the IMU sample integrated last.
+    /// Common header: `meas_time_ns` is that of the IMU sample integrated last.
     pub header: Header,
     /// Id of the last correction folded into this state (0: none).
     pub correction_id: u64,
+    /// Sequence number of the IMU sample integrated last (corrections name it).
+    pub imu_seq: u64,
     /// Generation of the IMU driver whose samples were integrated.
     pub imu_generation: u32,
     /// Reserved, zero.
@@ -487,11 +489,12 @@ mod layout_tests {
         assert_eq!(offset_of!(UwbFix, gdop), 232);
         assert_eq!(offset_of!(UwbFix, n_meas), 240);
 
-        assert_eq!(size_of::<NavState>(), 232);
+        assert_eq!(size_of::<NavState>(), 240);
         assert_eq!(offset_of!(NavState, correction_id), 40);
-        assert_eq!(offset_of!(NavState, pos_m), 56);
-        assert_eq!(offset_of!(NavState, quat), 104);
-        assert_eq!(offset_of!(NavState, gyro_bias_rps), 208);
+        assert_eq!(offset_of!(NavState, imu_seq), 48);
+        assert_eq!(offset_of!(NavState, pos_m), 64);
+        assert_eq!(offset_of!(NavState, quat), 112);
+        assert_eq!(offset_of!(NavState, gyro_bias_rps), 216);
 
         assert_eq!(size_of::<InsCorrection>(), 264);
         assert_eq!(offset_of!(InsCorrection, apply_at_seq), 48);

@@ -1,0 +1,630 @@
+//! The fusion side of the closed loop: measurement ordering, prediction
+//! through the INS states, updates, corrections and fused outputs.
+//!
+//! Rules, which make the output independent of arrival order and scheduling:
+//! - a measurement is processed as soon as the INS state covering its epoch
+//!   (the first with a time at or after it) is there; measurements are taken
+//!   in time order;
+//! - the filter predicts through every INS interval in order;
+//! - the INS position and velocity at the measurement epoch are interpolated
+//!   between the two INS states around it;
+//! - after an update (loose: every fix; tight: at the end of each fix epoch of
+//!   TDOA measurements) the error estimate becomes an [`InsCorrection`]
+//!   naming the INS sample it applies after, and the buffered INS states after
+//!   that sample are dropped: the INS re-propagates and publishes them again
+//!   with the new correction id;
+//! - INS states that carry an older correction id than the last one sent are
+//!   stale and ignored.
+
+use std::collections::VecDeque;
+
+use insuwb_msg::{
+    fixed_name, FilterDiag, FusedState, Header, InsCorrection, NavState, UwbFix, UwbTdoa,
+    LAYOUT_VERSION,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::estimator::{Delta, Estimator, InsAt, UpdateInfo};
+
+/// Fusion engine settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionEngineConfig {
+    /// Frame id written into fused states.
+    pub frame_id: String,
+    /// Take the INS position (and velocity, when the fix has one) from the
+    /// first UWB fix, instead of the configured initial state.
+    pub init_from_first_fix: bool,
+    /// Tight coupling: length of a correction epoch of TDOA measurements, s.
+    pub tdoa_epoch_s: f64,
+    /// Measurements waiting for INS data beyond this count are dropped (oldest first).
+    pub max_pending: usize,
+    /// INS states buffered beyond this count are dropped (oldest first).
+    pub max_nav_buffer: usize,
+    /// Reset the INS from the next UWB fix when the estimator reports divergence.
+    pub reset_on_divergence: bool,
+}
+
+impl Default for FusionEngineConfig {
+    fn default() -> Self {
+        Self {
+            frame_id: "map".into(),
+            init_from_first_fix: false,
+            tdoa_epoch_s: 0.1,
+            max_pending: 8192,
+            max_nav_buffer: 8192,
+            reset_on_divergence: true,
+        }
+    }
+}
+
+/// Counters of what the fusion engine did and dropped.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct FusionCounters {
+    /// INS states received and used.
+    pub nav_used: u64,
+    /// INS states ignored as stale (older correction id) or repeated.
+    pub nav_stale: u64,
+    /// Samples dropped for a wrong layout version.
+    pub dropped_version: u64,
+    /// Samples dropped for non-finite values.
+    pub dropped_invalid: u64,
+    /// Measurements dropped because they are older than the INS data already processed.
+    pub meas_late: u64,
+    /// Measurements dropped because too many were waiting.
+    pub meas_overflow: u64,
+    /// Updates done.
+    pub updates: u64,
+    /// Updates in which a component was weighted as an outlier.
+    pub outliers: u64,
+    /// Measurements rejected outright.
+    pub rejected: u64,
+    /// Resets (first fix, divergence).
+    pub resets: u64,
+    /// Corrections sent.
+    pub corrections: u64,
+}
+
+/// A UWB measurement for the engine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Measurement {
+    /// A multilaterated fix.
+    Fix(UwbFix),
+    /// One TDOA difference.
+    Tdoa(UwbTdoa),
+}
+
+impl Measurement {
+    fn time(&self) -> u64 {
+        match self {
+            Self::Fix(f) => f.header.meas_time_ns,
+            Self::Tdoa(t) => t.header.meas_time_ns,
+        }
+    }
+    fn header(&self) -> &Header {
+        match self {
+            Self::Fix(f) => &f.header,
+            Self::Tdoa(t) => &t.header,
+        }
+    }
+}
+
+/// What the engine produced for one input; the caller publishes it and
+/// clears it before the next call.
+#[derive(Debug, Default, Clone)]
+pub struct Outputs {
+    /// Fused states, in order.
+    pub fused: Vec<FusedState>,
+    /// Filter diagnostics, one per update.
+    pub diag: Vec<FilterDiag>,
+    /// Corrections for the INS, in order.
+    pub corrections: Vec<InsCorrection>,
+}
+
+impl Outputs {
+    /// Empties every list (keeping their capacity).
+    pub fn clear(&mut self) {
+        self.fused.clear();
+        self.diag.clear();
+        self.corrections.clear();
+    }
+}
+
+/// The fusion engine.
+#[derive(Debug)]
+pub struct FusionEngine {
+    cfg: FusionEngineConfig,
+    est: Box<dyn Estimator>,
+    nav_buf: VecDeque<NavState>,
+    prev_nav: Option<NavState>,
+    last_nav: Option<NavState>,
+    pending: VecDeque<Measurement>,
+    correction_id: u64,
+    initialised: bool,
+    reset_requested: bool,
+    /// Tight coupling: the epoch of the measurements folded in since the last
+    /// correction, and the last of them.
+    dirty: Option<(u64, Measurement, InsAt)>,
+    fused_seq: u64,
+    counters: FusionCounters,
+    last_fused: Option<FusedState>,
+}
+
+impl FusionEngine {
+    /// A new engine around `est`.
+    #[must_use]
+    pub fn new(cfg: FusionEngineConfig, est: Box<dyn Estimator>) -> Self {
+        let initialised = !cfg.init_from_first_fix;
+        Self {
+            nav_buf: VecDeque::with_capacity(cfg.max_nav_buffer.min(65_536)),
+            pending: VecDeque::with_capacity(cfg.max_pending.min(65_536)),
+            cfg,
+            est,
+            prev_nav: None,
+            last_nav: None,
+            correction_id: 0,
+            initialised,
+            reset_requested: false,
+            dirty: None,
+            fused_seq: 0,
+            counters: FusionCounters::default(),
+            last_fused: None,
+        }
+    }
+
+    /// Counters so far.
+    #[must_use]
+    pub fn counters(&self) -> FusionCounters {
+        self.counters
+    }
+
+    /// The estimator.
+    #[must_use]
+    pub fn estimator(&self) -> &dyn Estimator {
+        self.est.as_ref()
+    }
+
+    /// The last fused state published.
+    #[must_use]
+    pub fn last_fused(&self) -> Option<&FusedState> {
+        self.last_fused.as_ref()
+    }
+
+    /// The newest INS state known (processed or buffered).
+    #[must_use]
+    pub fn latest_nav(&self) -> Option<&NavState> {
+        self.nav_buf.back().or(self.last_nav.as_ref())
+    }
+
+    /// Id of the last correction sent.
+    #[must_use]
+    pub fn correction_id(&self) -> u64 {
+        self.correction_id
+    }
+
+    /// Continue correction ids from `id` (a restarted fusion stage resuming
+    /// from a checkpoint, or learning the INS's latest id).
+    pub fn resume_correction_id(&mut self, id: u64) {
+        self.correction_id = self.correction_id.max(id);
+    }
+
+    /// A fused state built on the newest INS state alone (INS-only
+    /// coasting, published with [`FusedState::FLAG_DEGRADED`] by the caller).
+    #[must_use]
+    pub fn coasting_state(&mut self) -> Option<FusedState> {
+        let n = *self.latest_nav()?;
+        let ins = InsAt {
+            t_ns: n.header.meas_time_ns,
+            pos_m: n.pos_m,
+            vel_mps: n.vel_mps,
+            quat: n.quat,
+        };
+        let mut f = self.fused_from(&ins, &Delta::default(), &n);
+        f.header.flags |= FusedState::FLAG_DEGRADED;
+        Some(f)
+    }
+
+    /// Handles one INS state.
+    pub fn on_nav(&mut self, n: &NavState, out: &mut Outputs) {
+        if n.header.layout_version != LAYOUT_VERSION {
+            self.counters.dropped_version += 1;
+            return;
+        }
+        let finite = n
+            .pos_m
+            .iter()
+            .chain(&n.vel_mps)
+            .chain(&n.quat)
+            .chain(&n.accel_nav_mps2)
+            .all(|v| v.is_finite());
+        if !finite {
+            self.counters.dropped_invalid += 1;
+            return;
+        }
+        if n.correction_id < self.correction_id {
+            self.counters.nav_stale += 1;
+            return;
+        }
+        if n.correction_id > self.correction_id {
+            // The INS knows a later correction than we sent: we restarted.
+            self.correction_id = n.correction_id;
+        }
+        if let Some(last) = self.latest_nav() {
+            if n.header.meas_time_ns <= last.header.meas_time_ns {
+                self.counters.nav_stale += 1;
+                return;
+            }
+        }
+        if self.nav_buf.len() >= self.cfg.max_nav_buffer {
+            if let Some(old) = self.nav_buf.pop_front() {
+                self.advance_to(&old);
+            }
+        }
+        self.nav_buf.push_back(*n);
+        self.counters.nav_used += 1;
+        self.process(out);
+    }
+
+    /// Handles one UWB measurement (a fix or a TDOA difference).
+    pub fn on_measurement(&mut self, m: Measurement, out: &mut Outputs) {
+        if m.header().layout_version != LAYOUT_VERSION {
+            self.counters.dropped_version += 1;
+            return;
+        }
+        let finite = match &m {
+            Measurement::Fix(f) => f.pos_m.iter().chain(&f.vel_mps).all(|v| v.is_finite()),
+            Measurement::Tdoa(t) => {
+                t.diff_m.is_finite()
+                    && t.anchor_a_pos_m.iter().chain(&t.anchor_b_pos_m).all(|v| v.is_finite())
+            }
+        };
+        if !finite {
+            self.counters.dropped_invalid += 1;
+            return;
+        }
+        let t = m.time();
+        // Keep `pending` sorted by time (stable for equal times).
+        let idx = self.pending.partition_point(|p| p.time() <= t);
+        self.pending.insert(idx, m);
+        if self.pending.len() > self.cfg.max_pending {
+            self.pending.pop_front();
+            self.counters.meas_overflow += 1;
+        }
+        self.process(out);
+    }
+
+    fn advance_to(&mut self, n: &NavState) {
+        if let Some(last) = self.last_nav {
+            let dt = (n.header.meas_time_ns.saturating_sub(last.header.meas_time_ns)) as f64 * 1e-9;
+            self.est.predict(dt, n);
+        }
+        self.prev_nav = self.last_nav;
+        self.last_nav = Some(*n);
+    }
+
+    fn epoch_of(&self, t_ns: u64) -> u64 {
+        let p = (self.cfg.tdoa_epoch_s * 1e9).max(1.0) as u64;
+        t_ns.div_ceil(p)
+    }
+
+    fn process(&mut self, out: &mut Outputs) {
+        while let Some(m) = self.pending.front().copied() {
+            let t_m = m.time();
+            // Tight coupling: close the previous epoch before touching the next one.
+            if let Some((epoch, _, _)) = self.dirty {
+                if self.epoch_of(t_m) != epoch {
+                    self.emit_epoch(out);
+                    continue;
+                }
+            }
+            let Some(first_t) = self
+                .last_nav
+                .as_ref()
+                .or(self.nav_buf.front())
+                .map(|n| n.header.meas_time_ns)
+            else {
+                return; // no INS yet
+            };
+            let last_t = self.last_nav.map_or(0, |n| n.header.meas_time_ns);
+            let older_than_processed = self.prev_nav.is_some_and(|p| t_m < p.header.meas_time_ns);
+            if t_m < first_t || older_than_processed {
+                self.pending.pop_front();
+                self.counters.meas_late += 1;
+                continue;
+            }
+            if self.last_nav.is_none() || t_m > last_t {
+                // Predict through the INS states up to the one covering t_m.
+                let Some(cover) = self.nav_buf.iter().position(|n| n.header.meas_time_ns >= t_m)
+                else {
+                    return; // wait for INS data
+                };
+                for _ in 0..=cover {
+                    if let Some(n) = self.nav_buf.pop_front() {
+                        self.advance_to(&n);
+                    }
+                }
+            }
+            self.pending.pop_front();
+            let Some(ins) = self.ins_at(t_m) else {
+                self.counters.meas_late += 1;
+                continue;
+            };
+            self.handle(m, ins, out);
+        }
+    }
+
+    fn ins_at(&self, t: u64) -> Option<InsAt> {
+        let b = self.last_nav?;
+        let tb = b.header.meas_time_ns;
+        let a = match self.prev_nav {
+            Some(a) if a.header.meas_time_ns < t && t < tb => a,
+            _ => {
+                return Some(InsAt {
+                    t_ns: t,
+                    pos_m: b.pos_m,
+                    vel_mps: b.vel_mps,
+                    quat: b.quat,
+                })
+            }
+        };
+        let ta = a.header.meas_time_ns;
+        let w = (t - ta) as f64 / (tb - ta) as f64;
+        let l = |x: [f64; 3], y: [f64; 3]| {
+            [
+                x[0] + w * (y[0] - x[0]),
+                x[1] + w * (y[1] - x[1]),
+                x[2] + w * (y[2] - x[2]),
+            ]
+        };
+        let qa = to_uq(a.quat);
+        let qb = to_uq(b.quat);
+        let q = qa.try_slerp(&qb, w, 1e-12).unwrap_or(qb);
+        Some(InsAt {
+            t_ns: t,
+            pos_m: l(a.pos_m, b.pos_m),
+            vel_mps: l(a.vel_mps, b.vel_mps),
+            quat: [q.w, q.i, q.j, q.k],
+        })
+    }
+
+    fn handle(&mut self, m: Measurement, ins: InsAt, out: &mut Outputs) {
+        let Some(last) = self.last_nav else {
+            return;
+        };
+        // Position initialisation and divergence resets come from fixes.
+        if let Measurement::Fix(fix) = m {
+            let want_reset = !self.initialised
+                || (self.cfg.reset_on_divergence && (self.reset_requested || self.est.needs_reset()));
+            if want_reset {
+                self.reset_from_fix(&fix, &ins, &last, out);
+                return;
+            }
+        }
+        if !self.initialised {
+            return;
+        }
+        self.est.flush_predict();
+        let info = match m {
+            Measurement::Fix(f) => self.est.update_fix(&ins, &f),
+            Measurement::Tdoa(t) => self.est.update_tdoa(&ins, &t),
+        };
+        let Some(info) = info else {
+            return; // not a measurement this estimator uses
+        };
+        self.counters.updates += 1;
+        if info.outlier {
+            self.counters.outliers += 1;
+        }
+        if info.rejected {
+            self.counters.rejected += 1;
+        }
+        if info.divergence && self.est.needs_reset() {
+            self.reset_requested = true;
+        }
+        out.diag.push(self.diag_from(&info, &m));
+        if self.est.is_tight() {
+            let epoch = self.epoch_of(m.time());
+            self.dirty = Some((epoch, m, ins));
+            if m.header().flags & UwbTdoa::FLAG_EPOCH_END != 0 {
+                self.emit_epoch(out);
+            }
+        } else {
+            self.emit(&m, &ins, out);
+        }
+    }
+
+    fn emit_epoch(&mut self, out: &mut Outputs) {
+        if let Some((_, m, ins)) = self.dirty.take() {
+            self.emit(&m, &ins, out);
+        }
+    }
+
+    /// Takes the correction, sends it, publishes the fused state at the measurement epoch.
+    fn emit(&mut self, m: &Measurement, ins: &InsAt, out: &mut Outputs) {
+        let Some(last) = self.last_nav else {
+            return;
+        };
+        let delta = self.est.take_correction();
+        if !delta.is_finite() {
+            self.counters.dropped_invalid += 1;
+            self.est.reset();
+            self.reset_requested = true;
+            return;
+        }
+        let mut fused = self.fused_from(ins, &delta, &last);
+        let h = m.header();
+        fused.uwb_seq = h.seq;
+        fused.uwb_meas_time_ns = h.meas_time_ns;
+        fused.uwb_pub_time_ns = h.pub_time_ns;
+        if !delta.is_zero() {
+            self.send_correction(&delta, None, &last, out);
+        }
+        self.last_fused = Some(fused);
+        out.fused.push(fused);
+    }
+
+    fn reset_from_fix(&mut self, fix: &UwbFix, ins: &InsAt, last: &NavState, out: &mut Outputs) {
+        self.counters.resets += 1;
+        self.est.reset();
+        self.dirty = None;
+        let vel = if fix.header.flags & UwbFix::FLAG_VEL_VALID != 0 {
+            fix.vel_mps
+        } else {
+            [0.0; 3]
+        };
+        // Position at the fix epoch, moved to the INS sample the reset applies at.
+        let dt = (last.header.meas_time_ns.saturating_sub(ins.t_ns)) as f64 * 1e-9;
+        let mut pos = fix.pos_m;
+        for i in 0..3 {
+            pos[i] += vel[i] * dt;
+        }
+        if fix.header.flags & UwbFix::FLAG_2D != 0 {
+            pos[2] = last.pos_m[2];
+        }
+        let reset = (pos, vel, last.quat);
+        let flag = if self.initialised { FusedState::FLAG_RESET } else { 0 };
+        self.initialised = true;
+        self.reset_requested = false;
+        self.send_correction(&Delta::default(), Some(reset), last, out);
+        let ins_new = InsAt {
+            t_ns: ins.t_ns,
+            pos_m: fix.pos_m,
+            vel_mps: vel,
+            quat: last.quat,
+        };
+        let mut fused = self.fused_from(&ins_new, &Delta::default(), last);
+        fused.header.flags |= flag;
+        fused.uwb_seq = fix.header.seq;
+        fused.uwb_meas_time_ns = fix.header.meas_time_ns;
+        fused.uwb_pub_time_ns = fix.header.pub_time_ns;
+        self.last_fused = Some(fused);
+        out.fused.push(fused);
+    }
+
+    fn send_correction(
+        &mut self,
+        d: &Delta,
+        reset: Option<([f64; 3], [f64; 3], [f64; 4])>,
+        last: &NavState,
+        out: &mut Outputs,
+    ) {
+        self.correction_id += 1;
+        self.counters.corrections += 1;
+        let mut c = InsCorrection {
+            header: Header::new(self.correction_id, last.header.meas_time_ns),
+            correction_id: self.correction_id,
+            apply_at_seq: last.imu_seq,
+            imu_generation: last.imu_generation,
+            d_pos_m: d.d_pos_m,
+            d_vel_mps: d.d_vel_mps,
+            d_att_rad: d.d_att_rad,
+            d_accel_bias_mps2: d.d_accel_bias_mps2,
+            d_gyro_bias_rps: d.d_gyro_bias_rps,
+            ..InsCorrection::default()
+        };
+        // The buffered INS states after `last` do not hold this correction:
+        // the INS re-propagates and sends them again.
+        self.nav_buf.clear();
+        let mut l = *last;
+        if let Some((p, v, q)) = reset {
+            c.header.flags |= InsCorrection::FLAG_RESET;
+            c.reset_pos_m = p;
+            c.reset_vel_mps = v;
+            c.reset_quat = q;
+            l.pos_m = p;
+            l.vel_mps = v;
+            self.prev_nav = None;
+        } else {
+            apply_delta(&mut l, d);
+            if let Some(p) = self.prev_nav.as_mut() {
+                apply_delta(p, d);
+                p.correction_id = self.correction_id;
+            }
+        }
+        l.correction_id = self.correction_id;
+        self.last_nav = Some(l);
+        out.corrections.push(c);
+    }
+
+    fn fused_from(&mut self, ins: &InsAt, d: &Delta, nav: &NavState) -> FusedState {
+        let mut pos = ins.pos_m;
+        let mut vel = ins.vel_mps;
+        for i in 0..3 {
+            pos[i] -= d.d_pos_m[i];
+            vel[i] -= d.d_vel_mps[i];
+        }
+        let q = corrected_quat(ins.quat, d.d_att_rad);
+        let uq = to_uq(q);
+        let yaw = {
+            let x = uq * Vector3::x();
+            x.y.atan2(x.x)
+        };
+        let seq = self.fused_seq;
+        self.fused_seq += 1;
+        FusedState {
+            header: Header {
+                flags: FusedState::FLAG_VALID,
+                ..Header::new(seq, ins.t_ns)
+            },
+            pos_m: pos,
+            vel_mps: vel,
+            quat: q,
+            yaw_rad: yaw,
+            cov: self.est.pos_vel_cov(),
+            frame_id: fixed_name(&self.cfg.frame_id),
+            ins_seq: nav.imu_seq,
+            ins_meas_time_ns: nav.header.meas_time_ns,
+            ins_pub_time_ns: nav.header.pub_time_ns,
+            filter_kind: self.est.kind() as u32,
+            ..FusedState::default()
+        }
+    }
+
+    fn diag_from(&self, info: &UpdateInfo, m: &Measurement) -> FilterDiag {
+        let mut flags = 0;
+        if info.divergence {
+            flags |= FilterDiag::FLAG_DIVERGENCE;
+        }
+        if info.outlier || info.rejected {
+            flags |= FilterDiag::FLAG_OUTLIER;
+        }
+        FilterDiag {
+            header: Header {
+                flags,
+                ..Header::new(self.counters.updates, m.time())
+            },
+            innovation: info.innovation,
+            innovation_var: info.innovation_var,
+            lambda: info.lambda,
+            r_diag: info.r_diag,
+            nis: info.nis,
+            fading: info.fading,
+            dim: info.dim,
+            filter_kind: self.est.kind() as u32,
+        }
+    }
+}
+
+fn to_uq(q: [f64; 4]) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]))
+}
+
+/// `q_true = Exp(-d_att) * q_ins` (the correction convention).
+#[must_use]
+pub fn corrected_quat(q: [f64; 4], d_att: [f64; 3]) -> [f64; 4] {
+    if d_att == [0.0; 3] {
+        return q;
+    }
+    let r = UnitQuaternion::from_scaled_axis(-Vector3::from(d_att));
+    let c = r * to_uq(q);
+    [c.w, c.i, c.j, c.k]
+}
+
+fn apply_delta(n: &mut NavState, d: &Delta) {
+    for i in 0..3 {
+        n.pos_m[i] -= d.d_pos_m[i];
+        n.vel_mps[i] -= d.d_vel_mps[i];
+    }
+    n.quat = corrected_quat(n.quat, d.d_att_rad);
+}

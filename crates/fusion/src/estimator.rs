@@ -1,0 +1,301 @@
+//! The estimator interface the fusion engine drives, and its two families:
+//! the paper's loosely coupled 14-state filters (KF, SHAF, STF, IAKF) fed
+//! with UWB fixes, and the tightly coupled 15-state error-state filter fed
+//! with each TDOA measurement.
+
+use insuwb_msg::{FilterKind, NavState, UwbFix, UwbTdoa};
+
+/// The INS state at a measurement's epoch (interpolated between two samples).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct InsAt {
+    /// Epoch, ns.
+    pub t_ns: u64,
+    /// Position, ENU, m.
+    pub pos_m: [f64; 3],
+    /// Velocity, ENU, m/s.
+    pub vel_mps: [f64; 3],
+    /// Attitude `[w, x, y, z]`.
+    pub quat: [f64; 4],
+}
+
+/// The error estimate to feed back into the INS (convention of
+/// [`insuwb_msg::InsCorrection`]: error = INS minus truth).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Delta {
+    /// Position error, m.
+    pub d_pos_m: [f64; 3],
+    /// Velocity error, m/s.
+    pub d_vel_mps: [f64; 3],
+    /// Attitude error (ENU rotation vector), rad.
+    pub d_att_rad: [f64; 3],
+    /// Accelerometer bias increment, m/s^2.
+    pub d_accel_bias_mps2: [f64; 3],
+    /// Gyro bias increment, rad/s.
+    pub d_gyro_bias_rps: [f64; 3],
+}
+
+impl Delta {
+    /// Whether every component is zero.
+    #[must_use]
+    pub fn is_zero(&self) -> bool {
+        self.d_pos_m
+            .iter()
+            .chain(&self.d_vel_mps)
+            .chain(&self.d_att_rad)
+            .chain(&self.d_accel_bias_mps2)
+            .chain(&self.d_gyro_bias_rps)
+            .all(|v| *v == 0.0)
+    }
+
+    /// Whether every component is finite.
+    #[must_use]
+    pub fn is_finite(&self) -> bool {
+        self.d_pos_m
+            .iter()
+            .chain(&self.d_vel_mps)
+            .chain(&self.d_att_rad)
+            .chain(&self.d_accel_bias_mps2)
+            .chain(&self.d_gyro_bias_rps)
+            .all(|v| v.is_finite())
+    }
+}
+
+/// What one update did (copied into [`insuwb_msg::FilterDiag`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct UpdateInfo {
+    /// Innovation per component.
+    pub innovation: [f64; 8],
+    /// Innovation variance per component.
+    pub innovation_var: [f64; 8],
+    /// Outlier weight per component.
+    pub lambda: [f64; 8],
+    /// R diagonal in use.
+    pub r_diag: [f64; 8],
+    /// Components used.
+    pub dim: u32,
+    /// Normalised innovation squared.
+    pub nis: f64,
+    /// Fading factor (1: none).
+    pub fading: f64,
+    /// Divergence test fired.
+    pub divergence: bool,
+    /// A component was weighted as an outlier.
+    pub outlier: bool,
+    /// The measurement was rejected outright (no state change).
+    pub rejected: bool,
+}
+
+/// An error-state estimator driven by the fusion engine.
+pub trait Estimator: std::fmt::Debug + Send {
+    /// Which filter this is.
+    fn kind(&self) -> FilterKind;
+    /// Propagates over one INS interval ending at `nav` (`dt_s` seconds),
+    /// using the nominal state `nav`.
+    fn predict(&mut self, dt_s: f64, nav: &NavState);
+    /// Flushes any accumulated prediction before an update.
+    fn flush_predict(&mut self) {}
+    /// Updates with a UWB fix (loose coupling); `None` when it does not use fixes.
+    fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo>;
+    /// Updates with one TDOA measurement (tight coupling); `None` when it does not use them.
+    fn update_tdoa(&mut self, ins: &InsAt, m: &UwbTdoa) -> Option<UpdateInfo>;
+    /// Returns the navigation error estimate and zeroes it (closed loop).
+    fn take_correction(&mut self) -> Delta;
+    /// Covariance of `[pe, pn, pu, ve, vn, vu]`.
+    fn pos_vel_cov(&self) -> [[f64; 6]; 6];
+    /// Whether the estimator asks to be reset (divergence).
+    fn needs_reset(&self) -> bool {
+        false
+    }
+    /// Resets the covariance to its initial value and the state to zero.
+    fn reset(&mut self);
+    /// Whether it consumes TDOA measurements (else UWB fixes).
+    fn is_tight(&self) -> bool {
+        false
+    }
+}
+
+/// Settings of the loosely coupled paper filters inside the engine.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LooseConfig {
+    /// Fuse the UWB velocity (eq. 13) when the fix carries a valid one; else
+    /// position only.
+    pub use_velocity: bool,
+}
+
+impl Default for LooseConfig {
+    fn default() -> Self {
+        Self { use_velocity: true }
+    }
+}
+
+/// The paper's filters (KF, SHAF, STF, IAKF) as an [`Estimator`].
+///
+/// Prediction runs once per AR step of the model (`model.ar_rate_hz`): INS
+/// intervals are accumulated until one AR step is reached, with the mean
+/// kinematic acceleration over it. Closed loop: the position, velocity and
+/// heading errors are fed back into the INS after every update and the whole
+/// error state is zeroed (the AR states too: the fitted AR(3) of a MEMS sensor
+/// is nearly white (erratum 19), so their estimate decorrelates within a few
+/// samples and is not worth a protocol field).
+#[derive(Debug)]
+pub struct PaperEstimator {
+    filter: Box<dyn insuwb_filter::ErrorFilter>,
+    cfg: LooseConfig,
+    p0: insuwb_filter::model::Mat14,
+    step_s: f64,
+    acc_dt: f64,
+    acc_ae: f64,
+    acc_an: f64,
+    predict_errors: u64,
+}
+
+impl PaperEstimator {
+    /// Wraps a built filter; `p0` is used on reset.
+    #[must_use]
+    pub fn new(
+        filter: Box<dyn insuwb_filter::ErrorFilter>,
+        cfg: LooseConfig,
+        p0: insuwb_filter::model::Mat14,
+    ) -> Self {
+        let step_s = filter.model().ar_step_s();
+        Self {
+            filter,
+            cfg,
+            p0,
+            step_s,
+            acc_dt: 0.0,
+            acc_ae: 0.0,
+            acc_an: 0.0,
+            predict_errors: 0,
+        }
+    }
+
+    /// The wrapped filter.
+    #[must_use]
+    pub fn filter(&self) -> &dyn insuwb_filter::ErrorFilter {
+        self.filter.as_ref()
+    }
+
+    /// Predict intervals the model refused.
+    #[must_use]
+    pub fn predict_errors(&self) -> u64 {
+        self.predict_errors
+    }
+
+    fn run_predict(&mut self) {
+        if self.acc_dt <= 0.0 {
+            return;
+        }
+        let (ae, an) = (self.acc_ae / self.acc_dt, self.acc_an / self.acc_dt);
+        if self.filter.predict(self.acc_dt, ae, an).is_err() {
+            self.predict_errors += 1;
+        }
+        self.acc_dt = 0.0;
+        self.acc_ae = 0.0;
+        self.acc_an = 0.0;
+    }
+}
+
+fn report_to_info(r: &insuwb_filter::UpdateReport) -> UpdateInfo {
+    let mut i = UpdateInfo {
+        dim: u32::try_from(r.dim).unwrap_or(0),
+        nis: r.nis,
+        fading: r.fading,
+        divergence: r.divergence,
+        outlier: r.outlier,
+        ..UpdateInfo::default()
+    };
+    for k in 0..4 {
+        i.innovation[k] = r.innovation[k];
+        i.innovation_var[k] = r.innovation_var[k];
+        i.lambda[k] = r.lambda[k];
+        i.r_diag[k] = r.r_diag[k];
+    }
+    i
+}
+
+impl Estimator for PaperEstimator {
+    fn kind(&self) -> FilterKind {
+        self.filter.kind()
+    }
+
+    fn predict(&mut self, dt_s: f64, nav: &NavState) {
+        if !(dt_s > 0.0 && dt_s.is_finite()) {
+            return;
+        }
+        self.acc_dt += dt_s;
+        self.acc_ae += nav.accel_nav_mps2[0] * dt_s;
+        self.acc_an += nav.accel_nav_mps2[1] * dt_s;
+        if self.acc_dt >= self.step_s * (1.0 - 1e-6) {
+            self.run_predict();
+        }
+    }
+
+    fn flush_predict(&mut self) {
+        // A remainder shorter than half an AR step waits for the next interval.
+        if self.acc_dt >= 0.5 * self.step_s {
+            self.run_predict();
+        }
+    }
+
+    fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo> {
+        let dp = [ins.pos_m[0] - fix.pos_m[0], ins.pos_m[1] - fix.pos_m[1]];
+        let vel_ok = self.cfg.use_velocity && fix.header.flags & UwbFix::FLAG_VEL_VALID != 0;
+        let rep = if vel_ok {
+            let z = nalgebra::SVector::<f64, 4>::new(
+                dp[0],
+                dp[1],
+                ins.vel_mps[0] - fix.vel_mps[0],
+                ins.vel_mps[1] - fix.vel_mps[1],
+            );
+            self.filter.update(&z)
+        } else {
+            self.filter.update_pos(&nalgebra::SVector::<f64, 2>::new(dp[0], dp[1]))
+        };
+        Some(match rep {
+            Ok(r) => report_to_info(&r),
+            Err(_) => UpdateInfo {
+                rejected: true,
+                ..UpdateInfo::default()
+            },
+        })
+    }
+
+    fn update_tdoa(&mut self, _ins: &InsAt, _m: &UwbTdoa) -> Option<UpdateInfo> {
+        None
+    }
+
+    fn take_correction(&mut self) -> Delta {
+        let x = self.filter.take_correction();
+        Delta {
+            d_pos_m: [x[0], x[1], 0.0],
+            d_vel_mps: [x[2], x[3], 0.0],
+            d_att_rad: [0.0, 0.0, x[4]],
+            ..Delta::default()
+        }
+    }
+
+    fn pos_vel_cov(&self) -> [[f64; 6]; 6] {
+        let p = self.filter.covariance();
+        // Filter states 0..4 are pe, pn, ve, vn; output order pe, pn, pu, ve, vn, vu.
+        let map = [Some(0usize), Some(1), None, Some(2), Some(3), None];
+        let mut c = [[0.0; 6]; 6];
+        for (i, mi) in map.iter().enumerate() {
+            for (j, mj) in map.iter().enumerate() {
+                if let (Some(a), Some(b)) = (mi, mj) {
+                    c[i][j] = p[(*a, *b)];
+                }
+            }
+        }
+        c
+    }
+
+    fn reset(&mut self) {
+        let _ = self.filter.take_correction();
+        let _ = self.filter.reset(&self.p0);
+        self.acc_dt = 0.0;
+        self.acc_ae = 0.0;
+        self.acc_an = 0.0;
+    }
+}

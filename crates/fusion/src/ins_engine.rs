@@ -1,0 +1,476 @@
+//! The INS side of the closed loop: mechanisation of raw IMU samples, static
+//! alignment at start, and the correction protocol.
+//!
+//! A correction names the IMU sample after which it applies
+//! (`apply_at_seq`). The engine keeps a ring of its recent states; when a
+//! correction arrives it restores the state at that sample, applies the
+//! correction and re-propagates the samples that came after it, and returns
+//! the re-propagated navigation states (tagged with the correction id) for
+//! publication. The result is therefore the same whether the correction
+//! arrives at once (in process, `insuwb eval`) or a few samples late (the
+//! process pipeline): one code path, the same floating-point operations.
+
+use std::collections::VecDeque;
+
+use insuwb_msg::{Header, ImuSample, InsCorrection, NavState, LAYOUT_VERSION};
+use insuwb_nav::align::level_from_accel;
+use insuwb_nav::ins::{Ins, InsConfig, InsState, NavOutput};
+use nalgebra::{UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// How the INS attitude is initialised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AttitudeInit {
+    /// Level (roll = pitch = 0), yaw from `init.yaw_rad`: a ground robot on a
+    /// level floor, which may already be moving at start.
+    Level,
+    /// Roll and pitch from the mean specific force over the alignment
+    /// window (the vehicle must be static then), yaw from `init.yaw_rad`.
+    Accel,
+}
+
+/// Initial state of the INS.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InsInit {
+    /// Initial position, ENU, m (a fusion engine with `init_from_first_fix`
+    /// replaces it by the first UWB fix).
+    pub pos_m: [f64; 3],
+    /// Initial velocity, ENU, m/s.
+    pub vel_mps: [f64; 3],
+    /// Initial yaw, rad, counter-clockwise from east (from config or a
+    /// magnetometer; with no magnetometer a filter with a large initial yaw
+    /// variance makes it observable).
+    pub yaw_rad: f64,
+    /// How roll and pitch are found.
+    pub attitude: AttitudeInit,
+    /// Alignment window, s: samples in it are averaged for roll, pitch and the
+    /// gyro bias (with `attitude = "accel"`); integration starts after it. 0
+    /// starts at the first sample.
+    pub align_window_s: f64,
+    /// Estimate the gyro bias as the mean rate over the alignment window.
+    pub gyro_bias_from_static: bool,
+    /// End the alignment window early when the specific-force norm departs
+    /// from its running mean by more than this (m/s^2): motion started.
+    pub motion_threshold_mps2: f64,
+}
+
+impl Default for InsInit {
+    fn default() -> Self {
+        Self {
+            pos_m: [0.0; 3],
+            vel_mps: [0.0; 3],
+            yaw_rad: 0.0,
+            attitude: AttitudeInit::Level,
+            align_window_s: 0.0,
+            gyro_bias_from_static: false,
+            motion_threshold_mps2: 1.0,
+        }
+    }
+}
+
+/// INS stage configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct InsEngineConfig {
+    /// Mechanisation settings.
+    pub ins: InsConfig,
+    /// Initial state and alignment.
+    pub init: InsInit,
+    /// Constrain the INS to the horizontal plane (a ground robot): vertical
+    /// velocity zero and height held at `init.pos_m[2]`.
+    pub planar: bool,
+    /// Samples kept for re-propagation after a late correction.
+    pub history_len: usize,
+}
+
+/// Why the INS engine could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum InsEngineError {
+    /// The mechanisation config or initial state was refused.
+    #[error("ins: {0}")]
+    Ins(#[from] insuwb_nav::ins::InsNewError),
+    /// A value out of range.
+    #[error("ins engine: {key} {message}")]
+    Invalid {
+        /// The key.
+        key: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// Counters of what the INS engine dropped or did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct InsCounters {
+    /// Samples integrated.
+    pub integrated: u64,
+    /// Samples dropped: wrong layout version.
+    pub dropped_version: u64,
+    /// Samples dropped: NaN, infinity or out of range.
+    pub dropped_invalid: u64,
+    /// Samples dropped: timestamp not after the previous one.
+    pub dropped_time: u64,
+    /// Corrections applied.
+    pub corrections: u64,
+    /// Corrections ignored because their id was already applied.
+    pub corrections_duplicate: u64,
+    /// Corrections older than the history, applied to the current state.
+    pub corrections_too_old: u64,
+    /// Samples re-propagated after late corrections.
+    pub repropagated: u64,
+    /// Restarts of the IMU source seen (new generation).
+    pub imu_restarts: u64,
+}
+
+#[derive(Debug, Clone)]
+struct RingEntry {
+    imu: ImuSample,
+    ins_after: Ins,
+    nav: NavState,
+}
+
+/// Accelerations above this (m/s^2) or rates above this (rad/s) are refused as out of range.
+const MAX_ACCEL_MPS2: f64 = 400.0;
+const MAX_RATE_RPS: f64 = 70.0;
+
+/// The INS engine.
+#[derive(Debug, Clone)]
+pub struct InsEngine {
+    cfg: InsEngineConfig,
+    ins: Option<Ins>,
+    align: AlignAcc,
+    ring: VecDeque<RingEntry>,
+    correction_id: u64,
+    imu_generation: Option<u32>,
+    last_imu_t: Option<u64>,
+    counters: InsCounters,
+    out_seq: u64,
+    reinit_flag: bool,
+}
+
+#[derive(Debug, Clone, Default)]
+struct AlignAcc {
+    n: u64,
+    t0: Option<u64>,
+    acc_sum: [f64; 3],
+    gyro_sum: [f64; 3],
+    norm_mean: f64,
+}
+
+impl InsEngine {
+    /// A new engine (not yet aligned).
+    ///
+    /// # Errors
+    /// An invalid configuration.
+    pub fn new(cfg: InsEngineConfig) -> Result<Self, InsEngineError> {
+        cfg.ins
+            .validate()
+            .map_err(|e| InsEngineError::Invalid {
+                key: "ins",
+                message: e.to_string(),
+            })?;
+        let i = &cfg.init;
+        if !(i.align_window_s.is_finite() && (0.0..=60.0).contains(&i.align_window_s)) {
+            return Err(InsEngineError::Invalid {
+                key: "init.align_window_s",
+                message: format!("must be in [0, 60] s, got {}", i.align_window_s),
+            });
+        }
+        if !i.pos_m.iter().chain(&i.vel_mps).all(|v| v.is_finite()) || !i.yaw_rad.is_finite() {
+            return Err(InsEngineError::Invalid {
+                key: "init",
+                message: "pos_m, vel_mps and yaw_rad must be finite".into(),
+            });
+        }
+        let history_len = if cfg.history_len == 0 { 2048 } else { cfg.history_len };
+        Ok(Self {
+            ring: VecDeque::with_capacity(history_len),
+            cfg: InsEngineConfig { history_len, ..cfg },
+            ins: None,
+            align: AlignAcc::default(),
+            correction_id: 0,
+            imu_generation: None,
+            last_imu_t: None,
+            counters: InsCounters::default(),
+            out_seq: 0,
+            reinit_flag: false,
+        })
+    }
+
+    /// Counters so far.
+    #[must_use]
+    pub fn counters(&self) -> InsCounters {
+        self.counters
+    }
+
+    /// Id of the last correction applied.
+    #[must_use]
+    pub fn correction_id(&self) -> u64 {
+        self.correction_id
+    }
+
+    /// Whether alignment is done and the INS integrates.
+    #[must_use]
+    pub fn is_aligned(&self) -> bool {
+        self.ins.is_some()
+    }
+
+    /// The latest navigation state, if aligned.
+    #[must_use]
+    pub fn latest(&self) -> Option<&NavState> {
+        self.ring.back().map(|e| &e.nav)
+    }
+
+    /// Re-initialise from a fused state (a restarted INS): position,
+    /// velocity and attitude are taken from `fused`, the next IMU sample
+    /// starts integration.
+    pub fn reinit_from(&mut self, pos_m: [f64; 3], vel_mps: [f64; 3], quat: [f64; 4], correction_id: u64) {
+        let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            quat[0], quat[1], quat[2], quat[3],
+        ));
+        let st = InsState {
+            pos_m: Vector3::from(pos_m),
+            vel_mps: Vector3::from(vel_mps),
+            att: q,
+            ..InsState::default()
+        };
+        if let Ok(ins) = Ins::new(self.cfg.ins.clone(), st) {
+            self.ins = Some(ins);
+            self.ring.clear();
+            self.correction_id = self.correction_id.max(correction_id);
+            self.reinit_flag = true;
+        }
+    }
+
+    /// Integrates one IMU sample. Returns the navigation state to publish,
+    /// or `None` while aligning or when the sample was dropped (counted).
+    pub fn on_imu(&mut self, s: &ImuSample) -> Option<NavState> {
+        if s.header.layout_version != LAYOUT_VERSION {
+            self.counters.dropped_version += 1;
+            return None;
+        }
+        let finite = s.accel_mps2.iter().chain(&s.gyro_rps).all(|v| v.is_finite());
+        let in_range = s.accel_mps2.iter().all(|v| v.abs() < MAX_ACCEL_MPS2)
+            && s.gyro_rps.iter().all(|v| v.abs() < MAX_RATE_RPS);
+        if !finite || !in_range {
+            self.counters.dropped_invalid += 1;
+            return None;
+        }
+        let t = s.header.meas_time_ns;
+        if self.imu_generation != Some(s.header.generation) {
+            if self.imu_generation.is_some() {
+                self.counters.imu_restarts += 1;
+                // A restarted driver restarts its sequence numbers: the ring
+                // refers to the old generation, corrections for it are moot.
+                self.ring.clear();
+            }
+            self.imu_generation = Some(s.header.generation);
+        } else if let Some(last) = self.last_imu_t {
+            if t <= last {
+                self.counters.dropped_time += 1;
+                return None;
+            }
+        }
+        self.last_imu_t = Some(t);
+        if self.ins.is_none() && !self.align_step(s) {
+            return None;
+        }
+        let ins = self.ins.as_mut()?;
+        let out = match ins.step(t, s.accel_mps2, s.gyro_rps) {
+            Ok(o) => o,
+            Err(_) => {
+                self.counters.dropped_time += 1;
+                return None;
+            }
+        };
+        if self.cfg.planar {
+            Self::constrain_planar(ins, self.cfg.init.pos_m[2]);
+        }
+        self.counters.integrated += 1;
+        let nav = self.make_nav(s, &out);
+        let ins_after = self.ins.clone()?;
+        if self.ring.len() == self.cfg.history_len {
+            self.ring.pop_front();
+        }
+        self.ring.push_back(RingEntry {
+            imu: *s,
+            ins_after,
+            nav,
+        });
+        Some(nav)
+    }
+
+    fn constrain_planar(ins: &mut Ins, height: f64) {
+        let mut st = *ins.state();
+        st.vel_mps.z = 0.0;
+        st.pos_m.z = height;
+        let _ = ins.reset(st);
+    }
+
+    fn make_nav(&mut self, s: &ImuSample, out: &NavOutput) -> NavState {
+        let mut flags = NavState::FLAG_ALIGNED;
+        if self.reinit_flag {
+            flags |= NavState::FLAG_REINIT;
+        }
+        let nav_seq = self.out_seq;
+        self.out_seq += 1;
+        NavState {
+            header: Header {
+                layout_version: LAYOUT_VERSION,
+                flags,
+                seq: nav_seq,
+                meas_time_ns: s.header.meas_time_ns,
+                ..Header::default()
+            },
+            correction_id: self.correction_id,
+            imu_seq: s.header.seq,
+            imu_generation: s.header.generation,
+            reserved: 0,
+            pos_m: out.pos_m,
+            vel_mps: out.vel_mps,
+            quat: out.quat,
+            accel_nav_mps2: out.accel_nav_mps2,
+            omega_nav_rps: out.omega_nav_rps,
+            accel_bias_mps2: out.accel_bias_mps2,
+            gyro_bias_rps: out.gyro_bias_rps,
+        }
+    }
+
+    /// Accumulates the alignment window; returns true once the INS exists
+    /// (this sample then starts integration).
+    fn align_step(&mut self, s: &ImuSample) -> bool {
+        let init = &self.cfg.init;
+        let t = s.header.meas_time_ns;
+        let a = &mut self.align;
+        let t0 = *a.t0.get_or_insert(t);
+        let norm = s.accel_mps2.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if init.align_window_s > 0.0 {
+            let moving = a.n > 10 && (norm - a.norm_mean).abs() > init.motion_threshold_mps2;
+            let elapsed_s = (t - t0) as f64 * 1e-9;
+            let done = a.n > 0 && (elapsed_s >= init.align_window_s || moving);
+            if !done {
+                a.n += 1;
+                for i in 0..3 {
+                    a.acc_sum[i] += s.accel_mps2[i];
+                    a.gyro_sum[i] += s.gyro_rps[i];
+                }
+                a.norm_mean += (norm - a.norm_mean) / a.n as f64;
+                return false;
+            }
+        } else if a.n == 0 {
+            a.n = 1;
+            a.acc_sum = s.accel_mps2;
+            a.gyro_sum = s.gyro_rps;
+        }
+        let n = a.n.max(1) as f64;
+        let mean_acc = [a.acc_sum[0] / n, a.acc_sum[1] / n, a.acc_sum[2] / n];
+        let mean_gyro = [a.gyro_sum[0] / n, a.gyro_sum[1] / n, a.gyro_sum[2] / n];
+        let att = match init.attitude {
+            AttitudeInit::Level => UnitQuaternion::from_euler_angles(0.0, 0.0, init.yaw_rad),
+            AttitudeInit::Accel => level_from_accel(mean_acc, init.yaw_rad)
+                .unwrap_or_else(|_| UnitQuaternion::from_euler_angles(0.0, 0.0, init.yaw_rad)),
+        };
+        let gyro_bias = if init.gyro_bias_from_static {
+            Vector3::from(mean_gyro)
+        } else {
+            Vector3::zeros()
+        };
+        let st = InsState {
+            pos_m: Vector3::from(init.pos_m),
+            vel_mps: Vector3::from(init.vel_mps),
+            att,
+            gyro_bias_rps: gyro_bias,
+            accel_bias_mps2: Vector3::zeros(),
+            t_ns: t,
+        };
+        match Ins::new(self.cfg.ins.clone(), st) {
+            Ok(ins) => {
+                self.ins = Some(ins);
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
+    /// Applies a correction. Returns the navigation states re-propagated
+    /// after the sample it names (to be published; empty when the
+    /// correction applies to the latest sample), or nothing for a duplicate.
+    pub fn on_correction(&mut self, c: &InsCorrection, out: &mut Vec<NavState>) {
+        out.clear();
+        if c.header.layout_version != LAYOUT_VERSION {
+            self.counters.dropped_version += 1;
+            return;
+        }
+        if c.correction_id <= self.correction_id {
+            self.counters.corrections_duplicate += 1;
+            return;
+        }
+        let Some(ins) = self.ins.as_mut() else {
+            return;
+        };
+        let pos = self.ring.iter().position(|e| {
+            e.imu.header.seq == c.apply_at_seq && e.imu.header.generation == c.imu_generation
+        });
+        let Some(pos) = pos else {
+            // Older than the history (or of a previous IMU generation): apply now.
+            self.counters.corrections_too_old += 1;
+            let _ = Self::apply(ins, c);
+            self.correction_id = c.correction_id;
+            return;
+        };
+        self.correction_id = c.correction_id;
+        self.counters.corrections += 1;
+        let mut ins_k = self.ring[pos].ins_after.clone();
+        if Self::apply(&mut ins_k, c).is_err() {
+            self.counters.dropped_invalid += 1;
+            return;
+        }
+        if self.cfg.planar {
+            Self::constrain_planar(&mut ins_k, self.cfg.init.pos_m[2]);
+        }
+        self.ring[pos].ins_after = ins_k.clone();
+        self.ring[pos].nav.correction_id = c.correction_id;
+        for i in pos + 1..self.ring.len() {
+            let imu = self.ring[i].imu;
+            if let Ok(o) = ins_k.step(imu.header.meas_time_ns, imu.accel_mps2, imu.gyro_rps) {
+                if self.cfg.planar {
+                    Self::constrain_planar(&mut ins_k, self.cfg.init.pos_m[2]);
+                }
+                let nav = self.make_nav(&imu, &o);
+                self.ring[i].nav = nav;
+                self.ring[i].ins_after = ins_k.clone();
+                out.push(nav);
+                self.counters.repropagated += 1;
+            }
+        }
+        self.ins = Some(ins_k);
+    }
+
+    fn apply(ins: &mut Ins, c: &InsCorrection) -> Result<(), ()> {
+        if c.header.flags & InsCorrection::FLAG_RESET != 0 {
+            let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                c.reset_quat[0],
+                c.reset_quat[1],
+                c.reset_quat[2],
+                c.reset_quat[3],
+            ));
+            let st = InsState {
+                pos_m: Vector3::from(c.reset_pos_m),
+                vel_mps: Vector3::from(c.reset_vel_mps),
+                att: q,
+                ..*ins.state()
+            };
+            return ins.reset(st).map_err(|_| ());
+        }
+        ins.apply_correction(
+            c.d_pos_m,
+            c.d_vel_mps,
+            c.d_att_rad,
+            c.d_accel_bias_mps2,
+            c.d_gyro_bias_rps,
+        )
+        .map_err(|_| ())
+    }
+}

@@ -1,0 +1,225 @@
+//! In-process, lockstep runs of the whole chain on recorded samples: the
+//! fix builder of the UWB driver, the INS engine of the INS stage and the
+//! fusion engine of the fusion stage, wired exactly as the processes are, so
+//! `insuwb eval` and a replay through the pipeline give the same result.
+
+use insuwb_msg::{
+    FilterDiag, FilterKind, FusedState, ImuSample, InsCorrection, NavState, UwbFix, UwbTdoa,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::engine::{FusionCounters, FusionEngine, FusionEngineConfig, Measurement, Outputs};
+use crate::estimator::{Estimator, LooseConfig, PaperEstimator};
+use crate::ins_engine::{InsCounters, InsEngine, InsEngineConfig, InsEngineError};
+
+/// Everything a run needs: the INS, the fix builder, the engine and every filter's settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionConfig {
+    /// INS engine (mechanisation, initial state, alignment).
+    pub ins: InsEngineConfig,
+    /// UWB fix builder (the UWB driver's multilateration).
+    pub fix: insuwb_uwb::fix::FixConfig,
+    /// Fusion engine.
+    pub engine: FusionEngineConfig,
+    /// The paper's error model (shared by KF, SHAF, STF, IAKF).
+    pub model: insuwb_filter::ModelConfig,
+    /// Adaptive parameters (b, kappa, gamma, fading cap, R clamps, rho, beta).
+    pub filter: insuwb_filter::FilterParams,
+    /// `P_0` and `R_0` shared by the paper's filters.
+    pub setup: insuwb_filter::FilterSetup,
+    /// Loose-coupling options.
+    pub loose: LooseConfig,
+}
+
+/// Why a run could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The INS engine config was refused.
+    #[error(transparent)]
+    Ins(#[from] InsEngineError),
+    /// The fix builder config was refused.
+    #[error("fix: {0}")]
+    Fix(#[from] insuwb_uwb::fix::FixConfigError),
+    /// The error model config was refused.
+    #[error("model: {0}")]
+    Model(#[from] insuwb_filter::ModelConfigError),
+    /// A filter could not be built.
+    #[error("filter: {0}")]
+    Filter(#[from] insuwb_filter::BuildError),
+}
+
+/// Builds the estimator for `kind` from `cfg`.
+///
+/// # Errors
+/// A model or filter config that does not validate.
+pub fn build_estimator(kind: FilterKind, cfg: &FusionConfig) -> Result<Box<dyn Estimator>, RunError> {
+    let model = insuwb_filter::PaperModel::new(cfg.model.clone())?;
+    let f = insuwb_filter::build(kind, model, &cfg.filter, &cfg.setup)?;
+    Ok(Box::new(PaperEstimator::new(
+        f,
+        cfg.loose.clone(),
+        cfg.setup.p0(),
+    )))
+}
+
+/// What a run produced.
+#[derive(Debug, Clone, Default)]
+pub struct RunOutput {
+    /// Fused states, one per update (and per reset).
+    pub fused: Vec<FusedState>,
+    /// Diagnostics, one per update.
+    pub diag: Vec<FilterDiag>,
+    /// Corrections sent to the INS.
+    pub corrections: Vec<InsCorrection>,
+    /// UWB fixes built.
+    pub fixes: Vec<UwbFix>,
+    /// INS counters.
+    pub ins: InsCounters,
+    /// Fusion counters.
+    pub fusion: FusionCounters,
+}
+
+/// One input sample, in time order.
+#[derive(Debug, Clone, Copy)]
+enum Input<'a> {
+    Imu(&'a ImuSample),
+    Tdoa(&'a UwbTdoa),
+}
+
+/// Merges two time-sorted streams; at equal times the IMU sample comes first.
+fn merged<'a>(imu: &'a [ImuSample], tdoa: &'a [UwbTdoa]) -> impl Iterator<Item = Input<'a>> {
+    let (mut i, mut j) = (0usize, 0usize);
+    std::iter::from_fn(move || match (imu.get(i), tdoa.get(j)) {
+        (Some(a), Some(b)) if a.header.meas_time_ns <= b.header.meas_time_ns => {
+            i += 1;
+            Some(Input::Imu(a))
+        }
+        (_, Some(b)) => {
+            j += 1;
+            Some(Input::Tdoa(b))
+        }
+        (Some(a), None) => {
+            i += 1;
+            Some(Input::Imu(a))
+        }
+        (None, None) => None,
+    })
+}
+
+/// Runs the closed loop with the filter `kind` over time-sorted IMU and TDOA samples.
+///
+/// # Errors
+/// A configuration that does not validate.
+pub fn run(
+    imu: &[ImuSample],
+    tdoa: &[UwbTdoa],
+    cfg: &FusionConfig,
+    kind: FilterKind,
+) -> Result<RunOutput, RunError> {
+    let est = build_estimator(kind, cfg)?;
+    run_with(imu, tdoa, cfg, est)
+}
+
+/// Runs the closed loop with a given estimator.
+///
+/// # Errors
+/// A configuration that does not validate.
+pub fn run_with(
+    imu: &[ImuSample],
+    tdoa: &[UwbTdoa],
+    cfg: &FusionConfig,
+    est: Box<dyn Estimator>,
+) -> Result<RunOutput, RunError> {
+    let tight = est.is_tight();
+    let mut ins = InsEngine::new(cfg.ins.clone())?;
+    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?;
+    let mut fusion = FusionEngine::new(cfg.engine.clone(), est);
+    let mut out = RunOutput::default();
+    let mut o = Outputs::default();
+    let mut renav: Vec<NavState> = Vec::new();
+    for input in merged(imu, tdoa) {
+        match input {
+            Input::Imu(s) => {
+                if let Some(n) = ins.on_imu(s) {
+                    fusion.on_nav(&n, &mut o);
+                }
+            }
+            Input::Tdoa(m) => {
+                // The UWB driver publishes the fixes an incoming measurement
+                // completes before the measurement itself.
+                if let Ok(fixes) = fixb.push(m) {
+                    for f in fixes.iter() {
+                        out.fixes.push(*f);
+                        fusion.on_measurement(Measurement::Fix(*f), &mut o);
+                        settle(&mut ins, &mut fusion, &mut o, &mut renav, &mut out);
+                    }
+                }
+                if tight {
+                    fusion.on_measurement(Measurement::Tdoa(*m), &mut o);
+                }
+            }
+        }
+        settle(&mut ins, &mut fusion, &mut o, &mut renav, &mut out);
+    }
+    if let Some(f) = fixb.flush() {
+        out.fixes.push(f);
+        fusion.on_measurement(Measurement::Fix(f), &mut o);
+        settle(&mut ins, &mut fusion, &mut o, &mut renav, &mut out);
+    }
+    out.ins = ins.counters();
+    out.fusion = fusion.counters();
+    Ok(out)
+}
+
+/// Delivers corrections to the INS and the re-propagated states back to
+/// fusion until nothing is left in flight.
+fn settle(
+    ins: &mut InsEngine,
+    fusion: &mut FusionEngine,
+    o: &mut Outputs,
+    renav: &mut Vec<NavState>,
+    out: &mut RunOutput,
+) {
+    loop {
+        out.fused.extend_from_slice(&o.fused);
+        out.diag.extend_from_slice(&o.diag);
+        let corrections: Vec<InsCorrection> = std::mem::take(&mut o.corrections);
+        o.clear();
+        if corrections.is_empty() {
+            return;
+        }
+        for c in &corrections {
+            out.corrections.push(*c);
+            ins.on_correction(c, renav);
+            for n in renav.iter() {
+                fusion.on_nav(n, o);
+            }
+        }
+    }
+}
+
+/// INS-only: integrates the IMU from the configured initial state with no correction.
+///
+/// # Errors
+/// An INS configuration that does not validate.
+pub fn run_ins_only(imu: &[ImuSample], cfg: &FusionConfig) -> Result<Vec<NavState>, RunError> {
+    let mut ins = InsEngine::new(cfg.ins.clone())?;
+    Ok(imu.iter().filter_map(|s| ins.on_imu(s)).collect())
+}
+
+/// The UWB fixes alone (UWB-only solution).
+///
+/// # Errors
+/// A fix-builder configuration that does not validate.
+pub fn run_fixes(tdoa: &[UwbTdoa], cfg: &FusionConfig) -> Result<Vec<UwbFix>, RunError> {
+    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?;
+    let mut out = Vec::new();
+    for m in tdoa {
+        if let Ok(f) = fixb.push(m) {
+            out.extend(f.iter().copied());
+        }
+    }
+    out.extend(fixb.flush());
+    Ok(out)
+}
