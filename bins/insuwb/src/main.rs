@@ -1,2 +1,71 @@
-//! The `insuwb` command line.
-fn main() {}
+//! The `insuwb` command line: evaluation, simulation, AR fitting, import of
+//! real flights, log tools, and the process group (launch, demo, inspect).
+//!
+//! Logs go to standard error (`RUST_LOG` sets the level); with `--json` a
+//! command prints exactly one JSON object on standard output.
+
+mod dataset;
+mod eval_cmd;
+mod log_cmd;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// INS/UWB positioning with the paper's improved adaptive Kalman filter, as a
+/// zero-copy multi-process pipeline.
+#[derive(Debug, Parser)]
+#[command(name = "insuwb", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Debug, Subcommand)]
+enum Cmd {
+    /// Run UWB-only, INS-only and the filters on a log or a simulated scenario, and print Table 1.
+    Eval(eval_cmd::EvalArgs),
+    /// Simulate a scenario into a log.
+    Sim(eval_cmd::SimArgs),
+    /// Fit the AR(3) sensor error models on a static segment and print a config snippet.
+    FitAr(eval_cmd::FitArArgs),
+    /// Convert another format into an insuwb log.
+    #[command(subcommand)]
+    Import(ImportCmd),
+    /// Inspect logs.
+    #[command(subcommand)]
+    Log(log_cmd::LogCmd),
+}
+
+#[derive(Debug, Subcommand)]
+enum ImportCmd {
+    /// A UTIL dataset Crazyflie micro-SD log.
+    Util(eval_cmd::ImportUtilArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .init();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.cmd {
+        Cmd::Eval(a) => eval_cmd::eval(&a),
+        Cmd::Sim(a) => eval_cmd::sim(&a),
+        Cmd::FitAr(a) => eval_cmd::fit_ar(&a),
+        Cmd::Import(ImportCmd::Util(a)) => eval_cmd::import_util(&a),
+        Cmd::Log(c) => log_cmd::run(&c),
+    }
+}

@@ -3,6 +3,8 @@
 //! tables and draws figures.
 #![warn(missing_docs)]
 
+pub mod consistency;
 pub mod metrics;
+pub mod plot;
 pub mod run;
 pub mod scenario;

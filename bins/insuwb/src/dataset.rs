@@ -1,0 +1,232 @@
+//! Loading a dataset from a file: a project log or a UTIL Crazyflie log
+//! (detected from the content), with the fusion settings that go with it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use insuwb_eval::run::Dataset;
+use insuwb_fusion::offline::FusionConfig;
+use insuwb_log::Record;
+use serde::{Deserialize, Serialize};
+
+/// Metadata key under which a log carries the fusion settings it was made with.
+pub const META_FUSION_CONFIG: &str = "fusion_config";
+
+/// Options of an evaluation, from a config file's `[eval]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalOptions {
+    /// Evaluate from the first to the last instant the ground-truth height
+    /// exceeds this (m); 0 evaluates everything (real flights: 0.3 m, the
+    /// UTIL README's flight segment).
+    pub min_height_m: f64,
+    /// Filters run when the command line names none (kf, shaf, stf, iakf, iakf_tdoa).
+    pub filters: Vec<String>,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self {
+            min_height_m: 0.0,
+            filters: ["kf", "shaf", "stf", "iakf"].map(String::from).to_vec(),
+        }
+    }
+}
+
+/// A config file for `eval`, `import` and the stages: `[fusion]`, `[import]`, `[eval]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct ConfigFile {
+    /// Fusion settings.
+    pub fusion: FusionConfig,
+    /// UTIL import options.
+    pub import: insuwb_data::util::ImportOptions,
+    /// Evaluation options.
+    pub eval: EvalOptions,
+}
+
+impl ConfigFile {
+    /// Loads a config file, or the built-in preset of that name.
+    pub fn load(name_or_path: &str) -> Result<Self> {
+        let p = Path::new(name_or_path);
+        if p.exists() || p.extension().is_some_and(|e| e == "toml") {
+            Ok(insuwb_config::load_file(p)?)
+        } else {
+            let b = insuwb_config::builtin("preset", name_or_path)?;
+            Ok(insuwb_config::load_str(b.text, b.origin)?)
+        }
+    }
+}
+
+/// What kind of file a path holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FileKind {
+    /// The project's log format.
+    ProjectLog,
+    /// A Crazyflie micro-SD event log (UTIL dataset).
+    CfLog,
+}
+
+/// Reads at most `limit` bytes of `path`, with an error naming the file.
+fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let f = std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
+    let mut buf = Vec::new();
+    f.take(limit)
+        .read_to_end(&mut buf)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    Ok(buf)
+}
+
+/// Detects the kind of `path` from its first bytes.
+pub fn detect(path: &Path) -> Result<FileKind> {
+    let head = read_limited(path, 4096)?;
+    if head.is_empty() {
+        bail!("{}: the file is empty", path.display());
+    }
+    if insuwb_log::is_log(&head) {
+        return Ok(FileKind::ProjectLog);
+    }
+    if insuwb_data::cflog::is_cflog(&head) {
+        return Ok(FileKind::CfLog);
+    }
+    bail!(
+        "{}: not an insuwb log nor a Crazyflie event log (first bytes: {:02x?})",
+        path.display(),
+        &head[..head.len().min(8)]
+    )
+}
+
+/// A dataset with the config it should be evaluated with.
+#[derive(Debug)]
+pub struct Loaded {
+    /// The data.
+    pub data: Dataset,
+    /// The settings (from `--config`, the log's metadata, or the preset of its format).
+    pub config: ConfigFile,
+    /// Where the config came from, for messages.
+    pub config_origin: String,
+}
+
+/// Loads a project log or a UTIL log.
+pub fn load(
+    path: &Path,
+    anchors: Option<&PathBuf>,
+    config: Option<&str>,
+    ignore_crc: bool,
+) -> Result<Loaded> {
+    match detect(path)? {
+        FileKind::ProjectLog => load_project_log(path, config),
+        FileKind::CfLog => load_util(path, anchors, config, ignore_crc),
+    }
+}
+
+fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
+    let (records, tail, header) = insuwb_log::read_all(path)
+        .with_context(|| format!("{}: cannot read the log", path.display()))?;
+    if let Some(t) = tail {
+        tracing::warn!("{}: {t}; using the {} records before it", path.display(), records.len());
+    }
+    let mut data = Dataset {
+        name: path.display().to_string(),
+        ..Dataset::default()
+    };
+    for r in records {
+        match r {
+            Record::Imu(s) => data.imu.push(s),
+            Record::Tdoa(s) => data.tdoa.push(s),
+            Record::Truth(s) => data.truth.push(s),
+            _ => {}
+        }
+    }
+    if data.imu.is_empty() || data.tdoa.is_empty() {
+        bail!(
+            "{}: the log holds {} IMU and {} TDOA records: nothing to evaluate",
+            path.display(),
+            data.imu.len(),
+            data.tdoa.len()
+        );
+    }
+    sort_streams(&mut data);
+    let (config, origin) = match config {
+        Some(c) => (ConfigFile::load(c)?, c.to_owned()),
+        None => match header.meta.entries.get(META_FUSION_CONFIG) {
+            Some(text) => (
+                insuwb_config::load_str::<ConfigFile>(text, &format!("{} (metadata)", path.display()))?,
+                format!("{} (metadata)", path.display()),
+            ),
+            None => (ConfigFile::default(), "built-in defaults".to_owned()),
+        },
+    };
+    if config.eval.min_height_m > 0.0 {
+        data.segment = insuwb_data::segment::flight_segment(&data.truth, config.eval.min_height_m);
+    }
+    Ok(Loaded {
+        data,
+        config,
+        config_origin: origin,
+    })
+}
+
+fn sort_streams(d: &mut Dataset) {
+    d.imu.sort_by_key(|s| s.header.meas_time_ns);
+    d.tdoa.sort_by_key(|s| s.header.meas_time_ns);
+    d.truth.sort_by_key(|s| s.header.meas_time_ns);
+}
+
+fn load_util(
+    path: &Path,
+    anchors: Option<&PathBuf>,
+    config: Option<&str>,
+    ignore_crc: bool,
+) -> Result<Loaded> {
+    let anchors = anchors.with_context(|| {
+        format!(
+            "{}: a Crazyflie log needs --anchors FILE (the anchor survey, anN_p,x,y,z rows)",
+            path.display()
+        )
+    })?;
+    let (config, origin) = match config {
+        Some(c) => (ConfigFile::load(c)?, c.to_owned()),
+        None => (ConfigFile::load("util")?, "built-in preset util".to_owned()),
+    };
+    if ignore_crc {
+        tracing::warn!("{}: --ignore-crc: reading it even if its CRC does not match", path.display());
+    }
+    let flight = insuwb_data::util::load_util_flight(
+        path,
+        anchors,
+        &insuwb_data::cflog::ParseOptions { ignore_crc },
+        &config.import,
+    )?;
+    let s = &flight.stats;
+    tracing::info!(
+        "{}: {} IMU, {} TDOA, {} truth samples; skipped: {} unknown-anchor TDOA, {} backwards, {} non-finite",
+        path.display(),
+        flight.imu.len(),
+        flight.tdoa.len(),
+        flight.truth.len(),
+        s.unknown_anchor,
+        s.time_backwards,
+        s.non_finite
+    );
+    let min_h = if config.eval.min_height_m > 0.0 {
+        config.eval.min_height_m
+    } else {
+        insuwb_data::segment::DEFAULT_MIN_HEIGHT_M
+    };
+    let segment = insuwb_data::segment::flight_segment(&flight.truth, min_h);
+    let mut data = Dataset {
+        name: path.display().to_string(),
+        imu: flight.imu,
+        tdoa: flight.tdoa,
+        truth: flight.truth,
+        segment,
+    };
+    sort_streams(&mut data);
+    Ok(Loaded {
+        data,
+        config,
+        config_origin: origin,
+    })
+}

@@ -1,0 +1,361 @@
+//! `insuwb eval`, `insuwb sim`, `insuwb fit-ar` and `insuwb import`.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use insuwb_eval::metrics::Metrics;
+use insuwb_eval::run::{evaluate, parse_filter};
+use insuwb_eval::scenario::{monte_carlo, ScenarioFile};
+use insuwb_log::{LogWriter, Metadata, Record};
+use insuwb_msg::FilterKind;
+
+use crate::dataset::{self, ConfigFile, META_FUSION_CONFIG};
+
+/// Filters run when `--filters` is not given.
+pub const DEFAULT_FILTERS: [FilterKind; 4] =
+    [FilterKind::Kf, FilterKind::Shaf, FilterKind::Stf, FilterKind::Iakf];
+
+/// Parses `--filters kf,iakf`.
+pub fn parse_filters(list: Option<&str>, default: &[FilterKind]) -> Result<Vec<FilterKind>> {
+    let Some(list) = list else {
+        return Ok(default.to_vec());
+    };
+    list.split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            parse_filter(s).with_context(|| {
+                format!("--filters: unknown filter '{s}' (known: kf, shaf, stf, iakf, iakf_tdoa)")
+            })
+        })
+        .collect()
+}
+
+/// Arguments of `insuwb eval`.
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// A log to evaluate: an insuwb log or a UTIL Crazyflie log (detected from its content).
+    pub file: Option<PathBuf>,
+    /// Simulate a scenario instead: a built-in name (paper-3.4, paper-4.3-static,
+    /// paper-4.4-dynamic, nlos-long) or a TOML file.
+    #[arg(long, conflicts_with = "file")]
+    pub scenario: Option<String>,
+    /// Monte-Carlo runs of the scenario (seeds seed, seed+1, ...); metrics are averaged.
+    #[arg(long, default_value_t = 1)]
+    pub runs: u32,
+    /// First seed (default: the scenario's own).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Filters to run, comma-separated (kf, shaf, stf, iakf, iakf_tdoa); default all.
+    #[arg(long)]
+    pub filters: Option<String>,
+    /// Anchor survey for a Crazyflie log (anN_p,x,y,z rows).
+    #[arg(long)]
+    pub anchors: Option<PathBuf>,
+    /// Config file ([fusion], [import], [eval]) or built-in preset name; overrides the default.
+    #[arg(long)]
+    pub config: Option<String>,
+    /// Read a Crazyflie log even if its CRC does not match.
+    #[arg(long)]
+    pub ignore_crc: bool,
+    /// Print one JSON object on standard output (tables go to standard error).
+    #[arg(long)]
+    pub json: bool,
+    /// Write SVG figures into this directory.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+}
+
+/// Runs `insuwb eval`.
+pub fn eval(a: &EvalArgs) -> Result<()> {
+    let (rows, title): (Vec<(String, Metrics)>, String) = if let Some(name) = &a.scenario {
+        let mut file = ScenarioFile::load(name)?;
+        if let Some(c) = &a.config {
+            file.fusion = ConfigFile::load(c)?.fusion;
+        }
+        let filters = parse_filters(a.filters.as_deref(), &DEFAULT_FILTERS)?;
+        let seed = a.seed.unwrap_or(file.sim.seed);
+        if let Some(dir) = &a.plot {
+            let data = file.dataset(seed)?;
+            let cfg = file.fusion_for_seed(seed)?;
+            let rep = evaluate(&data, &cfg, &filters)?;
+            write_plots(&rep, &data.truth, dir)?;
+        }
+        let rows = monte_carlo(&file, &filters, a.runs, seed)?;
+        (
+            rows,
+            format!("scenario {} ({} run(s) from seed {seed})", file.sim.name, a.runs.max(1)),
+        )
+    } else if let Some(path) = &a.file {
+        let loaded = dataset::load(path, a.anchors.as_ref(), a.config.as_deref(), a.ignore_crc)?;
+        tracing::info!("config: {}", loaded.config_origin);
+        let default = parse_filters(Some(&loaded.config.eval.filters.join(",")), &DEFAULT_FILTERS)
+            .context("[eval] filters")?;
+        let filters = parse_filters(a.filters.as_deref(), &default)?;
+        let t0 = std::time::Instant::now();
+        let rep = evaluate(&loaded.data, &loaded.config.fusion, &filters)?;
+        let elapsed = t0.elapsed();
+        let dur_s = loaded
+            .data
+            .imu
+            .last()
+            .map_or(0.0, |s| s.header.meas_time_ns as f64 * 1e-9);
+        tracing::info!(
+            "evaluated {} solutions on {:.1} s of data in {:.3} s ({:.4} of real time)",
+            rep.solutions.len(),
+            dur_s,
+            elapsed.as_secs_f64(),
+            elapsed.as_secs_f64() / dur_s.max(1e-9)
+        );
+        if let Some(dir) = &a.plot {
+            write_plots(&rep, &loaded.data.truth, dir)?;
+        }
+        let rows = rep
+            .solutions
+            .into_iter()
+            .map(|s| (s.key, s.metrics))
+            .collect();
+        (rows, format!("{}", path.display()))
+    } else {
+        bail!("give a FILE or --scenario NAME (see insuwb eval --help)");
+    };
+    let table = format_table(&title, &rows);
+    if a.json {
+        eprint!("{table}");
+        let v = insuwb_eval::run::to_json(&rows).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer(&mut out, &v)?;
+        writeln!(out)?;
+    } else {
+        print!("{table}");
+    }
+    Ok(())
+}
+
+#[allow(clippy::unnecessary_wraps)]
+fn write_plots(
+    rep: &insuwb_eval::run::EvalReport,
+    truth: &[insuwb_msg::GroundTruth],
+    dir: &Path,
+) -> Result<()> {
+    let files = insuwb_eval::plot::write_figures(rep, truth, dir)?;
+    for f in files {
+        tracing::info!("wrote {}", f.display());
+    }
+    Ok(())
+}
+
+fn row_name(key: &str) -> String {
+    match key {
+        "ins" => "INS-only".into(),
+        "uwb" => "UWB".into(),
+        k => k.to_uppercase(),
+    }
+}
+
+/// The table of Table 1's shape, plus horizontal RMS, max distance, NEES and NIS.
+#[must_use]
+pub fn format_table(title: &str, rows: &[(String, Metrics)]) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(s, "{title}");
+    let _ = writeln!(
+        s,
+        "{:<10} {:>8} {:>8} {:>8}  {:>19}  {:>19} {:>8} {:>8} {:>7} {:>7}",
+        "", "RMSE E", "RMSE N", "Mean", "range E (m)", "range N (m)", "RMS hor", "max", "NEES", "NIS"
+    );
+    for (k, m) in rows {
+        let opt = |v: Option<f64>| v.map_or("-".to_owned(), |x| format!("{x:.2}"));
+        let _ = writeln!(
+            s,
+            "{:<10} {:>8.4} {:>8.4} {:>8.4}  {:>8.4} ~ {:>8.4}  {:>8.4} ~ {:>8.4} {:>8.4} {:>8.4} {:>7} {:>7}",
+            row_name(k),
+            m.rmse_east,
+            m.rmse_north,
+            m.rmse_mean,
+            m.range_east[0],
+            m.range_east[1],
+            m.range_north[0],
+            m.range_north[1],
+            m.rmse_horizontal,
+            m.max_dist,
+            opt(m.nees_mean),
+            opt(m.nis_mean)
+        );
+    }
+    s
+}
+
+/// Arguments of `insuwb sim`.
+#[derive(Debug, clap::Args)]
+pub struct SimArgs {
+    /// Built-in scenario name or TOML file.
+    #[arg(long)]
+    pub scenario: String,
+    /// Seed (default: the scenario's own).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Output log file (must not exist).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs `insuwb sim`: writes IMU, TDOA and ground truth into a project log,
+/// with the fusion settings (INS start for this seed included) in its metadata.
+pub fn sim(a: &SimArgs) -> Result<()> {
+    let file = ScenarioFile::load(&a.scenario)?;
+    let seed = a.seed.unwrap_or(file.sim.seed);
+    let out = insuwb_sim::simulate(&file.sim, seed)?;
+    let cfg = ConfigFile {
+        fusion: file.fusion_for_seed(seed)?,
+        ..ConfigFile::default()
+    };
+    let cfg_text = toml::to_string(&cfg).context("serialising the fusion config")?;
+    let meta = Metadata::new(format!("insuwb sim {} seed={seed}", file.sim.name))
+        .with("scenario", file.sim.name.clone())
+        .with("seed", seed.to_string())
+        .with(META_FUSION_CONFIG, cfg_text);
+    let mut w = LogWriter::create(&a.out, &meta, 0)
+        .with_context(|| format!("{}: cannot create the log", a.out.display()))?;
+    let mut n = 0u64;
+    for r in out.merged() {
+        let rec = match r {
+            insuwb_sim::SimRecord::Imu(s) => Record::Imu(s),
+            insuwb_sim::SimRecord::Tdoa(s) => Record::Tdoa(s),
+            insuwb_sim::SimRecord::Truth(s) => Record::Truth(s),
+        };
+        w.append(&rec)?;
+        n += 1;
+    }
+    w.finish()?;
+    eprintln!("wrote {n} records to {}", a.out.display());
+    Ok(())
+}
+
+/// Arguments of `insuwb fit-ar`.
+#[derive(Debug, clap::Args)]
+pub struct FitArArgs {
+    /// A log (insuwb or Crazyflie) holding a static segment.
+    pub file: PathBuf,
+    /// Start of the static segment, s from the log's start (default: detected).
+    #[arg(long)]
+    pub from: Option<f64>,
+    /// End of the static segment, s (default: detected).
+    #[arg(long)]
+    pub to: Option<f64>,
+    /// Anchor survey (needed to read a Crazyflie log).
+    #[arg(long)]
+    pub anchors: Option<PathBuf>,
+}
+
+/// Runs `insuwb fit-ar`: AR(3) of the east and north accelerometer and the
+/// vertical gyro channels over a static segment, as a TOML snippet.
+pub fn fit_ar(a: &FitArArgs) -> Result<()> {
+    let loaded = dataset::load(&a.file, a.anchors.as_ref(), None, false)?;
+    let imu = &loaded.data.imu;
+    let (from_ns, to_ns) = match (a.from, a.to) {
+        (Some(f), Some(t)) if t > f && f >= 0.0 => ((f * 1e9) as u64, (t * 1e9) as u64),
+        (None, None) => {
+            let mut det = insuwb_nav::align::StaticDetector::new(
+                insuwb_nav::align::StaticDetectorConfig::default(),
+            )?;
+            let mut seg = None;
+            for s in imu {
+                if let Some(sg) = det.push(s.header.meas_time_ns, s.accel_mps2, s.gyro_rps)? {
+                    seg = Some(sg);
+                    break;
+                }
+            }
+            let seg = seg.or_else(|| det.finish()).context(
+                "no static segment found at the start of the log: give --from and --to",
+            )?;
+            (seg.start_ns, seg.end_ns)
+        }
+        _ => bail!("give both --from and --to (seconds, from < to), or neither"),
+    };
+    let seg: Vec<_> = imu
+        .iter()
+        .filter(|s| (from_ns..=to_ns).contains(&s.header.meas_time_ns))
+        .collect();
+    if seg.len() < 100 {
+        bail!(
+            "the segment {:.3}-{:.3} s holds {} IMU samples: at least 100 are needed",
+            from_ns as f64 * 1e-9,
+            to_ns as f64 * 1e-9,
+            seg.len()
+        );
+    }
+    let rate_hz = (seg.len() - 1) as f64
+        / ((seg[seg.len() - 1].header.meas_time_ns - seg[0].header.meas_time_ns) as f64 * 1e-9);
+    // At rest the body axes are the sensor channels: x and y accelerometers
+    // stand for the east and north channels, z gyro for the heading rate.
+    let ax: Vec<f64> = seg.iter().map(|s| s.accel_mps2[0]).collect();
+    let ay: Vec<f64> = seg.iter().map(|s| s.accel_mps2[1]).collect();
+    let gz: Vec<f64> = seg.iter().map(|s| s.gyro_rps[2]).collect();
+    let fe = insuwb_nav::ar::fit_ar3(&ax)?;
+    let fnn = insuwb_nav::ar::fit_ar3(&ay)?;
+    let fw = insuwb_nav::ar::fit_ar3(&gz)?;
+    println!(
+        "# AR(3) fitted by Yule-Walker on {} static samples ({:.3}-{:.3} s) of {}\n\
+         # at {rate_hz:.1} Hz: paste into the [fusion.model] table of a config.",
+        seg.len(),
+        from_ns as f64 * 1e-9,
+        to_ns as f64 * 1e-9,
+        a.file.display()
+    );
+    println!("[fusion.model]\nar_rate_hz = {rate_hz:.3}");
+    for (name, f) in [("ar_accel_e", fe), ("ar_accel_n", fnn), ("ar_gyro", fw)] {
+        println!(
+            "{name} = {{ m = [{:.6e}, {:.6e}, {:.6e}], noise_var = {:.6e} }}  # mean {:.4e}",
+            f.m[0], f.m[1], f.m[2], f.noise_var, f.mean
+        );
+    }
+    Ok(())
+}
+
+/// Arguments of `insuwb import util`.
+#[derive(Debug, clap::Args)]
+pub struct ImportUtilArgs {
+    /// The Crazyflie log.
+    pub log: PathBuf,
+    /// Its anchor survey.
+    #[arg(long)]
+    pub anchors: PathBuf,
+    /// Output project log (must not exist).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Config file or preset whose [fusion] settings go into the log (default: util).
+    #[arg(long)]
+    pub config: Option<String>,
+    /// Read the log even if its CRC does not match.
+    #[arg(long)]
+    pub ignore_crc: bool,
+}
+
+/// Runs `insuwb import util`.
+pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
+    let loaded = dataset::load(&a.log, Some(&a.anchors), a.config.as_deref(), a.ignore_crc)?;
+    if dataset::detect(&a.log)? != dataset::FileKind::CfLog {
+        bail!("{}: not a Crazyflie event log", a.log.display());
+    }
+    let mut cfg = loaded.config.clone();
+    cfg.eval.min_height_m = insuwb_data::segment::DEFAULT_MIN_HEIGHT_M;
+    let meta = Metadata::new(format!("insuwb import util {}", a.log.display()))
+        .with(META_FUSION_CONFIG, toml::to_string(&cfg)?);
+    let mut w = LogWriter::create(&a.out, &meta, 0)
+        .with_context(|| format!("{}: cannot create the log", a.out.display()))?;
+    let d = &loaded.data;
+    // Merge by time: truth, IMU, TDOA at equal times.
+    let mut recs: Vec<(u64, u8, Record)> = Vec::with_capacity(d.imu.len() + d.tdoa.len() + d.truth.len());
+    recs.extend(d.truth.iter().map(|s| (s.header.meas_time_ns, 0, Record::Truth(*s))));
+    recs.extend(d.imu.iter().map(|s| (s.header.meas_time_ns, 1, Record::Imu(*s))));
+    recs.extend(d.tdoa.iter().map(|s| (s.header.meas_time_ns, 2, Record::Tdoa(*s))));
+    recs.sort_by_key(|r| (r.0, r.1));
+    for (_, _, r) in &recs {
+        w.append(r)?;
+    }
+    w.finish()?;
+    eprintln!("wrote {} records to {}", recs.len(), a.out.display());
+    Ok(())
+}

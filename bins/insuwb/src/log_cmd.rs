@@ -1,0 +1,135 @@
+//! `insuwb log info` and `insuwb log cat`.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use insuwb_log::{LogReader, Record};
+
+/// Log subcommands.
+#[derive(Debug, clap::Subcommand)]
+pub enum LogCmd {
+    /// Header, metadata, record counts per topic, time span and integrity of a log.
+    Info {
+        /// The log file (or a run directory of segments).
+        file: PathBuf,
+    },
+    /// Print the records of a log, one per line.
+    Cat {
+        /// The log file.
+        file: PathBuf,
+        /// Only this topic (imu, uwb_tdoa, uwb_fix, nav, correction, fused, diag, truth, health).
+        #[arg(long)]
+        topic: Option<String>,
+        /// CSV instead of debug text.
+        #[arg(long)]
+        csv: bool,
+    },
+}
+
+/// Runs a log subcommand.
+pub fn run(c: &LogCmd) -> Result<()> {
+    match c {
+        LogCmd::Info { file } => info(file),
+        LogCmd::Cat { file, topic, csv } => cat(file, topic.as_deref(), *csv),
+    }
+}
+
+fn files_of(path: &PathBuf) -> Result<Vec<PathBuf>> {
+    if path.is_dir() {
+        let segs = insuwb_log::list_segments(path)
+            .with_context(|| format!("{}: cannot list segments", path.display()))?;
+        if segs.is_empty() {
+            bail!("{}: no seg-*.iulog segment in this directory", path.display());
+        }
+        Ok(segs.into_iter().map(|s| s.path).collect())
+    } else {
+        Ok(vec![path.clone()])
+    }
+}
+
+fn info(path: &PathBuf) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    for f in files_of(path)? {
+        let mut r = LogReader::open(&f).with_context(|| format!("{}", f.display()))?;
+        let h = r.header().clone();
+        let mut counts = [0u64; Record::TOPICS.len()];
+        let mut span: Option<(u64, u64)> = None;
+        for rec in r.by_ref() {
+            let rec = rec.with_context(|| format!("{}", f.display()))?;
+            if let Some(i) = Record::TOPICS.iter().position(|t| *t == rec.topic()) {
+                counts[i] += 1;
+            }
+            let t = rec.header().meas_time_ns;
+            span = Some(span.map_or((t, t), |(a, b)| (a.min(t), b.max(t))));
+        }
+        writeln!(out, "{}", f.display())?;
+        writeln!(
+            out,
+            "  format {} layout {} created {} ns, source: {}",
+            h.format_version, h.layout_version, h.created_ns, h.meta.source
+        )?;
+        for (k, v) in &h.meta.entries {
+            let first = v.lines().next().unwrap_or("");
+            let more = if v.lines().count() > 1 { " ..." } else { "" };
+            writeln!(out, "  meta {k} = {first}{more}")?;
+        }
+        for (t, n) in Record::TOPICS.iter().zip(counts) {
+            if n > 0 {
+                writeln!(out, "  {t:<11} {n:>9} records")?;
+            }
+        }
+        if let Some((a, b)) = span {
+            writeln!(out, "  time {:.3} .. {:.3} s ({:.3} s)", a as f64 * 1e-9, b as f64 * 1e-9, (b - a) as f64 * 1e-9)?;
+        }
+        match r.tail() {
+            Some(t) => writeln!(out, "  DAMAGED: {t}")?,
+            None => writeln!(out, "  intact")?,
+        }
+    }
+    Ok(())
+}
+
+fn csv_line(rec: &Record) -> String {
+    let h = rec.header();
+    let head = format!("{},{},{},{},{}", rec.topic(), h.seq, h.generation, h.meas_time_ns, h.pub_time_ns);
+    let f = |v: &[f64]| v.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(",");
+    match rec {
+        Record::Imu(s) => format!("{head},{},{}", f(&s.accel_mps2), f(&s.gyro_rps)),
+        Record::Tdoa(s) => format!("{head},{},{},{}", s.anchor_a, s.anchor_b, s.diff_m),
+        Record::Fix(s) => format!("{head},{},{},{}", f(&s.pos_m), f(&s.vel_mps), s.gdop),
+        Record::Nav(s) => format!("{head},{},{},{},{}", s.correction_id, f(&s.pos_m), f(&s.vel_mps), f(&s.quat)),
+        Record::Correction(s) => format!("{head},{},{},{},{},{}", s.correction_id, s.apply_at_seq, f(&s.d_pos_m), f(&s.d_vel_mps), f(&s.d_att_rad)),
+        Record::Fused(s) => format!("{head},{},{},{},{}", f(&s.pos_m), f(&s.vel_mps), s.yaw_rad, s.header.flags),
+        Record::Diag(s) => format!("{head},{},{},{}", s.nis, s.fading, f(&s.lambda[..s.dim.min(8) as usize])),
+        Record::Truth(s) => format!("{head},{},{},{}", f(&s.pos_m), f(&s.vel_mps), f(&s.quat)),
+        Record::Health(s) => format!("{head},{},{},{},{}", insuwb_msg::name_str(&s.stage), s.pid, s.received, s.published),
+    }
+}
+
+fn cat(path: &PathBuf, topic: Option<&str>, csv: bool) -> Result<()> {
+    if let Some(t) = topic {
+        if !Record::TOPICS.contains(&t) {
+            bail!("--topic: unknown topic '{t}' (known: {})", Record::TOPICS.join(", "));
+        }
+    }
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    for f in files_of(path)? {
+        let mut r = LogReader::open(&f).with_context(|| format!("{}", f.display()))?;
+        for rec in r.by_ref() {
+            let rec = rec?;
+            if topic.is_some_and(|t| t != rec.topic()) {
+                continue;
+            }
+            if csv {
+                writeln!(out, "{}", csv_line(&rec))?;
+            } else {
+                writeln!(out, "{rec:?}")?;
+            }
+        }
+        if let Some(t) = r.tail() {
+            eprintln!("warning: {}: {t}", f.display());
+        }
+    }
+    Ok(())
+}
