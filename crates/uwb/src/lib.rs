@@ -1,2 +1,20 @@
-//! UWB geometry: TDOA multilateration (2D and 3D, Gauss-Newton seeded in closed form), DOP covariance and velocity from successive fixes.
+//! UWB geometry: TDOA multilateration (2D and 3D, Gauss-Newton seeded in
+//! closed form), DOP covariance, epoch grouping of a TDOA stream into fixes,
+//! and velocity from successive fixes.
+//!
+//! - [`solve`]: position from range differences (`diff = |p - b| - |p - a|`,
+//!   the convention of [`insuwb_msg::UwbTdoa`]).
+//! - [`fix`]: [`fix::FixBuilder`] turns [`insuwb_msg::UwbTdoa`] samples into
+//!   [`insuwb_msg::UwbFix`] samples, deterministically.
+//! - [`velocity`]: sliding-window regression velocity and its covariance.
+//!
+//! Pure library code: no I/O, no clock, no global state.
 #![warn(missing_docs)]
+
+pub mod fix;
+pub mod solve;
+pub mod velocity;
+
+pub use fix::{FixBuilder, FixConfig, FixMode, FixStats};
+pub use solve::{solve_2d, solve_3d, Fix, SolveError, SolverConfig, TdoaObs};
+pub use velocity::{VelocityConfig, VelocityEstimator};

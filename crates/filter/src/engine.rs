@@ -1,0 +1,351 @@
+//! Building blocks shared by the four filters: the state and covariance with
+//! their IMU-rate prediction, the innovation, the Joseph-form correction, the
+//! fading of the measured block, and the simplified Sage-Husa `R` estimator.
+
+use nalgebra::{Cholesky, SMatrix, SVector};
+
+use crate::filter::{PredictError, ResetError, UpdateError, UpdateReport};
+use crate::model::{Mat14, Mat4, PaperModel, Vec14, N_MEAS, N_STATES};
+use crate::params::{FilterParams, FilterSetup};
+use crate::sparse::predict_sparse;
+
+/// State, covariance and measurement noise of one filter.
+#[derive(Debug, Clone)]
+pub(crate) struct Core {
+    pub model: PaperModel,
+    /// State: posterior after an update, predicted in between.
+    pub x: Vec14,
+    /// Covariance: posterior after an update, predicted in between.
+    pub p: Mat14,
+    /// `Q` accumulated (and propagated) since the last update, so that
+    /// `p - q_acc = Phi P_{k-1} Phi^T` over the whole update interval.
+    pub q_acc: Mat14,
+    pub track_q_acc: bool,
+    /// Measurement noise in use (`R_{k-1}` until the next update).
+    pub r: Mat4,
+    pub r0: Mat4,
+    pub updates: u64,
+}
+
+/// What an update knows before any adaptation.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Prior<const M: usize> {
+    /// Innovation `v = z - H x-`.
+    pub v: SVector<f64, M>,
+    /// `S = H P- H^T + R_{k-1}`.
+    pub s: SMatrix<f64, M, M>,
+    /// `v^T S^-1 v`.
+    pub nis: f64,
+}
+
+/// Result of a correction, not yet committed.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Posterior<const M: usize> {
+    pub x: Vec14,
+    pub p: Mat14,
+    pub k: SMatrix<f64, N_STATES, M>,
+}
+
+fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
+    m.iter().all(|v| v.is_finite())
+}
+
+fn symmetrise(p: &mut Mat14) {
+    for i in 0..N_STATES {
+        for j in (i + 1)..N_STATES {
+            let v = 0.5 * (p[(i, j)] + p[(j, i)]);
+            p[(i, j)] = v;
+            p[(j, i)] = v;
+        }
+    }
+}
+
+/// `max(1, tr_n / tr_m)` capped at `cap` (eq. 29); 1 when `tr_m` is not positive.
+pub(crate) fn fading_factor(tr_n: f64, tr_m: f64, cap: f64) -> f64 {
+    if tr_m.is_nan() || tr_m <= 0.0 {
+        return 1.0;
+    }
+    let f = tr_n / tr_m;
+    if f.is_nan() || f <= 1.0 {
+        1.0
+    } else if f > cap {
+        cap
+    } else {
+        f
+    }
+}
+
+impl Core {
+    pub fn new(model: PaperModel, setup: &FilterSetup, track_q_acc: bool) -> Self {
+        Self {
+            model,
+            x: Vec14::zeros(),
+            p: setup.p0(),
+            q_acc: Mat14::zeros(),
+            track_q_acc,
+            r: setup.r0(),
+            r0: setup.r0(),
+            updates: 0,
+        }
+    }
+
+    pub fn predict(&mut self, dt_s: f64, a_e_mps2: f64, a_n_mps2: f64) -> Result<(), PredictError> {
+        if !(a_e_mps2.is_finite() && a_n_mps2.is_finite()) {
+            return Err(PredictError::NonFiniteAccel { a_e_mps2, a_n_mps2 });
+        }
+        let steps = self.model.steps(dt_s)?;
+        let t = self.model.transition(steps.sub_dt_s, a_e_mps2, a_n_mps2);
+        let q = self.model.process_noise_diag(steps.sub_dt_s);
+        let mut x = self.x;
+        let mut p = self.p;
+        let mut q_acc = self.q_acc;
+        for _ in 0..steps.n {
+            x = t.apply(&x);
+            p = predict_sparse(&p, &t, &q);
+            if self.track_q_acc {
+                q_acc = predict_sparse(&q_acc, &t, &q);
+            }
+        }
+        if !(all_finite(&x) && all_finite(&p) && all_finite(&q_acc)) {
+            return Err(PredictError::NonFiniteResult { dt_s });
+        }
+        self.x = x;
+        self.p = p;
+        self.q_acc = q_acc;
+        Ok(())
+    }
+
+    /// Innovation and its covariance with `R_{k-1}`.
+    pub fn prior<const M: usize>(&self, z: &SVector<f64, M>) -> Result<Prior<M>, UpdateError> {
+        if let Some((index, &value)) = z.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(UpdateError::NonFiniteMeasurement { index, value });
+        }
+        let v = z - self.x.fixed_rows::<M>(0);
+        let s = self.p.fixed_view::<M, M>(0, 0) + self.r.fixed_view::<M, M>(0, 0);
+        let chol = Cholesky::new(s).ok_or(UpdateError::NotPositiveDefinite {
+            what: "innovation covariance S = H P- H^T + R",
+        })?;
+        let nis = v.dot(&chol.solve(&v));
+        if !nis.is_finite() {
+            return Err(UpdateError::NonFiniteResult);
+        }
+        Ok(Prior { v, s, nis })
+    }
+
+    /// Gain and Joseph-form correction with the given predicted covariance,
+    /// (possibly weighted) innovation and measurement noise (the same `R` in
+    /// the gain and the Joseph form, erratum 9). Exploits `H = [I_M | 0]`.
+    pub fn correct<const M: usize>(
+        &self,
+        p_pred: &Mat14,
+        v: &SVector<f64, M>,
+        r: &SMatrix<f64, M, M>,
+    ) -> Result<Posterior<M>, UpdateError> {
+        let s = p_pred.fixed_view::<M, M>(0, 0) + r;
+        let chol = Cholesky::new(s).ok_or(UpdateError::NotPositiveDefinite {
+            what: "gain covariance H P- H^T + R",
+        })?;
+        let hp: SMatrix<f64, M, N_STATES> = p_pred.fixed_rows::<M>(0).into_owned();
+        let kt = chol.solve(&hp); // S^-1 H P = K^T
+        let k = kt.transpose();
+        let x = self.x + k * v;
+        let l = p_pred - k * hp; // (I - K H) P
+        let mut p = l - l.fixed_columns::<M>(0) * kt + k * r * kt;
+        symmetrise(&mut p);
+        if !(all_finite(&x) && all_finite(&p)) {
+            return Err(UpdateError::NonFiniteResult);
+        }
+        Ok(Posterior { x, p, k })
+    }
+
+    /// The predicted covariance with the measured block (states `0..M`) of
+    /// `Phi P_{k-1} Phi^T` scaled by `f` (eq. 28 on the observable block, erratum 15).
+    pub fn faded<const M: usize>(&self, f: f64) -> Mat14 {
+        let mut p = self.p;
+        if f != 1.0 {
+            for i in 0..M {
+                for j in 0..M {
+                    let q = self.q_acc[(i, j)];
+                    p[(i, j)] = f * (self.p[(i, j)] - q) + q;
+                }
+            }
+        }
+        p
+    }
+
+    /// `tr(H (P- - Q_acc) H^T)` and `tr(H Q_acc H^T)` over the measured block.
+    pub fn traces<const M: usize>(&self) -> (f64, f64) {
+        let mut tr_m = 0.0;
+        let mut tr_q = 0.0;
+        for i in 0..M {
+            tr_m += self.p[(i, i)] - self.q_acc[(i, i)];
+            tr_q += self.q_acc[(i, i)];
+        }
+        (tr_m, tr_q)
+    }
+
+    pub fn commit<const M: usize>(&mut self, post: &Posterior<M>, r: Mat4) {
+        self.x = post.x;
+        self.p = post.p;
+        self.r = r;
+        self.q_acc = Mat14::zeros();
+        self.updates += 1;
+    }
+
+    pub fn take_correction(&mut self) -> Vec14 {
+        let x = self.x;
+        self.x = Vec14::zeros();
+        x
+    }
+
+    pub fn reset(&mut self, p0: &Mat14) -> Result<(), ResetError> {
+        for i in 0..N_STATES {
+            for j in 0..N_STATES {
+                let value = p0[(i, j)];
+                if !value.is_finite() {
+                    return Err(ResetError::NonFinite {
+                        row: i,
+                        col: j,
+                        value,
+                    });
+                }
+            }
+            if p0[(i, i)] < 0.0 {
+                return Err(ResetError::NegativeDiagonal {
+                    index: i,
+                    value: p0[(i, i)],
+                });
+            }
+        }
+        for i in 0..N_STATES {
+            for j in (i + 1)..N_STATES {
+                let (a, b) = (p0[(i, j)], p0[(j, i)]);
+                if (a - b).abs() > 1e-9 * a.abs().max(b.abs()).max(1e-300) {
+                    return Err(ResetError::NotSymmetric { row: i, col: j });
+                }
+            }
+        }
+        let mut p = *p0;
+        symmetrise(&mut p);
+        self.x = Vec14::zeros();
+        self.p = p;
+        self.q_acc = Mat14::zeros();
+        self.r = self.r0;
+        self.updates = 0;
+        Ok(())
+    }
+
+    /// The report of an update.
+    pub fn report<const M: usize>(
+        prior: &Prior<M>,
+        lambda: &SVector<f64, M>,
+        r_used: &SMatrix<f64, M, M>,
+        fading: f64,
+        divergence: bool,
+        outlier: bool,
+    ) -> UpdateReport {
+        let mut rep = UpdateReport {
+            dim: M,
+            nis: prior.nis,
+            fading,
+            divergence,
+            outlier,
+            ..UpdateReport::default()
+        };
+        for i in 0..M.min(N_MEAS) {
+            rep.innovation[i] = prior.v[i];
+            rep.innovation_var[i] = prior.s[(i, i)];
+            rep.lambda[i] = lambda[i];
+            rep.r_diag[i] = r_used[(i, i)];
+        }
+        rep
+    }
+}
+
+/// The simplified Sage-Husa estimator of `R` (eq. 22, errata 7-9).
+#[derive(Debug, Clone)]
+pub(crate) struct SageHusa {
+    b: f64,
+    warmup: u64,
+    r_min: [f64; N_MEAS],
+    r_max: [f64; N_MEAS],
+    full: bool,
+    /// Updates so far (the next update is `k = count + 1`).
+    count: u64,
+    /// `H K_{k-1}` (4 x 4; columns of components the last update did not measure are zero).
+    hk_prev: Mat4,
+    /// `H P_{k-1} H^T` (posterior of the last update, `P_0` before the first).
+    hph_prev: Mat4,
+}
+
+impl SageHusa {
+    pub fn new(params: &FilterParams, setup: &FilterSetup) -> Self {
+        let mut r_min = [0.0; N_MEAS];
+        let mut r_max = [0.0; N_MEAS];
+        for (i, &r0) in setup.r0_diag.iter().enumerate() {
+            r_min[i] = params.r_min_factor * r0;
+            r_max[i] = params.r_max_factor * r0;
+        }
+        Self {
+            b: params.b,
+            warmup: u64::from(params.warmup_updates),
+            r_min,
+            r_max,
+            full: params.adapt_full_r,
+            count: 0,
+            hk_prev: Mat4::zeros(),
+            hph_prev: setup.p0().fixed_view::<N_MEAS, N_MEAS>(0, 0).into_owned(),
+        }
+    }
+
+    pub fn reset(&mut self, p0: &Mat14) {
+        self.count = 0;
+        self.hk_prev = Mat4::zeros();
+        self.hph_prev = p0.fixed_view::<N_MEAS, N_MEAS>(0, 0).into_owned();
+    }
+
+    /// `d_k = (1 - b) / (1 - b^(k+1))` with `k` counting updates from 1 (erratum 8).
+    pub fn d(&self, k: u64) -> f64 {
+        let e = i32::try_from(k.saturating_add(1)).unwrap_or(i32::MAX);
+        (1.0 - self.b) / (1.0 - self.b.powi(e))
+    }
+
+    /// `R_k` of eq. 22 for an update of the first `M` components with innovation `v`:
+    /// `(1 - d_k) R_{k-1} + d_k [(I - H K_{k-1}) v v^T (I - H K_{k-1})^T + H P_{k-1} H^T]`,
+    /// held at `R_{k-1}` during the warm-up, diagonal clamped to `[r_min, r_max]`.
+    pub fn estimate<const M: usize>(&self, v: &SVector<f64, M>, r_prev: &Mat4) -> Mat4 {
+        let k = self.count + 1;
+        if k <= self.warmup {
+            return *r_prev;
+        }
+        let d = self.d(k);
+        let e = v - self.hk_prev.fixed_view::<M, M>(0, 0) * v;
+        let est = e * e.transpose() + self.hph_prev.fixed_view::<M, M>(0, 0);
+        let block = r_prev.fixed_view::<M, M>(0, 0) * (1.0 - d) + est * d;
+        let mut r = *r_prev;
+        r.fixed_view_mut::<M, M>(0, 0).copy_from(&block);
+        if !self.full {
+            r = Mat4::from_diagonal(&r.diagonal());
+        }
+        for i in 0..M.min(N_MEAS) {
+            r[(i, i)] = r[(i, i)].max(self.r_min[i]).min(self.r_max[i]);
+        }
+        if self.full && (!all_finite(&r) || Cholesky::new(r).is_none()) {
+            r = Mat4::from_diagonal(&r.diagonal());
+        }
+        if !all_finite(&r) {
+            return *r_prev;
+        }
+        r
+    }
+
+    /// Records the gain and posterior of a committed update.
+    pub fn record<const M: usize>(&mut self, k_gain: &SMatrix<f64, N_STATES, M>, p_post: &Mat14) {
+        self.count += 1;
+        self.hk_prev = Mat4::zeros();
+        self.hk_prev
+            .fixed_view_mut::<N_MEAS, M>(0, 0)
+            .copy_from(&k_gain.fixed_rows::<N_MEAS>(0));
+        self.hph_prev = p_post.fixed_view::<N_MEAS, N_MEAS>(0, 0).into_owned();
+    }
+}

@@ -1,0 +1,550 @@
+//! Fix builder: groups a stream of [`UwbTdoa`] measurements into epochs,
+//! multilaterates each epoch into a [`UwbFix`] and attaches the regression
+//! velocity.
+//!
+//! ```
+//! use insuwb_msg::{Header, UwbTdoa};
+//! use insuwb_uwb::fix::{FixBuilder, FixConfig, FixMode};
+//! let cfg = FixConfig { mode: FixMode::Mode2d { height_m: 0.0 }, ..FixConfig::default() };
+//! let mut builder = FixBuilder::new(cfg).unwrap();
+//! let anchors = [[-5.0, -5.0, 0.0], [5.0, -5.0, 0.0], [-5.0, 5.0, 0.0], [5.0, 5.0, 0.0]];
+//! let p = [1.0, 2.0, 0.0];
+//! let range = |a: [f64; 3]| ((p[0] - a[0]).powi(2) + (p[1] - a[1]).powi(2)).sqrt();
+//! let mut fixes = Vec::new();
+//! for b in 1..4 {
+//!     let m = UwbTdoa {
+//!         header: Header::new(b as u64, 50_000_000),
+//!         anchor_a: 0,
+//!         anchor_b: b as u32,
+//!         diff_m: range(anchors[b]) - range(anchors[0]),
+//!         anchor_a_pos_m: anchors[0],
+//!         anchor_b_pos_m: anchors[b],
+//!     };
+//!     fixes.extend(builder.push(&m).unwrap());
+//! }
+//! fixes.extend(builder.flush());
+//! assert_eq!(fixes.len(), 1);
+//! assert!((fixes[0].pos_m[0] - 1.0).abs() < 1e-9);
+//! assert_eq!(fixes[0].header.meas_time_ns, 50_000_000);
+//! ```
+//!
+//! # Epochs
+//!
+//! With `P` = [`FixConfig::period_s`] in ns, epoch `k` covers measurement
+//! times in `((k-1) P, k P]` on the absolute ns grid (`k = ceil(t / P)`).
+//! Within an epoch the latest measurement of each unordered anchor pair is
+//! kept; `(a, b)` and `(b, a)` are the same pair with the sign flipped. An
+//! epoch closes when
+//! 1. a measurement of a later epoch arrives (it then opens the next one),
+//! 2. a measurement carries [`UwbTdoa::FLAG_EPOCH_END`], or
+//! 3. the caller calls [`FixBuilder::flush`].
+//!
+//! Measurements of the same epoch window that arrive after a flag or flush
+//! closed it open a fresh group for that window and give a fix of their own
+//! (a flagged group is a complete set: with groups faster than `P` every
+//! flagged group gives a fix). The output is a function of the measurement
+//! sequence and the flush points only: pushing in chunks changes nothing,
+//! and a flush between the last measurement of one epoch and the first of
+//! the next changes nothing either.
+//!
+//! # Fixes
+//!
+//! A closed epoch with at least [`FixConfig::min_pairs`] pairs is solved
+//! ([`crate::solve`]) with the previous fix as the seed; when that attempt
+//! fails the solver re-starts from the closed form and the anchor centroid
+//! ([`FixStats::reseeded`] counts those). The fix's `header.meas_time_ns` is
+//! the time of the latest measurement used (all measurements are taken as
+//! simultaneous: at 1 m/s and 0.1 s epochs that smears the fix by up to
+//! 0.1 m, so prefer flagged simultaneous groups or short periods for fast
+//! motion); `header.seq` counts fixes from 0; `n_meas` is the number of pairs
+//! used; `FLAG_2D` marks 2D fixes and `FLAG_VEL_VALID` a valid regression
+//! velocity ([`crate::velocity`]). Epochs without a fix are counted per reason
+//! in [`FixStats`], and the last reason is kept ([`FixBuilder::last_skip`]).
+//! Measurements with a non-finite value, equal anchor ids, a time before the
+//! previous accepted measurement, or no room left in the epoch's pair table
+//! are dropped, counted, and reported as a [`PushError`]; the builder stays
+//! usable after any error.
+
+use insuwb_msg::{Header, UwbFix, UwbTdoa};
+use serde::{Deserialize, Serialize};
+
+use crate::solve::{self, Seed, SolveError, SolverConfig, SolverConfigError, TdoaObs};
+use crate::velocity::{VelocityConfig, VelocityConfigError, VelocityEstimator};
+
+/// Largest [`FixConfig::max_pairs`] accepted (bounds the allocation).
+pub const MAX_PAIRS_LIMIT: usize = 1024;
+
+/// Whether fixes are 2D (height held) or 3D.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", deny_unknown_fields)]
+pub enum FixMode {
+    /// East/north with the tag height fixed (`kind = "2d"`).
+    #[serde(rename = "2d")]
+    Mode2d {
+        /// Tag (antenna) height, ENU z, m: a measurement of the robot.
+        height_m: f64,
+    },
+    /// Full 3D position (`kind = "3d"`); needs non-coplanar anchors.
+    #[serde(rename = "3d")]
+    Mode3d,
+}
+
+impl Default for FixMode {
+    /// 2D at height 0: the paper's robot moves in the plane of its anchors
+    /// (READING.md erratum 17: tag height fixed in 2D).
+    fn default() -> Self {
+        Self::Mode2d { height_m: 0.0 }
+    }
+}
+
+/// Settings of the fix builder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FixConfig {
+    /// 2D (height held) or 3D. Default 2D at 0 m (see [`FixMode::default`]).
+    pub mode: FixMode,
+    /// Fix epoch period, s. Default 0.1: the paper's experiment filters at
+    /// 10 Hz (READING.md erratum 6); the UTIL README's reference fix rate.
+    pub period_s: f64,
+    /// Fewest distinct pairs in an epoch to attempt a fix (>= 2 in 2D, >= 3
+    /// in 3D, <= `max_pairs`). Default 3.
+    pub min_pairs: usize,
+    /// Capacity of an epoch's pair table, allocated once; a new pair beyond
+    /// it is dropped. Default 64 (8 anchors have 28 unordered pairs).
+    pub max_pairs: usize,
+    /// Velocity regression settings.
+    pub velocity: VelocityConfig,
+    /// Multilateration settings; `solver.tdoa_sigma_m` is the TDOA sigma of
+    /// the fix covariance.
+    pub solver: SolverConfig,
+}
+
+impl Default for FixConfig {
+    fn default() -> Self {
+        Self {
+            mode: FixMode::default(),
+            period_s: 0.1,
+            min_pairs: 3,
+            max_pairs: 64,
+            velocity: VelocityConfig::default(),
+            solver: SolverConfig::default(),
+        }
+    }
+}
+
+/// A [`FixConfig`] value out of range (keys relative to the UWB fix table).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum FixConfigError {
+    /// A setting is outside its valid range.
+    #[error("{key} must be {requirement}, got {value}")]
+    OutOfRange {
+        /// Configuration key, e.g. `period_s`.
+        key: &'static str,
+        /// What the value must satisfy.
+        requirement: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// A solver setting is out of range.
+    #[error(transparent)]
+    Solver(#[from] SolverConfigError),
+    /// A velocity setting is out of range.
+    #[error(transparent)]
+    Velocity(#[from] VelocityConfigError),
+}
+
+impl FixConfig {
+    /// Checks every setting, naming the first offending key.
+    ///
+    /// # Errors
+    /// The first value out of range.
+    pub fn validate(&self) -> Result<(), FixConfigError> {
+        let fail = |key, requirement, value| {
+            Err(FixConfigError::OutOfRange {
+                key,
+                requirement,
+                value,
+            })
+        };
+        let min_pairs_mode = match self.mode {
+            FixMode::Mode2d { height_m } => {
+                if !height_m.is_finite() {
+                    return fail("mode.height_m", "finite", height_m);
+                }
+                2
+            }
+            FixMode::Mode3d => 3,
+        };
+        if !(self.period_s.is_finite() && (1e-3..=60.0).contains(&self.period_s)) {
+            return fail("period_s", "in [0.001, 60]", self.period_s);
+        }
+        if !(1..=MAX_PAIRS_LIMIT).contains(&self.max_pairs) {
+            return fail("max_pairs", "in 1..=1024", self.max_pairs as f64);
+        }
+        if self.min_pairs < min_pairs_mode || self.min_pairs > self.max_pairs {
+            let req = if min_pairs_mode == 2 {
+                ">= 2 (2D) and <= max_pairs"
+            } else {
+                ">= 3 (3D) and <= max_pairs"
+            };
+            return fail("min_pairs", req, self.min_pairs as f64);
+        }
+        self.velocity.validate()?;
+        self.solver.validate()?;
+        Ok(())
+    }
+
+    /// The epoch period in ns (at least 1).
+    #[must_use]
+    pub fn period_ns(&self) -> u64 {
+        ((self.period_s * 1e9).round() as u64).max(1)
+    }
+}
+
+/// Counters of a [`FixBuilder`]: every input and every epoch is accounted for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct FixStats {
+    /// Measurements accepted into an epoch.
+    pub accepted: u64,
+    /// Accepted measurements later superseded by a newer one of the same pair.
+    pub superseded: u64,
+    /// Measurements dropped for a NaN or infinite value.
+    pub dropped_non_finite: u64,
+    /// Measurements dropped because anchor A and B have the same id.
+    pub dropped_same_anchor: u64,
+    /// Measurements dropped for a time before the previous accepted one.
+    pub dropped_time_backwards: u64,
+    /// Measurements dropped because the epoch's pair table was full.
+    pub dropped_capacity: u64,
+    /// Non-empty epochs closed.
+    pub epochs: u64,
+    /// Fixes produced.
+    pub fixes: u64,
+    /// Fixes whose previous-fix seed failed and a fallback seed succeeded.
+    pub reseeded: u64,
+    /// Epochs skipped: fewer pairs than `min_pairs`.
+    pub skipped_too_few_pairs: u64,
+    /// Epochs skipped: too few distinct anchors, or of independent pairs, or too many anchors.
+    pub skipped_too_few_anchors: u64,
+    /// Epochs skipped: degenerate geometry (anchor spread or `J^T J`).
+    pub skipped_degenerate: u64,
+    /// Epochs skipped: the solver did not converge.
+    pub skipped_no_convergence: u64,
+    /// Epochs skipped: the solution ran away from the anchors.
+    pub skipped_runaway: u64,
+    /// Epochs skipped for another solver error (invalid input that passed the push checks).
+    pub skipped_other: u64,
+}
+
+/// Why an epoch gave no fix.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum SkipReason {
+    /// Fewer distinct pairs than `min_pairs`.
+    #[error("epoch had {count} pairs, need {min}")]
+    TooFewPairs {
+        /// Pairs in the epoch.
+        count: usize,
+        /// Configured minimum.
+        min: usize,
+    },
+    /// The solver refused or failed.
+    #[error(transparent)]
+    Solve(#[from] SolveError),
+}
+
+/// Why a measurement was dropped (it is also counted in [`FixStats`]).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum PushError {
+    /// A value is NaN or infinite.
+    #[error("measurement {field} is not finite ({value})")]
+    NonFinite {
+        /// `diff_m`, `anchor_a_pos_m` or `anchor_b_pos_m`.
+        field: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// Anchor A and anchor B have the same id.
+    #[error("measurement pairs anchor {id} with itself")]
+    SameAnchor {
+        /// The anchor id.
+        id: u32,
+    },
+    /// The measurement is older than the previous accepted one.
+    #[error("measurement time {time_ns} ns is before the previous accepted {last_ns} ns")]
+    TimeBackwards {
+        /// Time of the dropped measurement, ns.
+        time_ns: u64,
+        /// Time of the previous accepted measurement, ns.
+        last_ns: u64,
+    },
+    /// The epoch's pair table is full.
+    #[error("epoch pair table full ({max} pairs); pair ({a}, {b}) dropped")]
+    PairCapacity {
+        /// Capacity (`max_pairs`).
+        max: usize,
+        /// Anchor A id.
+        a: u32,
+        /// Anchor B id.
+        b: u32,
+    },
+}
+
+/// Turns a [`UwbTdoa`] stream into [`UwbFix`]es (see the module doc).
+/// Allocates its tables once, in [`FixBuilder::new`].
+#[derive(Debug, Clone)]
+pub struct FixBuilder {
+    cfg: FixConfig,
+    period_ns: u64,
+    /// Unordered pair keys `(min id, max id)` of the open epoch.
+    keys: Vec<(u32, u32)>,
+    /// Observations of the open epoch, oriented A = min id, B = max id.
+    obs: Vec<TdoaObs>,
+    /// Epoch index of the open group.
+    epoch: Option<u64>,
+    /// Time of the latest accepted measurement.
+    last_time_ns: Option<u64>,
+    /// Position of the previous fix: the next solve's seed.
+    prev_pos_m: Option<[f64; 3]>,
+    seq: u64,
+    velocity: VelocityEstimator,
+    stats: FixStats,
+    last_skip: Option<SkipReason>,
+}
+
+impl FixBuilder {
+    /// A builder with empty tables.
+    ///
+    /// # Errors
+    /// The configuration's validation error.
+    pub fn new(cfg: FixConfig) -> Result<Self, FixConfigError> {
+        cfg.validate()?;
+        let velocity = VelocityEstimator::new(cfg.velocity.clone())?;
+        Ok(Self {
+            period_ns: cfg.period_ns(),
+            keys: Vec::with_capacity(cfg.max_pairs),
+            obs: Vec::with_capacity(cfg.max_pairs),
+            epoch: None,
+            last_time_ns: None,
+            prev_pos_m: None,
+            seq: 0,
+            velocity,
+            stats: FixStats::default(),
+            last_skip: None,
+            cfg,
+        })
+    }
+
+    /// The settings in use.
+    #[must_use]
+    pub fn config(&self) -> &FixConfig {
+        &self.cfg
+    }
+
+    /// The counters so far.
+    #[must_use]
+    pub fn stats(&self) -> &FixStats {
+        &self.stats
+    }
+
+    /// Why the most recent epoch without a fix had none.
+    #[must_use]
+    pub fn last_skip(&self) -> Option<&SkipReason> {
+        self.last_skip.as_ref()
+    }
+
+    /// Pairs held in the open epoch.
+    #[must_use]
+    pub fn pending_pairs(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Forgets the open epoch, the time order, the seed and the velocity
+    /// window (e.g. after a source restart); keeps the counters and `seq`.
+    pub fn reset(&mut self) {
+        self.keys.clear();
+        self.obs.clear();
+        self.epoch = None;
+        self.last_time_ns = None;
+        self.prev_pos_m = None;
+        self.velocity.reset();
+    }
+
+    /// Adds one measurement; returns the fix of the epoch it closed, if any.
+    ///
+    /// A measurement can close two groups (the open epoch, being of a later
+    /// epoch, and then its own, when flagged [`UwbTdoa::FLAG_EPOCH_END`]), but
+    /// the second then holds this one measurement only, fewer than
+    /// `min_pairs` (>= 2): at most one fix comes out; the other closure is
+    /// counted in [`FixStats::skipped_too_few_pairs`].
+    ///
+    /// # Errors
+    /// The measurement was dropped (and counted); nothing else changed.
+    pub fn push(&mut self, m: &UwbTdoa) -> Result<Option<UwbFix>, PushError> {
+        if let Err(e) = self.check(m) {
+            match e {
+                PushError::NonFinite { .. } => self.stats.dropped_non_finite += 1,
+                PushError::SameAnchor { .. } => self.stats.dropped_same_anchor += 1,
+                PushError::TimeBackwards { .. } => self.stats.dropped_time_backwards += 1,
+                PushError::PairCapacity { .. } => self.stats.dropped_capacity += 1,
+            }
+            return Err(e);
+        }
+        let t = m.header.meas_time_ns;
+        let k = t.div_ceil(self.period_ns);
+        let mut out = None;
+        if self.epoch.is_some_and(|e| k > e) {
+            out = self.close();
+        }
+        let (key, o) = if m.anchor_a < m.anchor_b {
+            ((m.anchor_a, m.anchor_b), TdoaObs::from_msg(m))
+        } else {
+            ((m.anchor_b, m.anchor_a), TdoaObs::from_msg(m).flipped())
+        };
+        match self.keys.iter().position(|q| *q == key) {
+            Some(i) => {
+                if let Some(slot) = self.obs.get_mut(i) {
+                    *slot = o;
+                }
+                self.stats.superseded += 1;
+            }
+            None => {
+                // Capacity was checked in `check` (or the table was just emptied).
+                self.keys.push(key);
+                self.obs.push(o);
+            }
+        }
+        self.stats.accepted += 1;
+        self.epoch = Some(k);
+        self.last_time_ns = Some(t);
+        if m.header.flags & UwbTdoa::FLAG_EPOCH_END != 0 {
+            let own = self.close();
+            out = out.or(own);
+        }
+        Ok(out)
+    }
+
+    /// Closes the open epoch now; returns its fix if it gave one.
+    pub fn flush(&mut self) -> Option<UwbFix> {
+        self.close()
+    }
+
+    fn check(&self, m: &UwbTdoa) -> Result<(), PushError> {
+        if !m.diff_m.is_finite() {
+            return Err(PushError::NonFinite {
+                field: "diff_m",
+                value: m.diff_m,
+            });
+        }
+        for (field, p) in [
+            ("anchor_a_pos_m", &m.anchor_a_pos_m),
+            ("anchor_b_pos_m", &m.anchor_b_pos_m),
+        ] {
+            if let Some(&value) = p.iter().find(|v| !v.is_finite()) {
+                return Err(PushError::NonFinite { field, value });
+            }
+        }
+        if m.anchor_a == m.anchor_b {
+            return Err(PushError::SameAnchor { id: m.anchor_a });
+        }
+        let t = m.header.meas_time_ns;
+        if let Some(last_ns) = self.last_time_ns.filter(|last| t < *last) {
+            return Err(PushError::TimeBackwards {
+                time_ns: t,
+                last_ns,
+            });
+        }
+        let k = t.div_ceil(self.period_ns);
+        let same_epoch = self.epoch.is_some_and(|e| e == k);
+        let key = (m.anchor_a.min(m.anchor_b), m.anchor_a.max(m.anchor_b));
+        if same_epoch && self.keys.len() >= self.cfg.max_pairs && !self.keys.contains(&key) {
+            return Err(PushError::PairCapacity {
+                max: self.cfg.max_pairs,
+                a: m.anchor_a,
+                b: m.anchor_b,
+            });
+        }
+        Ok(())
+    }
+
+    /// Solves the open group, if any, and empties it.
+    fn close(&mut self) -> Option<UwbFix> {
+        if self.obs.is_empty() {
+            return None;
+        }
+        self.stats.epochs += 1;
+        let time_ns = self.last_time_ns.unwrap_or_default();
+        let result = self.solve_group();
+        self.keys.clear();
+        self.obs.clear();
+        match result {
+            Ok((fix, seed)) => {
+                if seed != Seed::Init && self.prev_pos_m.is_some() {
+                    self.stats.reseeded += 1;
+                }
+                self.prev_pos_m = Some(fix.pos_m);
+                let mut flags = 0;
+                if matches!(self.cfg.mode, FixMode::Mode2d { .. }) {
+                    flags |= UwbFix::FLAG_2D;
+                }
+                let mut out = UwbFix {
+                    header: Header::new(self.seq, time_ns),
+                    pos_m: fix.pos_m,
+                    pos_cov_m2: fix.cov_m2,
+                    gdop: fix.gdop,
+                    n_meas: u32::try_from(fix.n_obs).unwrap_or(u32::MAX),
+                    iterations: fix.iterations,
+                    ..UwbFix::default()
+                };
+                if let Ok(v) = self.velocity.push(time_ns, fix.pos_m, fix.cov_m2) {
+                    if v.valid {
+                        out.vel_mps = v.vel_mps;
+                        out.vel_cov = v.cov_mps2;
+                        flags |= UwbFix::FLAG_VEL_VALID;
+                    }
+                }
+                out.header.flags = flags;
+                self.seq += 1;
+                self.stats.fixes += 1;
+                Some(out)
+            }
+            Err(reason) => {
+                let s = &mut self.stats;
+                match reason {
+                    SkipReason::TooFewPairs { .. } => s.skipped_too_few_pairs += 1,
+                    SkipReason::Solve(e) => match e {
+                        SolveError::TooFewAnchors { .. }
+                        | SolveError::TooFewPairs { .. }
+                        | SolveError::TooManyAnchors { .. } => s.skipped_too_few_anchors += 1,
+                        SolveError::DegenerateGeometry { .. } => s.skipped_degenerate += 1,
+                        SolveError::NoConvergence { .. } => s.skipped_no_convergence += 1,
+                        SolveError::Runaway { .. } => s.skipped_runaway += 1,
+                        SolveError::Config(_)
+                        | SolveError::NonFiniteObs { .. }
+                        | SolveError::NonFiniteArg { .. }
+                        | SolveError::InvalidSigma { .. }
+                        | SolveError::SigmaCount { .. }
+                        | SolveError::SameAnchor { .. } => s.skipped_other += 1,
+                    },
+                }
+                self.last_skip = Some(reason);
+                None
+            }
+        }
+    }
+
+    fn solve_group(&self) -> Result<(solve::Fix, Seed), SkipReason> {
+        if self.obs.len() < self.cfg.min_pairs {
+            return Err(SkipReason::TooFewPairs {
+                count: self.obs.len(),
+                min: self.cfg.min_pairs,
+            });
+        }
+        let fix = match self.cfg.mode {
+            FixMode::Mode2d { height_m } => {
+                solve::solve_2d(&self.obs, height_m, self.prev_pos_m, &self.cfg.solver)?
+            }
+            FixMode::Mode3d => solve::solve_3d(&self.obs, self.prev_pos_m, &self.cfg.solver)?,
+        };
+        Ok((fix, fix.seed))
+    }
+}
