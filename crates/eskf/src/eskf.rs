@@ -1,0 +1,1015 @@
+//! The 15-state error-state Kalman filter: covariance propagation on the
+//! INS's nominal states, sequential robust TDOA updates, an optional 3D
+//! position update, the divergence monitor and the closed-loop correction.
+
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+
+use crate::config::{EskfConfig, EskfConfigError, NisStatistic, RobustMode, MAX_NIS_WINDOW};
+use crate::math::{checked_rotation, finite, skew, InputFault};
+
+/// Number of error states.
+pub const N_STATES: usize = 15;
+/// Index of the first position error state (δp, ENU, m; INS minus truth).
+pub const IDX_POS: usize = 0;
+/// Index of the first velocity error state (δv, ENU, m/s; INS minus truth).
+pub const IDX_VEL: usize = 3;
+/// Index of the first attitude error state (δθ, ENU rotation vector, rad;
+/// `q_true = Exp(-δθ) ⊗ q_ins`).
+pub const IDX_ATT: usize = 6;
+/// Index of the first accelerometer bias error state (δb_a, body, m/s^2;
+/// truth minus INS, the increment to add to the INS's estimate).
+pub const IDX_ACCEL_BIAS: usize = 9;
+/// Index of the first gyro bias error state (δb_g, body, rad/s; truth minus
+/// INS, the increment to add to the INS's estimate).
+pub const IDX_GYRO_BIAS: usize = 12;
+
+/// The error-state vector `[δp, δv, δθ, δb_a, δb_g]`.
+pub type StateVector = SVector<f64, N_STATES>;
+/// The error-state covariance.
+pub type Covariance = SMatrix<f64, N_STATES, N_STATES>;
+
+/// Smallest time between two measurements of one pair used by the
+/// rate-adaptive inflation, s (one IMU period at 1 kHz).
+const MIN_PAIR_DT_S: f64 = 1e-3;
+/// Smallest anchor-to-antenna distance the TDOA model accepts, m.
+const MIN_ANCHOR_DIST_M: f64 = 1e-6;
+/// Number of anchor pairs whose last update time is remembered (8 anchors
+/// give 28 unordered pairs); the least recently used slot is reused.
+const PAIR_SLOTS: usize = 64;
+
+/// The error estimate handed to the INS, in the units and conventions of
+/// [`insuwb_msg::InsCorrection`].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Correction {
+    /// Position error to remove (INS minus truth), ENU, m: `pos -= d_pos_m`.
+    pub d_pos_m: [f64; 3],
+    /// Velocity error to remove, ENU, m/s: `vel -= d_vel_mps`.
+    pub d_vel_mps: [f64; 3],
+    /// Attitude error to remove, ENU rotation vector, rad:
+    /// `q = Exp(-d_att_rad) ⊗ q`.
+    pub d_att_rad: [f64; 3],
+    /// Accelerometer bias increment, body, m/s^2: `bias += d_accel_bias_mps2`.
+    pub d_accel_bias_mps2: [f64; 3],
+    /// Gyro bias increment, body, rad/s: `bias += d_gyro_bias_rps`.
+    pub d_gyro_bias_rps: [f64; 3],
+}
+
+impl Correction {
+    /// Copies the deltas into a correction message (other fields untouched).
+    pub fn write_to(&self, msg: &mut insuwb_msg::InsCorrection) {
+        msg.d_pos_m = self.d_pos_m;
+        msg.d_vel_mps = self.d_vel_mps;
+        msg.d_att_rad = self.d_att_rad;
+        msg.d_accel_bias_mps2 = self.d_accel_bias_mps2;
+        msg.d_gyro_bias_rps = self.d_gyro_bias_rps;
+    }
+}
+
+/// What happened to one TDOA measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TdoaOutcome {
+    /// Applied with full weight (`r <= kappa`).
+    Accepted,
+    /// Applied with weight `lambda = kappa / r < 1` (`kappa < r <= hard gate`).
+    Downweighted,
+    /// Not applied: `r` beyond the hard gate; counted.
+    Rejected,
+    /// Not applied: the same anchor pair was applied less than
+    /// `min_interval_per_pair_s` ago.
+    Decimated,
+}
+
+/// Diagnostics of one TDOA update (`r = |v| / sqrt(S)`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TdoaUpdateReport {
+    /// What happened to the measurement.
+    pub outcome: TdoaOutcome,
+    /// Innovation `v = z - h(x_ins) - H δx`, before weighting, m.
+    pub innovation_m: f64,
+    /// Marginal innovation variance `S = H P H^T + tdoa_sigma^2`, m^2.
+    pub innovation_var_m2: f64,
+    /// Measurement variance used in the gain (correlation inflation and,
+    /// in `InflateR` mode, the robust inflation included), m^2; 0 when not applied.
+    pub r_gain_m2: f64,
+    /// Outlier weight: 1 accepted, `kappa / r` down-weighted, 0 rejected or decimated.
+    pub lambda: f64,
+    /// Normalised innovation squared `v^2 / S`.
+    pub nis: f64,
+    /// The measurement was rejected by the hard gate.
+    pub rejected: bool,
+    /// The divergence monitor asks for a reset (sticky until [`Eskf::reset`]).
+    pub needs_reset: bool,
+}
+
+impl TdoaUpdateReport {
+    /// Fills a diagnostics message for this (scalar) update: entry 0 of the
+    /// arrays, `dim = 1`, `nis`, `filter_kind` = [`insuwb_msg::FilterKind::IakfTdoa`],
+    /// `FLAG_OUTLIER` when `lambda < 1` and `FLAG_DIVERGENCE` when a reset is
+    /// needed; the header and `fading` are left to the caller.
+    pub fn write_to(&self, diag: &mut insuwb_msg::FilterDiag) {
+        diag.innovation = [0.0; 8];
+        diag.innovation_var = [0.0; 8];
+        diag.lambda = [0.0; 8];
+        diag.r_diag = [0.0; 8];
+        diag.innovation[0] = self.innovation_m;
+        diag.innovation_var[0] = self.innovation_var_m2;
+        diag.lambda[0] = self.lambda;
+        diag.r_diag[0] = self.r_gain_m2;
+        diag.nis = self.nis;
+        diag.dim = 1;
+        diag.filter_kind = insuwb_msg::FilterKind::IakfTdoa as u32;
+        let mut flags = diag.header.flags
+            & !(insuwb_msg::FilterDiag::FLAG_OUTLIER | insuwb_msg::FilterDiag::FLAG_DIVERGENCE);
+        if self.lambda < 1.0 {
+            flags |= insuwb_msg::FilterDiag::FLAG_OUTLIER;
+        }
+        if self.needs_reset {
+            flags |= insuwb_msg::FilterDiag::FLAG_DIVERGENCE;
+        }
+        diag.header.flags = flags;
+    }
+}
+
+/// Diagnostics of one 3D position update.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PositionUpdateReport {
+    /// Innovation `z - (p_ins + C l) - H δx`, ENU, m.
+    pub innovation_m: [f64; 3],
+    /// Normalised innovation squared `v^T S^-1 v` (3 degrees of freedom).
+    pub nis: f64,
+    /// Rejected: `sqrt(nis)` beyond `hard_gate_sigma`.
+    pub rejected: bool,
+}
+
+/// Counters since construction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct EskfStats {
+    /// Prediction steps.
+    pub predicts: u64,
+    /// TDOA measurements applied with full weight.
+    pub accepted: u64,
+    /// TDOA measurements applied with reduced weight.
+    pub downweighted: u64,
+    /// TDOA measurements rejected by the hard gate.
+    pub rejected: u64,
+    /// TDOA measurements skipped by the per-pair decimation.
+    pub decimated: u64,
+    /// Position updates applied.
+    pub position_updates: u64,
+    /// Resets.
+    pub resets: u64,
+}
+
+/// The TDOA measurement model evaluated at the INS state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TdoaModel {
+    /// Predicted `|p_ant - b| - |p_ant - a|`, m.
+    pub predicted_m: f64,
+    /// Jacobian row with respect to the error state: `[-u^T, 0, u^T [(C l) x], 0, 0]`
+    /// with `u = (p_ant - b)/|p_ant - b| - (p_ant - a)/|p_ant - a|`.
+    pub h: StateVector,
+}
+
+/// Why a prediction step was refused (the filter is unchanged).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum PredictError {
+    /// An input holds NaN or an infinity.
+    #[error("predict: {input} is not finite ({value})")]
+    NonFinite {
+        /// Which input.
+        input: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// The attitude quaternion is not of unit norm.
+    #[error("predict: quaternion norm {norm} is not 1")]
+    QuatNotUnit {
+        /// Its norm.
+        norm: f64,
+    },
+    /// The step is negative or longer than `max_dt_s`.
+    #[error("predict: dt {dt_s} s outside [0, {max_dt_s}] s")]
+    DtOutOfRange {
+        /// The step asked for, s.
+        dt_s: f64,
+        /// The configured maximum, s.
+        max_dt_s: f64,
+    },
+}
+
+/// Why a TDOA update was refused (the filter is unchanged).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum TdoaUpdateError {
+    /// An input holds NaN or an infinity.
+    #[error("TDOA update: {input} is not finite ({value})")]
+    NonFinite {
+        /// Which input.
+        input: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// The attitude quaternion is not of unit norm.
+    #[error("TDOA update: quaternion norm {norm} is not 1")]
+    QuatNotUnit {
+        /// Its norm.
+        norm: f64,
+    },
+    /// The antenna sits on an anchor: the measurement gradient is undefined.
+    #[error("TDOA update: antenna {distance_m} m from an anchor")]
+    AntennaAtAnchor {
+        /// The distance, m.
+        distance_m: f64,
+    },
+}
+
+/// Why a position update was refused (the filter is unchanged).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum PositionUpdateError {
+    /// An input holds NaN or an infinity.
+    #[error("position update: {input} is not finite ({value})")]
+    NonFinite {
+        /// Which input.
+        input: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// The attitude quaternion is not of unit norm.
+    #[error("position update: quaternion norm {norm} is not 1")]
+    QuatNotUnit {
+        /// Its norm.
+        norm: f64,
+    },
+    /// The fix covariance is not symmetric positive definite.
+    #[error("position update: fix covariance is not symmetric positive definite (entry [{row}][{col}] = {value})")]
+    CovarianceNotPd {
+        /// Row of the first offending entry (diagonal when not PD).
+        row: usize,
+        /// Its column.
+        col: usize,
+        /// Its value.
+        value: f64,
+    },
+}
+
+/// Why a reset covariance was refused (the filter is unchanged).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ResetError {
+    /// The covariance is not finite, not symmetric or not positive definite.
+    #[error(
+        "reset: covariance is not symmetric positive definite (entry [{row}][{col}] = {value})"
+    )]
+    CovarianceNotPd {
+        /// Row of the first offending entry.
+        row: usize,
+        /// Its column.
+        col: usize,
+        /// Its value.
+        value: f64,
+    },
+}
+
+macro_rules! from_fault {
+    ($t:ident) => {
+        impl From<InputFault> for $t {
+            fn from(f: InputFault) -> Self {
+                match f {
+                    InputFault::NonFinite { input, value } => $t::NonFinite { input, value },
+                    InputFault::QuatNorm { norm } => $t::QuatNotUnit { norm },
+                }
+            }
+        }
+    };
+}
+from_fault!(PredictError);
+from_fault!(TdoaUpdateError);
+from_fault!(PositionUpdateError);
+
+/// Last applied update time of one unordered anchor pair.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct PairSlot {
+    used: bool,
+    /// Bit patterns of the two anchor positions, smaller one first.
+    key: [u64; 6],
+    last_time_s: f64,
+}
+
+fn pair_key(a: &[f64; 3], b: &[f64; 3]) -> [u64; 6] {
+    let ka = a.map(f64::to_bits);
+    let kb = b.map(f64::to_bits);
+    let (lo, hi) = if ka <= kb { (ka, kb) } else { (kb, ka) };
+    [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]
+}
+
+/// Applies the continuous error dynamics `F` to `x` (15 x C), using its
+/// sparsity: rows δp <- δv; δv <- -[f x] δθ + C δb_a; δθ <- C δb_g.
+fn apply_f<const C: usize>(
+    minus_f_skew: &Matrix3<f64>,
+    rot: &Matrix3<f64>,
+    x: &SMatrix<f64, N_STATES, C>,
+) -> SMatrix<f64, N_STATES, C> {
+    let mut y = SMatrix::<f64, N_STATES, C>::zeros();
+    y.fixed_view_mut::<3, C>(IDX_POS, 0)
+        .copy_from(&x.fixed_view::<3, C>(IDX_VEL, 0));
+    y.fixed_view_mut::<3, C>(IDX_VEL, 0).copy_from(
+        &(minus_f_skew * x.fixed_view::<3, C>(IDX_ATT, 0)
+            + rot * x.fixed_view::<3, C>(IDX_ACCEL_BIAS, 0)),
+    );
+    y.fixed_view_mut::<3, C>(IDX_ATT, 0)
+        .copy_from(&(rot * x.fixed_view::<3, C>(IDX_GYRO_BIAS, 0)));
+    y
+}
+
+fn symmetrize(p: &mut Covariance) {
+    for i in 0..N_STATES {
+        for j in (i + 1)..N_STATES {
+            let m = 0.5 * (p[(i, j)] + p[(j, i)]);
+            p[(i, j)] = m;
+            p[(j, i)] = m;
+        }
+    }
+}
+
+/// Checks a covariance: finite, symmetric (relative 1e-9), positive definite.
+fn check_covariance<const D: usize>(p: &SMatrix<f64, D, D>) -> Result<(), (usize, usize, f64)> {
+    for i in 0..D {
+        for j in 0..D {
+            let (a, b) = (p[(i, j)], p[(j, i)]);
+            let scale = p[(i, i)].abs().max(p[(j, j)].abs()).max(f64::MIN_POSITIVE);
+            if !a.is_finite() || (a - b).abs() > 1e-9 * scale {
+                return Err((i, j, a));
+            }
+        }
+    }
+    if p.cholesky().is_none() {
+        let worst = (0..D)
+            .min_by(|&i, &j| p[(i, i)].total_cmp(&p[(j, j)]))
+            .unwrap_or(0);
+        return Err((worst, worst, p[(worst, worst)]));
+    }
+    Ok(())
+}
+
+/// The continuous-time white-noise process noise of one step `dt`
+/// (first order, `Q_d = G Q_c G^T dt`): `sigma_a^2 dt` on δv, `sigma_g^2 dt`
+/// on δθ (isotropic noise, so the rotation to ENU drops out), the bias random
+/// walks on δb_a and δb_g; none on δp.
+#[must_use]
+pub fn process_noise(config: &EskfConfig, dt_s: f64) -> SVector<f64, N_STATES> {
+    let mut q = SVector::<f64, N_STATES>::zeros();
+    let blocks = [
+        (IDX_VEL, config.accel_noise_mps2_per_rthz),
+        (IDX_ATT, config.gyro_noise_rps_per_rthz),
+        (IDX_ACCEL_BIAS, config.accel_bias_rw_mps3_per_rthz),
+        (IDX_GYRO_BIAS, config.gyro_bias_rw_rps2_per_rthz),
+    ];
+    for (idx, density) in blocks {
+        q.fixed_rows_mut::<3>(idx).fill(density * density * dt_s);
+    }
+    q
+}
+
+/// The discrete transition `Φ = I + F dt` of the error state for one step.
+///
+/// `F` (global-angle-error ESKF, Solà 2017 §7, with this crate's signs):
+/// `δṗ = δv`, `δv̇ = -[f_n x] δθ + C δb_a`, `δθ̇ = C δb_g`, `δḃ = w`, where
+/// `C` is the body-to-ENU rotation of `quat` and `f_n` the specific force in
+/// ENU. (With the attitude error in the navigation frame the body rate does
+/// not enter `F`.) [`Eskf::predict`] applies exactly `Φ P Φ^T + Q`, using
+/// the sparsity of `F`.
+///
+/// # Errors
+/// [`PredictError`] on a non-finite input, a non-unit quaternion or a negative `dt_s`.
+pub fn transition_matrix(
+    dt_s: f64,
+    quat: [f64; 4],
+    f_nav_mps2: [f64; 3],
+) -> Result<Covariance, PredictError> {
+    finite("dt_s", &[dt_s])?;
+    finite("f_nav_mps2", &f_nav_mps2)?;
+    let rot = checked_rotation(quat)?;
+    if dt_s < 0.0 {
+        return Err(PredictError::DtOutOfRange {
+            dt_s,
+            max_dt_s: f64::INFINITY,
+        });
+    }
+    let minus_f_skew = -skew(&Vector3::from(f_nav_mps2));
+    Ok(Covariance::identity() + apply_f(&minus_f_skew, &rot, &Covariance::identity()) * dt_s)
+}
+
+/// Evaluates the TDOA model `|p_ant - b| - |p_ant - a|`, `p_ant = p + C(q) l`,
+/// and its Jacobian row with respect to the error state.
+///
+/// With `p_true = p_ins - δp` and `C_true = Exp(-δθ) C_ins`, the true antenna
+/// is `p_ant - δp + [(C l) x] δθ` to first order, hence
+/// `H = [-u^T, 0, u^T [(C l) x], 0, 0]`.
+///
+/// # Errors
+/// [`TdoaUpdateError`] on a non-finite input, a non-unit quaternion or an
+/// antenna on an anchor.
+pub fn tdoa_model(
+    p_ins_m: [f64; 3],
+    quat: [f64; 4],
+    lever_arm_body_m: [f64; 3],
+    anchor_a_m: [f64; 3],
+    anchor_b_m: [f64; 3],
+) -> Result<TdoaModel, TdoaUpdateError> {
+    finite("p_ins_m", &p_ins_m)?;
+    finite("lever_arm_body_m", &lever_arm_body_m)?;
+    finite("anchor_a_m", &anchor_a_m)?;
+    finite("anchor_b_m", &anchor_b_m)?;
+    let rot = checked_rotation(quat)?;
+    let lever_nav = rot * Vector3::from(lever_arm_body_m);
+    let p_ant = Vector3::from(p_ins_m) + lever_nav;
+    let to_a = p_ant - Vector3::from(anchor_a_m);
+    let to_b = p_ant - Vector3::from(anchor_b_m);
+    let (da, db) = (to_a.norm(), to_b.norm());
+    if da < MIN_ANCHOR_DIST_M || db < MIN_ANCHOR_DIST_M {
+        return Err(TdoaUpdateError::AntennaAtAnchor {
+            distance_m: da.min(db),
+        });
+    }
+    let u = to_b / db - to_a / da;
+    let mut h = StateVector::zeros();
+    h.fixed_rows_mut::<3>(IDX_POS).copy_from(&(-u));
+    // u^T [l x] as a column: ([l x]^T u) = -[l x] u = u x l.
+    h.fixed_rows_mut::<3>(IDX_ATT)
+        .copy_from(&u.cross(&lever_nav));
+    Ok(TdoaModel {
+        predicted_m: db - da,
+        h,
+    })
+}
+
+/// The tightly coupled error-state Kalman filter (15 states, closed loop).
+///
+/// The INS integrates the nominal state; this filter propagates the error
+/// covariance with the nominal values it is given ([`Eskf::predict`]),
+/// updates with each TDOA difference ([`Eskf::update_tdoa`]) and hands its
+/// error estimate back with [`Eskf::take_correction`], after which the INS
+/// applies it and the error state is zero again. Time is the sum of the
+/// `dt_s` given to `predict` (used by the per-pair decimation, the
+/// correlation inflation and the rejection-run monitor).
+///
+/// ```
+/// use insuwb_eskf::{Eskf, EskfConfig, TdoaOutcome};
+/// let mut f = Eskf::new(EskfConfig::default()).unwrap();
+/// let q = [1.0, 0.0, 0.0, 0.0]; // level, facing east
+/// f.predict(0.001, q, [0.0, 0.0, 9.81]).unwrap(); // at rest
+/// // The INS believes it is at the origin at 1.5 m; the TDOA says 0.3 m more
+/// // range to anchor B than the INS predicts.
+/// let (a, b, p_ins) = ([-4.0, -4.0, 0.2], [4.0, -4.0, 3.0], [0.0, 0.0, 1.5]);
+/// let dist = |x: [f64; 3], y: [f64; 3]| ((x[0] - y[0]).powi(2) + (x[1] - y[1]).powi(2) + (x[2] - y[2]).powi(2)).sqrt();
+/// let z = dist(p_ins, b) - dist(p_ins, a) + 0.3;
+/// let rep = f.update_tdoa(p_ins, q, [0.0; 3], a, b, z).unwrap();
+/// assert_eq!(rep.outcome, TdoaOutcome::Accepted);
+/// assert!((rep.innovation_m - 0.3).abs() < 1e-12);
+/// let c = f.take_correction(); // for the INS: pos -= d_pos_m, ...
+/// assert!(c.d_pos_m.iter().any(|x| x.abs() > 1e-3));
+/// assert_eq!(f.state().norm(), 0.0);
+/// ```
+#[derive(Debug, Clone)]
+pub struct Eskf {
+    config: EskfConfig,
+    x: StateVector,
+    p: Covariance,
+    p0: Covariance,
+    time_s: f64,
+    nis_last: Option<f64>,
+    nis_ring: [f64; MAX_NIS_WINDOW],
+    nis_len: usize,
+    nis_next: usize,
+    reject_run_start_s: Option<f64>,
+    needs_reset: bool,
+    pairs: [PairSlot; PAIR_SLOTS],
+    stats: EskfStats,
+}
+
+impl Eskf {
+    /// A filter with zero error state and the configured initial covariance.
+    ///
+    /// # Errors
+    /// [`EskfConfigError`] naming the first invalid key.
+    pub fn new(config: EskfConfig) -> Result<Self, EskfConfigError> {
+        config.validate()?;
+        let p0 = Self::initial_covariance(&config);
+        Ok(Self {
+            config,
+            x: StateVector::zeros(),
+            p: p0,
+            p0,
+            time_s: 0.0,
+            nis_last: None,
+            nis_ring: [0.0; MAX_NIS_WINDOW],
+            nis_len: 0,
+            nis_next: 0,
+            reject_run_start_s: None,
+            needs_reset: false,
+            pairs: [PairSlot::default(); PAIR_SLOTS],
+            stats: EskfStats::default(),
+        })
+    }
+
+    /// The diagonal initial covariance of a configuration: position,
+    /// velocity, roll/pitch (δθ east and north), yaw (δθ up) and bias sigmas.
+    ///
+    /// The attitude error is an ENU rotation vector, so its up component is
+    /// the yaw error whatever the heading, and its east/north components are
+    /// tilt errors.
+    #[must_use]
+    pub fn initial_covariance(config: &EskfConfig) -> Covariance {
+        let sig = [
+            config.init_pos_sigma_m,
+            config.init_pos_sigma_m,
+            config.init_pos_sigma_m,
+            config.init_vel_sigma_mps,
+            config.init_vel_sigma_mps,
+            config.init_vel_sigma_mps,
+            config.init_roll_pitch_sigma_rad,
+            config.init_roll_pitch_sigma_rad,
+            config.init_yaw_sigma_rad,
+            config.init_accel_bias_sigma_mps2,
+            config.init_accel_bias_sigma_mps2,
+            config.init_accel_bias_sigma_mps2,
+            config.init_gyro_bias_sigma_rps,
+            config.init_gyro_bias_sigma_rps,
+            config.init_gyro_bias_sigma_rps,
+        ];
+        Covariance::from_diagonal(&StateVector::from(sig.map(|s| s * s)))
+    }
+
+    /// The configuration in use.
+    #[must_use]
+    pub fn config(&self) -> &EskfConfig {
+        &self.config
+    }
+
+    /// Propagates the error state and its covariance over `dt_s` with the
+    /// nominal attitude `quat` (`[w, x, y, z]`, body to ENU) and specific
+    /// force `f_nav_mps2` in ENU (`accel_nav + [0, 0, g]`):
+    /// `P <- Φ P Φ^T + Q` with `Φ = I + F dt` ([`transition_matrix`]) and `Q`
+    /// from [`process_noise`]; `P` is kept exactly symmetric. Allocation-free.
+    /// A zero `dt_s` does nothing. Pass the INS's attitude and specific force
+    /// over the step (e.g. at its middle). `F` couples yaw error to velocity
+    /// through the horizontal part of `f_nav_mps2`, so accelerometer noise
+    /// passed here acts as "acceleration" and lends the yaw some spurious
+    /// observability; with strong low-frequency vibration pass a smoothed
+    /// specific force.
+    ///
+    /// # Errors
+    /// [`PredictError`] on a non-finite input, a non-unit quaternion or a
+    /// step outside `[0, max_dt_s]`; the filter is then unchanged.
+    pub fn predict(
+        &mut self,
+        dt_s: f64,
+        quat: [f64; 4],
+        f_nav_mps2: [f64; 3],
+    ) -> Result<(), PredictError> {
+        finite("dt_s", &[dt_s])?;
+        finite("f_nav_mps2", &f_nav_mps2)?;
+        let rot = checked_rotation(quat)?;
+        if !(0.0..=self.config.max_dt_s).contains(&dt_s) {
+            return Err(PredictError::DtOutOfRange {
+                dt_s,
+                max_dt_s: self.config.max_dt_s,
+            });
+        }
+        if dt_s == 0.0 {
+            return Ok(());
+        }
+        let minus_f_skew = -skew(&Vector3::from(f_nav_mps2));
+        // Φ P Φ^T = P + dt (F P + P F^T) + dt^2 F P F^T, with F P F^T = F (F P)^T.
+        let fp = apply_f(&minus_f_skew, &rot, &self.p);
+        let fpft = apply_f(&minus_f_skew, &rot, &fp.transpose());
+        self.p += (fp + fp.transpose()) * dt_s + fpft * (dt_s * dt_s);
+        let q = process_noise(&self.config, dt_s);
+        for i in 0..N_STATES {
+            self.p[(i, i)] += q[i];
+        }
+        symmetrize(&mut self.p);
+        if self.x.iter().any(|&v| v != 0.0) {
+            self.x += apply_f(&minus_f_skew, &rot, &self.x) * dt_s;
+        }
+        self.time_s += dt_s;
+        self.stats.predicts += 1;
+        if !self.p.iter().all(|v| v.is_finite()) {
+            self.needs_reset = true;
+        }
+        Ok(())
+    }
+
+    /// [`Eskf::predict`] from an INS state: specific force
+    /// `accel_nav_mps2 + [0, 0, gravity_mps2]` and the state's quaternion.
+    ///
+    /// # Errors
+    /// As [`Eskf::predict`].
+    pub fn predict_from_nav(
+        &mut self,
+        dt_s: f64,
+        nav: &insuwb_msg::NavState,
+        gravity_mps2: f64,
+    ) -> Result<(), PredictError> {
+        let a = nav.accel_nav_mps2;
+        self.predict(dt_s, nav.quat, [a[0], a[1], a[2] + gravity_mps2])
+    }
+
+    /// Fuses one TDOA measurement `diff_m = |p_ant - b| - |p_ant - a|`
+    /// (`p_ant = p + C(q) lever`) taken at the INS state `(p_ins_m, quat)`.
+    ///
+    /// Steps: innovation `v = z - h(x_ins) - H δx` and marginal
+    /// `S = H P H^T + tdoa_sigma^2`, `r = |v| / sqrt(S)`; the pair (unordered)
+    /// is skipped if applied less than `min_interval_per_pair_s` ago; `r`
+    /// beyond `hard_gate_sigma` rejects (counted, feeds the rejection-run
+    /// monitor); beyond `kappa` the weight is `lambda = kappa / r` (Huber:
+    /// innovation scaled by `lambda`; InflateR: gain `R` divided by
+    /// `lambda^2`). The gain uses `R = tdoa_sigma^2 * tdoa_r_inflation *
+    /// max(1, 2 tdoa_corr_time_s / dt_pair)` for time-correlated errors (see
+    /// [`EskfConfig::tdoa_corr_time_s`]); `P` gets the Joseph-form update.
+    /// Every non-decimated NIS feeds the divergence monitor. Pairs are told
+    /// apart by their anchor positions (bit-exact), in either order. A
+    /// non-zero error state (no correction taken since the last update) is
+    /// accounted for in `v`.
+    ///
+    /// # Errors
+    /// [`TdoaUpdateError`] on a non-finite input, a non-unit quaternion or an
+    /// antenna on an anchor; the filter is then unchanged.
+    pub fn update_tdoa(
+        &mut self,
+        p_ins_m: [f64; 3],
+        quat: [f64; 4],
+        lever_arm_body_m: [f64; 3],
+        anchor_a_m: [f64; 3],
+        anchor_b_m: [f64; 3],
+        diff_m: f64,
+    ) -> Result<TdoaUpdateReport, TdoaUpdateError> {
+        finite("diff_m", &[diff_m])?;
+        let model = tdoa_model(p_ins_m, quat, lever_arm_body_m, anchor_a_m, anchor_b_m)?;
+        let h = model.h;
+        let v = diff_m - model.predicted_m - h.dot(&self.x);
+        let c = self.p * h;
+        let hph = h.dot(&c).max(0.0);
+        let sigma2 = self.config.tdoa_sigma_m * self.config.tdoa_sigma_m;
+        let s = hph + sigma2;
+        let nis = v * v / s;
+        let r = nis.sqrt();
+        let mut report = TdoaUpdateReport {
+            outcome: TdoaOutcome::Accepted,
+            innovation_m: v,
+            innovation_var_m2: s,
+            r_gain_m2: 0.0,
+            lambda: 0.0,
+            nis,
+            rejected: false,
+            needs_reset: self.needs_reset,
+        };
+
+        let key = pair_key(&anchor_a_m, &anchor_b_m);
+        let slot = self.pairs.iter().position(|p| p.used && p.key == key);
+        let dt_pair = slot
+            .and_then(|i| self.pairs.get(i))
+            .map_or(f64::INFINITY, |p| self.time_s - p.last_time_s);
+        if self.config.min_interval_per_pair_s > 0.0
+            && dt_pair < self.config.min_interval_per_pair_s
+        {
+            self.stats.decimated += 1;
+            report.outcome = TdoaOutcome::Decimated;
+            return Ok(report);
+        }
+
+        self.nis_last = Some(nis);
+        self.push_nis(nis);
+
+        if r > self.config.hard_gate_sigma {
+            self.stats.rejected += 1;
+            if self.reject_run_start_s.is_none() {
+                self.reject_run_start_s = Some(self.time_s);
+            }
+            self.check_monitors();
+            report.outcome = TdoaOutcome::Rejected;
+            report.rejected = true;
+            report.needs_reset = self.needs_reset;
+            return Ok(report);
+        }
+
+        let lambda = if r > self.config.kappa {
+            self.config.kappa / r
+        } else {
+            1.0
+        };
+        let corr = if self.config.tdoa_corr_time_s > 0.0 {
+            (2.0 * self.config.tdoa_corr_time_s / dt_pair.max(MIN_PAIR_DT_S)).max(1.0)
+        } else {
+            1.0
+        };
+        let r_gain = sigma2 * self.config.tdoa_r_inflation * corr;
+        let (v_used, r_gain) = match self.config.robust_mode {
+            RobustMode::Huber => (lambda * v, r_gain),
+            RobustMode::InflateR => (v, r_gain / (lambda * lambda)),
+        };
+        self.scalar_update(&c, hph, r_gain, v_used);
+
+        self.touch_pair(slot, key);
+        self.reject_run_start_s = None;
+        if lambda < 1.0 {
+            self.stats.downweighted += 1;
+            report.outcome = TdoaOutcome::Downweighted;
+        } else {
+            self.stats.accepted += 1;
+        }
+        self.check_monitors();
+        report.lambda = lambda;
+        report.r_gain_m2 = r_gain;
+        report.needs_reset = self.needs_reset;
+        Ok(report)
+    }
+
+    /// Fuses a 3D position fix of the antenna (`pos_uwb_m`, covariance
+    /// `cov_m2`) taken at the INS state `(p_ins_m, quat)`: `H = [-I, 0,
+    /// [(C l) x], 0, 0]`, rejected when the Mahalanobis distance
+    /// `sqrt(v^T S^-1 v)` exceeds `hard_gate_sigma`, otherwise a plain
+    /// (unweighted) Joseph-form update. For initialisation checks and loose
+    /// coupling; it does not feed the TDOA divergence monitor.
+    ///
+    /// # Errors
+    /// [`PositionUpdateError`] on a non-finite input, a non-unit quaternion
+    /// or a fix covariance that is not symmetric positive definite.
+    pub fn update_position(
+        &mut self,
+        p_ins_m: [f64; 3],
+        quat: [f64; 4],
+        lever_arm_body_m: [f64; 3],
+        pos_uwb_m: [f64; 3],
+        cov_m2: [[f64; 3]; 3],
+    ) -> Result<PositionUpdateReport, PositionUpdateError> {
+        finite("p_ins_m", &p_ins_m)?;
+        finite("lever_arm_body_m", &lever_arm_body_m)?;
+        finite("pos_uwb_m", &pos_uwb_m)?;
+        let rot = checked_rotation(quat)?;
+        let cov = Matrix3::from_fn(|i, j| cov_m2[i][j]);
+        check_covariance(&cov).map_err(|(row, col, value)| {
+            PositionUpdateError::CovarianceNotPd { row, col, value }
+        })?;
+        let lever_nav = rot * Vector3::from(lever_arm_body_m);
+        let mut h = SMatrix::<f64, 3, N_STATES>::zeros();
+        h.fixed_view_mut::<3, 3>(0, IDX_POS)
+            .copy_from(&(-Matrix3::identity()));
+        h.fixed_view_mut::<3, 3>(0, IDX_ATT)
+            .copy_from(&skew(&lever_nav));
+        let v = Vector3::from(pos_uwb_m) - (Vector3::from(p_ins_m) + lever_nav) - h * self.x;
+        let pht = self.p * h.transpose();
+        let s = h * pht + cov;
+        let s_inv = match s.cholesky() {
+            Some(ch) => ch.inverse(),
+            None => {
+                return Err(PositionUpdateError::CovarianceNotPd {
+                    row: 0,
+                    col: 0,
+                    value: s[(0, 0)],
+                })
+            }
+        };
+        let nis = v.dot(&(s_inv * v));
+        let rejected = nis.sqrt() > self.config.hard_gate_sigma;
+        if !rejected {
+            let k = pht * s_inv;
+            self.x += k * v;
+            let i_kh = Covariance::identity() - k * h;
+            self.p = i_kh * self.p * i_kh.transpose() + k * cov * k.transpose();
+            symmetrize(&mut self.p);
+            self.stats.position_updates += 1;
+        }
+        Ok(PositionUpdateReport {
+            innovation_m: v.into(),
+            nis,
+            rejected,
+        })
+    }
+
+    /// Returns the error estimate as a [`Correction`] for the INS and zeroes
+    /// the error state (closed loop).
+    ///
+    /// With `reset_jacobian` (default) the attitude block of `P` is mapped
+    /// through `G = I - [δθ/2 x]`: after the INS applies `q <- Exp(-δθ) ⊗ q`,
+    /// the new error `δθ⁺ = Log(Exp(-δθ̂) Exp(δθ)) ≈ (I - [δθ̂/2 x]) (δθ - δθ̂)`
+    /// (Solà 2017 §7.2); the other blocks are shifted by constants, so their
+    /// Jacobian is the identity. Without it, `P` is unchanged.
+    pub fn take_correction(&mut self) -> Correction {
+        let x = &self.x;
+        let v3 = |i: usize| [x[i], x[i + 1], x[i + 2]];
+        let corr = Correction {
+            d_pos_m: v3(IDX_POS),
+            d_vel_mps: v3(IDX_VEL),
+            d_att_rad: v3(IDX_ATT),
+            d_accel_bias_mps2: v3(IDX_ACCEL_BIAS),
+            d_gyro_bias_rps: v3(IDX_GYRO_BIAS),
+        };
+        if self.config.reset_jacobian {
+            let half = Vector3::from(corr.d_att_rad) * 0.5;
+            if half.iter().any(|&v| v != 0.0) {
+                let g = Matrix3::identity() - skew(&half);
+                let rows = g * self.p.fixed_view::<3, N_STATES>(IDX_ATT, 0);
+                self.p
+                    .fixed_view_mut::<3, N_STATES>(IDX_ATT, 0)
+                    .copy_from(&rows);
+                let cols = self.p.fixed_view::<N_STATES, 3>(0, IDX_ATT) * g.transpose();
+                self.p
+                    .fixed_view_mut::<N_STATES, 3>(0, IDX_ATT)
+                    .copy_from(&cols);
+                symmetrize(&mut self.p);
+            }
+        }
+        self.x = StateVector::zeros();
+        corr
+    }
+
+    /// Restarts the filter after the caller re-initialised the INS (e.g. from
+    /// a UWB multilateration fix): zero error state, the configured initial
+    /// covariance, cleared monitors, pair history and `needs_reset`. The
+    /// clock and the counters continue.
+    pub fn reset(&mut self) {
+        let p0 = self.p0;
+        self.reset_to(p0);
+    }
+
+    /// [`Eskf::reset`] with the configured initial covariance except its
+    /// position block, which is `pos_cov_m2` (e.g. the fix covariance).
+    ///
+    /// # Errors
+    /// [`ResetError`] when `pos_cov_m2` is not finite, symmetric and
+    /// positive definite; the filter is then unchanged.
+    pub fn reset_with_position_cov(&mut self, pos_cov_m2: [[f64; 3]; 3]) -> Result<(), ResetError> {
+        let pc = Matrix3::from_fn(|i, j| pos_cov_m2[i][j]);
+        check_covariance(&pc).map_err(|(row, col, value)| ResetError::CovarianceNotPd {
+            row,
+            col,
+            value,
+        })?;
+        let mut p = self.p0;
+        p.fixed_view_mut::<3, 3>(IDX_POS, IDX_POS).copy_from(&pc);
+        self.reset_to(p);
+        Ok(())
+    }
+
+    /// [`Eskf::reset`] with a caller-given initial covariance.
+    ///
+    /// # Errors
+    /// [`ResetError`] when `p0` is not finite, symmetric and positive
+    /// definite; the filter is then unchanged.
+    pub fn reset_with_covariance(&mut self, p0: &Covariance) -> Result<(), ResetError> {
+        check_covariance(p0).map_err(|(row, col, value)| ResetError::CovarianceNotPd {
+            row,
+            col,
+            value,
+        })?;
+        self.reset_to(*p0);
+        Ok(())
+    }
+
+    fn reset_to(&mut self, p0: Covariance) {
+        self.x = StateVector::zeros();
+        self.p = p0;
+        symmetrize(&mut self.p);
+        self.nis_last = None;
+        self.nis_len = 0;
+        self.nis_next = 0;
+        self.reject_run_start_s = None;
+        self.needs_reset = false;
+        self.pairs = [PairSlot::default(); PAIR_SLOTS];
+        self.stats.resets += 1;
+    }
+
+    /// The current error-state estimate `[δp, δv, δθ, δb_a, δb_g]` (zero
+    /// right after [`Eskf::take_correction`]).
+    #[must_use]
+    pub fn state(&self) -> &StateVector {
+        &self.x
+    }
+
+    /// The error-state covariance.
+    #[must_use]
+    pub fn covariance(&self) -> &Covariance {
+        &self.p
+    }
+
+    /// Covariance of `[pos e, n, u, vel e, n, u]` (as in
+    /// [`insuwb_msg::FusedState::cov`]).
+    #[must_use]
+    pub fn position_velocity_cov(&self) -> [[f64; 6]; 6] {
+        let mut out = [[0.0; 6]; 6];
+        for (i, row) in out.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = self.p[(IDX_POS + i, IDX_POS + j)];
+            }
+        }
+        out
+    }
+
+    /// NIS of the last TDOA measurement that was not decimated.
+    #[must_use]
+    pub fn nis_last(&self) -> Option<f64> {
+        self.nis_last
+    }
+
+    /// The divergence monitor asks the caller to re-initialise the INS and
+    /// call [`Eskf::reset`]: the NIS window statistic exceeded
+    /// `nis_threshold`, consecutive rejections lasted longer than
+    /// `max_reject_run_s`, or `P` became non-finite. Sticky until reset.
+    #[must_use]
+    pub fn needs_reset(&self) -> bool {
+        self.needs_reset
+    }
+
+    /// Filter time, s: the sum of the steps given to [`Eskf::predict`].
+    #[must_use]
+    pub fn time_s(&self) -> f64 {
+        self.time_s
+    }
+
+    /// Counters since construction.
+    #[must_use]
+    pub fn stats(&self) -> EskfStats {
+        self.stats
+    }
+
+    /// The divergence monitor's window statistic (median or clipped mean of
+    /// the last `nis_window` NIS), `None` until the window is full.
+    #[must_use]
+    pub fn nis_window_statistic(&self) -> Option<f64> {
+        let n = self.config.nis_window;
+        if self.nis_len < n {
+            return None;
+        }
+        let vals = self.nis_ring.get(..n)?;
+        match self.config.nis_statistic {
+            NisStatistic::Mean => {
+                let cap = self.config.hard_gate_sigma * self.config.hard_gate_sigma;
+                #[allow(clippy::cast_precision_loss)]
+                let mean = vals.iter().map(|v| v.min(cap)).sum::<f64>() / n as f64;
+                Some(mean)
+            }
+            NisStatistic::Median => {
+                let mut buf = [0.0; MAX_NIS_WINDOW];
+                let work = buf.get_mut(..n)?;
+                work.copy_from_slice(vals);
+                let (_, m, _) = work.select_nth_unstable_by(n / 2, f64::total_cmp);
+                Some(*m)
+            }
+        }
+    }
+
+    fn push_nis(&mut self, nis: f64) {
+        let n = self.config.nis_window;
+        if let Some(slot) = self.nis_ring.get_mut(self.nis_next) {
+            *slot = nis;
+        }
+        self.nis_next = (self.nis_next + 1) % n.max(1);
+        self.nis_len = (self.nis_len + 1).min(n);
+    }
+
+    fn check_monitors(&mut self) {
+        if let Some(stat) = self.nis_window_statistic() {
+            if stat > self.config.nis_threshold {
+                self.needs_reset = true;
+            }
+        }
+        if let Some(t0) = self.reject_run_start_s {
+            if self.time_s - t0 > self.config.max_reject_run_s {
+                self.needs_reset = true;
+            }
+        }
+    }
+
+    fn touch_pair(&mut self, slot: Option<usize>, key: [u64; 6]) {
+        let idx = slot
+            .or_else(|| self.pairs.iter().position(|p| !p.used))
+            .or_else(|| {
+                (0..PAIR_SLOTS).min_by(|&i, &j| {
+                    let ti = self.pairs.get(i).map_or(0.0, |p| p.last_time_s);
+                    let tj = self.pairs.get(j).map_or(0.0, |p| p.last_time_s);
+                    ti.total_cmp(&tj)
+                })
+            });
+        if let Some(p) = idx.and_then(|i| self.pairs.get_mut(i)) {
+            *p = PairSlot {
+                used: true,
+                key,
+                last_time_s: self.time_s,
+            };
+        }
+    }
+
+    /// Scalar update with gain `K = c / (hph + r)`, `c = P h`:
+    /// `δx += K v`, Joseph form `P <- (I - K h^T) P (I - K h^T)^T + K r K^T
+    /// = P - K c^T - c K^T + (hph + r) K K^T`.
+    fn scalar_update(&mut self, c: &StateVector, hph: f64, r: f64, v: f64) {
+        let s = hph + r;
+        let k = c / s;
+        self.x += k * v;
+        let kc = k * c.transpose();
+        self.p += k * k.transpose() * s - kc - kc.transpose();
+        symmetrize(&mut self.p);
+        if !self.p.iter().all(|v| v.is_finite()) {
+            self.needs_reset = true;
+        }
+    }
+}

@@ -1,0 +1,368 @@
+//! Divergence monitor, reset, decimation and correlation inflation, the
+//! correction and its covariance reset, the position update, input errors.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod common;
+
+use common::*;
+use insuwb_eskf::{
+    Covariance, Eskf, EskfConfig, NisStatistic, PredictError, ResetError, TdoaOutcome,
+    TdoaUpdateError, IDX_ATT, IDX_POS,
+};
+use nalgebra::{Matrix3, Vector3};
+
+const Q0: Quat = [1.0, 0.0, 0.0, 0.0];
+const F_REST: [f64; 3] = [0.0, 0.0, G_MPS2];
+const P_INS: [f64; 3] = [0.5, -0.3, 1.2];
+
+fn config() -> EskfConfig {
+    EskfConfig {
+        tdoa_sigma_m: 0.05,
+        tdoa_corr_time_s: 0.0,
+        ..EskfConfig::default()
+    }
+}
+
+fn tdoa_at(p: [f64; 3], a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    let p = Vector3::from(p);
+    dist(&p, b) - dist(&p, a)
+}
+
+/// `seconds` at rest at `P_INS`, a TDOA every 2 ms (no lever arm) with an
+/// error of `offset_m` (plus white noise of 5 cm with `noise`); returns the
+/// number of steps after which `needs_reset` was first raised, if it was.
+fn hover(f: &mut Eskf, seconds: f64, offset_m: f64, noise: Option<&mut Rng>) -> Option<usize> {
+    let an = anchors();
+    let mut rng = noise;
+    let mut first = None;
+    for k in 0..(seconds * 1000.0).round() as usize {
+        f.predict(1e-3, Q0, F_REST).unwrap();
+        if k % 2 == 1 {
+            let (a, b) = (an[(k / 2) % 8], an[(k / 2 + 1) % 8]);
+            let n = rng.as_mut().map_or(0.0, |r| r.normal() * 0.05);
+            f.update_tdoa(
+                P_INS,
+                Q0,
+                [0.0; 3],
+                a,
+                b,
+                tdoa_at(P_INS, &a, &b) + offset_m + n,
+            )
+            .unwrap();
+            f.take_correction();
+        }
+        if first.is_none() && f.needs_reset() {
+            first = Some(k + 1);
+        }
+    }
+    first
+}
+
+#[test]
+fn a_run_of_rejections_longer_than_max_reject_run_raises_needs_reset() {
+    // NIS window out of the way (it would fire first, after half a window).
+    let mut f = Eskf::new(EskfConfig {
+        nis_threshold: 1e12,
+        ..config()
+    })
+    .unwrap();
+    assert_eq!(hover(&mut f, 3.0, 0.0, None), None);
+    // Every TDOA is now 2 m off, beyond the gate. The run starts at the
+    // first rejection (2 ms in) and `needs_reset` must come after 1 s of
+    // consecutive rejections, not before.
+    let before = f.stats().rejected;
+    let step = hover(&mut f, 2.0, 2.0, None).expect("needs_reset never raised");
+    assert!(f.stats().rejected > before + 400);
+    assert!((1002..=1006).contains(&step), "raised after {step} steps");
+    // Reset: monitors cleared, the configured P0 back, error state zero.
+    f.reset();
+    assert!(!f.needs_reset());
+    assert_eq!(*f.covariance(), Eskf::initial_covariance(f.config()));
+    assert_eq!(f.state().norm(), 0.0);
+    assert_eq!(f.nis_last(), None);
+    assert_eq!(f.stats().resets, 1);
+}
+
+#[test]
+fn nis_window_raises_needs_reset_when_innovations_are_inconsistent() {
+    for stat in [NisStatistic::Median, NisStatistic::Mean] {
+        // No gate (every measurement is applied, Huber-clipped), so only the
+        // NIS window can notice.
+        let c = EskfConfig {
+            hard_gate_sigma: 1e6,
+            nis_statistic: stat,
+            nis_window: 100,
+            ..config()
+        };
+        let mut f = Eskf::new(c).unwrap();
+        let mut rng = Rng::new(9);
+        assert_eq!(hover(&mut f, 3.0, 0.0, Some(&mut rng)), None, "{stat:?}");
+        let healthy = f.nis_window_statistic().unwrap();
+        println!("{stat:?}: healthy window statistic {healthy:.2}");
+        assert!(
+            healthy < 2.0,
+            "{stat:?} statistic {healthy} when consistent"
+        );
+        let step = hover(&mut f, 1.0, 1.0, Some(&mut rng)).expect("needs_reset never raised");
+        // The median needs half the window (50 updates, every 2 steps); the
+        // unclipped mean (gate 1e6) fires on the first few huge NIS.
+        match stat {
+            NisStatistic::Median => assert!(
+                (2 * 45..=2 * 60).contains(&step),
+                "median raised after {step} steps"
+            ),
+            NisStatistic::Mean => assert!(step <= 2 * 100, "mean raised after {step} steps"),
+        }
+        assert!(f.stats().rejected == 0);
+    }
+}
+
+#[test]
+fn per_pair_decimation_and_rate_adaptive_inflation() {
+    let (a, b, c) = (anchors()[0], anchors()[1], anchors()[2]);
+    let z = |x: &[f64; 3], y: &[f64; 3]| tdoa_at(P_INS, x, y);
+    let cfg = EskfConfig {
+        min_interval_per_pair_s: 0.1,
+        ..config()
+    };
+    let mut f = Eskf::new(cfg).unwrap();
+    let step = |f: &mut Eskf, n: usize| {
+        for _ in 0..n {
+            f.predict(1e-3, Q0, F_REST).unwrap();
+        }
+    };
+    let up = |f: &mut Eskf, x: &[f64; 3], y: &[f64; 3]| {
+        f.update_tdoa(P_INS, Q0, [0.0; 3], *x, *y, z(x, y))
+            .unwrap()
+            .outcome
+    };
+    assert_eq!(up(&mut f, &a, &b), TdoaOutcome::Accepted);
+    step(&mut f, 50);
+    // The same pair in either order is decimated; another pair is not.
+    assert_eq!(up(&mut f, &b, &a), TdoaOutcome::Decimated);
+    assert_eq!(up(&mut f, &a, &c), TdoaOutcome::Accepted);
+    step(&mut f, 51);
+    assert_eq!(up(&mut f, &a, &b), TdoaOutcome::Accepted);
+    assert_eq!(f.stats().decimated, 1);
+    // A decimated measurement reports lambda 0: an outlier flag in the diagnostics.
+    let rep = f.update_tdoa(P_INS, Q0, [0.0; 3], b, a, z(&b, &a)).unwrap();
+    assert_eq!(rep.outcome, TdoaOutcome::Decimated);
+    let mut diag = insuwb_msg::FilterDiag::default();
+    rep.write_to(&mut diag);
+    assert_eq!(diag.dim, 1);
+    assert_eq!(diag.filter_kind, insuwb_msg::FilterKind::IakfTdoa as u32);
+    assert_eq!(diag.lambda[0], 0.0);
+    assert_eq!(diag.header.flags, insuwb_msg::FilterDiag::FLAG_OUTLIER);
+    assert_eq!(diag.innovation_var[0], rep.innovation_var_m2);
+
+    // R in the gain: sigma^2 * inflation * max(1, 2 tau / dt_pair).
+    let cfg = EskfConfig {
+        tdoa_corr_time_s: 0.25,
+        tdoa_r_inflation: 2.0,
+        ..config()
+    };
+    let s2 = 0.05 * 0.05;
+    let mut f = Eskf::new(cfg).unwrap();
+    let r = |f: &mut Eskf, x: &[f64; 3], y: &[f64; 3]| {
+        f.update_tdoa(P_INS, Q0, [0.0; 3], *x, *y, z(x, y))
+            .unwrap()
+            .r_gain_m2
+    };
+    let close = |x: f64, y: f64| (x - y).abs() < 1e-9 * y;
+    assert!(close(r(&mut f, &a, &b), 2.0 * s2)); // first of its pair
+    step(&mut f, 20);
+    assert!(close(r(&mut f, &b, &a), 2.0 * s2 * 0.5 / 0.020));
+    assert!(close(r(&mut f, &a, &c), 2.0 * s2));
+    assert!(close(r(&mut f, &a, &c), 2.0 * s2 * 0.5 / 0.001)); // same instant: floored at 1 ms
+    step(&mut f, 600);
+    assert!(close(r(&mut f, &a, &b), 2.0 * s2)); // 0.62 s > 2 tau
+}
+
+#[test]
+fn take_correction_returns_the_estimate_and_maps_p_through_the_reset_jacobian() {
+    for reset_jacobian in [true, false] {
+        let mut f = Eskf::new(EskfConfig {
+            reset_jacobian,
+            ..config()
+        })
+        .unwrap();
+        // Build a correlated P and a non-zero attitude estimate.
+        let mut rng = Rng::new(3);
+        let a = Covariance::from_fn(|_, _| rng.normal());
+        let p0 = a * a.transpose() * 0.01 + Covariance::identity() * 0.01;
+        f.reset_with_covariance(&p0).unwrap();
+        let lever = [0.3, 0.2, 0.5];
+        f.update_position(
+            P_INS,
+            Q0,
+            lever,
+            [0.9, -0.1, 1.9],
+            Matrix3::identity().into(),
+        )
+        .unwrap();
+        let x = *f.state();
+        let p = *f.covariance();
+        let c = f.take_correction();
+        assert_eq!(c.d_pos_m, [x[0], x[1], x[2]]);
+        assert_eq!(c.d_vel_mps, [x[3], x[4], x[5]]);
+        assert_eq!(c.d_att_rad, [x[6], x[7], x[8]]);
+        assert_eq!(c.d_accel_bias_mps2, [x[9], x[10], x[11]]);
+        assert_eq!(c.d_gyro_bias_rps, [x[12], x[13], x[14]]);
+        assert!(Vector3::from(c.d_att_rad).norm() > 1e-3);
+        assert_eq!(f.state().norm(), 0.0);
+        let mut g = Covariance::identity();
+        if reset_jacobian {
+            let h = Vector3::from(c.d_att_rad) * 0.5;
+            g.fixed_view_mut::<3, 3>(IDX_ATT, IDX_ATT)
+                .copy_from(&(Matrix3::identity() - skew(&h)));
+        }
+        let expect = g * p * g.transpose();
+        assert!((f.covariance() - expect).abs().max() < 1e-15);
+        assert_eq!(*f.covariance(), f.covariance().transpose());
+        let mut msg = insuwb_msg::InsCorrection::default();
+        c.write_to(&mut msg);
+        assert_eq!(msg.d_att_rad, c.d_att_rad);
+        assert_eq!(msg.d_gyro_bias_rps, c.d_gyro_bias_rps);
+    }
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    insuwb_eskf::skew(v)
+}
+
+#[test]
+fn position_update_known_answer() {
+    let mut f = Eskf::new(config()).unwrap();
+    // P = 0.5^2 per axis, R = 0.1^2: K = 0.25 / 0.26. The fix says the tag is
+    // 0.26 m east of the INS: the INS is west of truth, δp_x = -0.25 m.
+    let rep = f
+        .update_position(
+            P_INS,
+            Q0,
+            [0.0; 3],
+            [P_INS[0] + 0.26, P_INS[1], P_INS[2]],
+            [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 0.01]],
+        )
+        .unwrap();
+    assert!(!rep.rejected);
+    assert!((rep.nis - 0.26 * 0.26 / 0.26).abs() < 1e-12);
+    assert!((f.state()[IDX_POS] + 0.25).abs() < 1e-12);
+    assert!(f.state()[IDX_POS + 1].abs() < 1e-15);
+    let var = f.covariance()[(IDX_POS, IDX_POS)];
+    assert!((var - 0.25 * 0.01 / 0.26).abs() < 1e-12);
+    // A fix 100 sigma away is rejected and changes nothing.
+    let p = *f.covariance();
+    let rep = f
+        .update_position(
+            P_INS,
+            Q0,
+            [0.0; 3],
+            [P_INS[0] + 10.0, P_INS[1], P_INS[2]],
+            [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 0.01]],
+        )
+        .unwrap();
+    assert!(rep.rejected);
+    assert_eq!(*f.covariance(), p);
+}
+
+#[test]
+fn invalid_inputs_are_refused_and_leave_the_filter_unchanged() {
+    let mut f = Eskf::new(config()).unwrap();
+    f.predict(1e-3, Q0, F_REST).unwrap();
+    let before = f.clone();
+    let (a, b) = (anchors()[0], anchors()[1]);
+    assert_eq!(
+        f.predict(0.5, Q0, F_REST),
+        Err(PredictError::DtOutOfRange {
+            dt_s: 0.5,
+            max_dt_s: 0.1
+        })
+    );
+    assert!(matches!(
+        f.predict(-1e-3, Q0, F_REST),
+        Err(PredictError::DtOutOfRange { .. })
+    ));
+    assert!(matches!(
+        f.predict(1e-3, Q0, [f64::NAN, 0.0, 9.8]),
+        Err(PredictError::NonFinite {
+            input: "f_nav_mps2",
+            ..
+        })
+    ));
+    assert_eq!(
+        f.predict(1e-3, [0.5, 0.0, 0.0, 0.0], F_REST),
+        Err(PredictError::QuatNotUnit { norm: 0.5 })
+    );
+    let e = f
+        .update_tdoa(P_INS, Q0, [0.0; 3], a, b, f64::INFINITY)
+        .unwrap_err();
+    assert!(matches!(
+        e,
+        TdoaUpdateError::NonFinite {
+            input: "diff_m",
+            ..
+        }
+    ));
+    assert!(e.to_string().contains("diff_m"));
+    assert!(matches!(
+        f.update_tdoa(a, Q0, [0.0; 3], a, b, 0.3),
+        Err(TdoaUpdateError::AntennaAtAnchor { .. })
+    ));
+    let bad = Covariance::identity() * -1.0;
+    assert!(matches!(
+        f.reset_with_covariance(&bad),
+        Err(ResetError::CovarianceNotPd { .. })
+    ));
+    let mut asym = Covariance::identity();
+    asym[(0, 1)] = 0.5;
+    assert!(matches!(
+        f.reset_with_covariance(&asym),
+        Err(ResetError::CovarianceNotPd { row: 0, col: 1, .. })
+    ));
+    assert!(f
+        .update_position(
+            P_INS,
+            Q0,
+            [0.0; 3],
+            P_INS,
+            [[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        )
+        .is_err());
+    assert_eq!(f.covariance(), before.covariance());
+    assert_eq!(f.state(), before.state());
+    assert_eq!(f.stats(), before.stats());
+    assert_eq!(f.time_s(), before.time_s());
+    assert!(Eskf::new(EskfConfig {
+        kappa: -1.0,
+        ..config()
+    })
+    .is_err());
+}
+
+#[test]
+fn accessors_and_nav_state_helper() {
+    let mut f = Eskf::new(config()).unwrap();
+    let mut g = f.clone();
+    let nav = insuwb_msg::NavState {
+        quat: [0.9, 0.1, -0.2, 0.3].map(|x: f64| x / (0.81f64 + 0.01 + 0.04 + 0.09).sqrt()),
+        accel_nav_mps2: [0.3, -0.2, 0.1],
+        ..Default::default()
+    };
+    f.predict_from_nav(0.01, &nav, 9.81).unwrap();
+    g.predict(0.01, nav.quat, [0.3, -0.2, 0.1 + 9.81]).unwrap();
+    assert_eq!(f.covariance(), g.covariance());
+    let pv = f.position_velocity_cov();
+    for (i, row) in pv.iter().enumerate() {
+        for (j, v) in row.iter().enumerate() {
+            assert_eq!(*v, f.covariance()[(i, j)]);
+        }
+    }
+    assert!((f.time_s() - 0.01).abs() < 1e-15);
+    assert_eq!(f.stats().predicts, 1);
+    // Reset with a position covariance from a fix.
+    f.reset_with_position_cov([[0.04, 0.01, 0.0], [0.01, 0.04, 0.0], [0.0, 0.0, 0.09]])
+        .unwrap();
+    assert_eq!(f.covariance()[(0, 1)], 0.01);
+    assert_eq!(f.covariance()[(2, 2)], 0.09);
+    assert_eq!(f.covariance()[(8, 8)], 1.8 * 1.8);
+}
