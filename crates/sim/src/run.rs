@@ -1,0 +1,434 @@
+//! The simulation run: samples the trajectory into ground truth and ideal
+//! IMU readings, adds the IMU errors, and measures UWB TDOA differences with
+//! noise, anchor biases, NLOS excess paths and dropouts.
+//!
+//! Every random quantity draws from its own stream of the seed
+//! ([`crate::rng::Rng::stream`]); the output is a pure function of the
+//! scenario and the seed.
+
+use insuwb_msg::{GroundTruth, Header, ImuSample, UwbTdoa};
+use thiserror::Error;
+
+use crate::rng::Rng;
+use crate::scenario::{sample_count, NoiseModel, Scenario, ScenarioConfigError};
+use crate::trajectory::{TrajectoryError, TrajectoryModel};
+
+/// Random stream of the IMU bias signs.
+const STREAM_IMU_BIAS: u64 = 1;
+/// Random stream of the IMU white noise and bias walks.
+const STREAM_IMU_NOISE: u64 = 2;
+/// Random stream of the UWB noise.
+const STREAM_UWB_NOISE: u64 = 3;
+/// Random stream of the scheduled outlier bursts.
+const STREAM_OUTLIERS: u64 = 4;
+/// Random stream of the random NLOS events.
+const STREAM_RANDOM_NLOS: u64 = 5;
+/// Random stream of the initial INS errors.
+const STREAM_INITIAL: u64 = 6;
+
+/// Degrees to radians.
+const DEG: f64 = core::f64::consts::PI / 180.0;
+
+/// Why a simulation could not run.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum SimError {
+    /// The scenario does not validate.
+    #[error("invalid scenario: {0}")]
+    Invalid(#[from] ScenarioConfigError),
+    /// The trajectory cannot be evaluated at some time (e.g. zero speed on a Lissajous curve).
+    #[error("trajectory at t = {t_s} s: {source}")]
+    Trajectory {
+        /// Time of the failure, s.
+        t_s: f64,
+        /// What failed.
+        #[source]
+        source: TrajectoryError,
+    },
+}
+
+/// How each UWB difference was made: `diff_m = geometric_m + anchor_bias_m + nlos_m + noise_m`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TdoaTruth {
+    /// Error-free range difference `|p - b| - |p - a|`, m.
+    pub geometric_m: f64,
+    /// Contribution of the anchors' constant range biases (`bias_b - bias_a`), m.
+    pub anchor_bias_m: f64,
+    /// Contribution of NLOS excess paths (`excess_b - excess_a`), m.
+    pub nlos_m: f64,
+    /// Contribution of the noise, m.
+    pub noise_m: f64,
+}
+
+/// The IMU error values drawn for a run (the turn-on biases, before any bias walk).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ImuErrorRealisation {
+    /// Gyro bias per body axis, rad/s.
+    pub gyro_bias_rps: [f64; 3],
+    /// Accelerometer bias per body axis, m/s^2.
+    pub accel_bias_mps2: [f64; 3],
+}
+
+/// Everything a run produces. Each stream is sorted by time with `seq`
+/// counting from 0.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SimOutput {
+    /// IMU samples (specific force and body rate with errors).
+    pub imu: Vec<ImuSample>,
+    /// TDOA differences; those of one epoch share `meas_time_ns`, the last
+    /// one carries [`UwbTdoa::FLAG_EPOCH_END`].
+    pub tdoa: Vec<UwbTdoa>,
+    /// Ground truth at the IMU times (`FLAG_VEL_VALID` set).
+    pub truth: Vec<GroundTruth>,
+    /// Decomposition of each entry of `tdoa` (same index).
+    pub tdoa_truth: Vec<TdoaTruth>,
+    /// The IMU biases drawn for this run.
+    pub imu_errors: ImuErrorRealisation,
+}
+
+/// One record of the merged stream.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SimRecord {
+    /// Ground truth.
+    Truth(GroundTruth),
+    /// IMU sample.
+    Imu(ImuSample),
+    /// TDOA difference.
+    Tdoa(UwbTdoa),
+}
+
+impl SimRecord {
+    /// Measurement time, ns.
+    #[must_use]
+    pub fn time_ns(&self) -> u64 {
+        match self {
+            Self::Truth(s) => s.header.meas_time_ns,
+            Self::Imu(s) => s.header.meas_time_ns,
+            Self::Tdoa(s) => s.header.meas_time_ns,
+        }
+    }
+
+    /// Tie-break rank at equal times: truth 0, IMU 1, UWB 2.
+    fn rank(&self) -> u8 {
+        match self {
+            Self::Truth(_) => 0,
+            Self::Imu(_) => 1,
+            Self::Tdoa(_) => 2,
+        }
+    }
+}
+
+impl SimOutput {
+    /// All samples in one stream ordered by measurement time; at equal times
+    /// truth comes first, then IMU, then UWB (each stream keeps its own order).
+    #[must_use]
+    pub fn merged(&self) -> Vec<SimRecord> {
+        let mut out = Vec::with_capacity(self.imu.len() + self.tdoa.len() + self.truth.len());
+        let (mut t, mut i, mut u) = (
+            self.truth.iter().peekable(),
+            self.imu.iter().peekable(),
+            self.tdoa.iter().peekable(),
+        );
+        loop {
+            let cands = [
+                t.peek().map(|s| SimRecord::Truth(**s)),
+                i.peek().map(|s| SimRecord::Imu(**s)),
+                u.peek().map(|s| SimRecord::Tdoa(**s)),
+            ];
+            let best = cands
+                .iter()
+                .flatten()
+                .min_by_key(|r| (r.time_ns(), r.rank()))
+                .copied();
+            let Some(rec) = best else { break };
+            match rec {
+                SimRecord::Truth(_) => {
+                    t.next();
+                }
+                SimRecord::Imu(_) => {
+                    i.next();
+                }
+                SimRecord::Tdoa(_) => {
+                    u.next();
+                }
+            }
+            out.push(rec);
+        }
+        out
+    }
+}
+
+/// The INS start a filter is given: the truth at t = 0 plus errors drawn
+/// from the scenario's `initial_error` sigmas.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct InitialState {
+    /// Position, ENU, m (z is the true height: the errors are horizontal).
+    pub pos_m: [f64; 3],
+    /// Velocity, ENU, m/s.
+    pub vel_mps: [f64; 3],
+    /// Heading, rad.
+    pub yaw_rad: f64,
+}
+
+impl Scenario {
+    /// A perturbed INS initial state: truth at t = 0 plus Gaussian errors
+    /// with the `initial_error` sigmas on east and north position, east and
+    /// north velocity, and yaw (drawn in that order from a stream of `seed`
+    /// independent of those used by [`simulate`]).
+    pub fn initial_ins_state(&self, seed: u64) -> Result<InitialState, SimError> {
+        self.validate()?;
+        let model = TrajectoryModel::new(&self.trajectory, self.height_m)
+            .map_err(|source| SimError::Trajectory { t_s: 0.0, source })?;
+        let k = model
+            .eval(0.0)
+            .map_err(|source| SimError::Trajectory { t_s: 0.0, source })?;
+        let mut rng = Rng::stream(seed, STREAM_INITIAL);
+        let e = &self.initial_error;
+        let dp = [rng.normal(e.pos_m), rng.normal(e.pos_m)];
+        let dv = [rng.normal(e.vel_mps), rng.normal(e.vel_mps)];
+        let dy = rng.normal(e.yaw_rad);
+        Ok(InitialState {
+            pos_m: [k.pos_m[0] + dp[0], k.pos_m[1] + dp[1], k.pos_m[2]],
+            vel_mps: [k.vel_mps[0] + dv[0], k.vel_mps[1] + dv[1], k.vel_mps[2]],
+            yaw_rad: k.yaw_rad + dy,
+        })
+    }
+}
+
+/// Time of sample `k` at `rate_hz`, ns (rounded to the nearest nanosecond).
+fn time_ns(k: u64, rate_hz: f64) -> u64 {
+    (k as f64 * 1e9 / rate_hz).round() as u64
+}
+
+/// Seconds to nanoseconds for interval bounds (clamped at 0).
+fn to_ns(t_s: f64) -> u64 {
+    (t_s * 1e9).round().max(0.0) as u64
+}
+
+/// A time interval `[start, end)` in ns affecting one anchor index with a fixed excess.
+#[derive(Debug, Clone, Copy)]
+struct NlosEvent {
+    anchor: usize,
+    start_ns: u64,
+    end_ns: u64,
+    excess_m: f64,
+}
+
+/// Runs the scenario with `seed`.
+pub fn simulate(scenario: &Scenario, seed: u64) -> Result<SimOutput, SimError> {
+    scenario.validate()?;
+    let model = TrajectoryModel::new(&scenario.trajectory, scenario.height_m)
+        .map_err(|source| SimError::Trajectory { t_s: 0.0, source })?;
+    let (imu, truth, imu_errors) = simulate_imu(scenario, &model, seed)?;
+    let (tdoa, tdoa_truth) = simulate_uwb(scenario, &model, seed)?;
+    Ok(SimOutput {
+        imu,
+        tdoa,
+        truth,
+        tdoa_truth,
+        imu_errors,
+    })
+}
+
+type ImuRun = (Vec<ImuSample>, Vec<GroundTruth>, ImuErrorRealisation);
+
+fn simulate_imu(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<ImuRun, SimError> {
+    let e = &sc.imu;
+    let g = sc.gravity_mps2;
+    let rate = sc.imu_rate_hz;
+    let dt = 1.0 / rate;
+
+    let mut bias_rng = Rng::stream(seed, STREAM_IMU_BIAS);
+    let mut gyro_bias = [0.0; 3];
+    let mut accel_bias = [0.0; 3];
+    for b in &mut gyro_bias {
+        *b = bias_rng.sign() * e.gyro_bias_deg_per_h * DEG / 3600.0;
+    }
+    for b in &mut accel_bias {
+        *b = bias_rng.sign() * e.accel_bias_g * g;
+    }
+    let realised = ImuErrorRealisation {
+        gyro_bias_rps: gyro_bias,
+        accel_bias_mps2: accel_bias,
+    };
+
+    // Per-sample white noise: density * sqrt(rate).
+    let gyro_sigma = e.gyro_arw_deg_per_sqrt_h * DEG / 60.0 * rate.sqrt();
+    let accel_sigma = e.accel_vrw_g_sqrt_s * g * rate.sqrt();
+    // Bias walk step per sample: density * sqrt(dt).
+    let gyro_walk = e.gyro_bias_walk_deg_per_h_per_sqrt_s * DEG / 3600.0 * dt.sqrt();
+    let accel_walk = e.accel_bias_walk_g_per_sqrt_s * g * dt.sqrt();
+    let mut rng = Rng::stream(seed, STREAM_IMU_NOISE);
+
+    let n = sample_count(sc.duration_s, rate);
+    let cap = usize::try_from(n).unwrap_or(0);
+    let mut imu = Vec::with_capacity(cap);
+    let mut truth = Vec::with_capacity(cap);
+    for k in 0..n {
+        let t_ns = time_ns(k, rate);
+        let t_s = t_ns as f64 * 1e-9;
+        let kin = model
+            .eval(t_s)
+            .map_err(|source| SimError::Trajectory { t_s, source })?;
+        let mut gt = GroundTruth {
+            header: Header::new(k, t_ns),
+            pos_m: kin.pos_m,
+            vel_mps: kin.vel_mps,
+            quat: kin.quat(),
+        };
+        gt.header.flags |= GroundTruth::FLAG_VEL_VALID;
+        truth.push(gt);
+
+        let f = kin.specific_force_body(g);
+        let w = kin.body_rate();
+        let mut accel = [0.0; 3];
+        let mut gyro = [0.0; 3];
+        for a in 0..3 {
+            gyro[a] = w[a] + gyro_bias[a] + rng.normal(gyro_sigma);
+        }
+        for a in 0..3 {
+            accel[a] = f[a] + accel_bias[a] + rng.normal(accel_sigma);
+        }
+        imu.push(ImuSample {
+            header: Header::new(k, t_ns),
+            accel_mps2: accel,
+            gyro_rps: gyro,
+        });
+        for b in &mut gyro_bias {
+            *b += rng.normal(gyro_walk);
+        }
+        for b in &mut accel_bias {
+            *b += rng.normal(accel_walk);
+        }
+    }
+    Ok((imu, truth, realised))
+}
+
+/// Draws the random NLOS events of the run (per anchor, in anchor order).
+fn random_nlos_events(sc: &Scenario, seed: u64) -> Vec<NlosEvent> {
+    let mut events = Vec::new();
+    let Some(r) = &sc.uwb.random_nlos else {
+        return events;
+    };
+    if r.rate_per_s <= 0.0 {
+        return events;
+    }
+    let mut rng = Rng::stream(seed, STREAM_RANDOM_NLOS);
+    // Hard cap on the number of events (validation bounds the expectation).
+    let cap = (crate::scenario::MAX_RANDOM_NLOS_EVENTS * 2.0) as usize;
+    for (ai, a) in sc.uwb.anchors.iter().enumerate() {
+        if !r.anchors.contains(a.id) {
+            continue;
+        }
+        let mut t = r.start_s;
+        loop {
+            t += rng.exponential(1.0 / r.rate_per_s);
+            if t >= sc.duration_s || events.len() >= cap {
+                break;
+            }
+            let d = rng.exponential(r.mean_duration_s);
+            let excess = rng.uniform_in(r.bias_m[0], r.bias_m[1]);
+            events.push(NlosEvent {
+                anchor: ai,
+                start_ns: to_ns(t),
+                end_ns: to_ns(t + d),
+                excess_m: excess,
+            });
+        }
+    }
+    events
+}
+
+type UwbRun = (Vec<UwbTdoa>, Vec<TdoaTruth>);
+
+fn simulate_uwb(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<UwbRun, SimError> {
+    let u = &sc.uwb;
+    let pairs = u.pair_indices();
+    let na = u.anchors.len();
+    let rate = sc.uwb_rate_hz;
+    let n = sample_count(sc.duration_s, rate);
+    let cap = usize::try_from(n).unwrap_or(0).saturating_mul(pairs.len());
+    let mut tdoa = Vec::with_capacity(cap);
+    let mut annot = Vec::with_capacity(cap);
+
+    let bursts: Vec<(u64, u64)> = u
+        .outliers
+        .iter()
+        .map(|o| (to_ns(o.start_s), to_ns(o.start_s + o.duration_s)))
+        .collect();
+    let drops: Vec<(u64, u64)> = u
+        .dropouts
+        .iter()
+        .map(|d| (to_ns(d.start_s), to_ns(d.start_s + d.duration_s)))
+        .collect();
+    let random = random_nlos_events(sc, seed);
+
+    let mut noise_rng = Rng::stream(seed, STREAM_UWB_NOISE);
+    let mut burst_rng = Rng::stream(seed, STREAM_OUTLIERS);
+    let (anchor_sigma, diff_sigma) = match u.noise_model {
+        NoiseModel::PerAnchor => (u.tdoa_sigma_m / core::f64::consts::SQRT_2, 0.0),
+        NoiseModel::PerDifference => (0.0, u.tdoa_sigma_m),
+    };
+    let mut range = vec![0.0; na];
+    let mut excess = vec![0.0; na];
+    let mut noise = vec![0.0; na];
+    let mut seq = 0u64;
+    for k in 0..n {
+        let t_ns = time_ns(k, rate);
+        if drops.iter().any(|&(a, b)| a <= t_ns && t_ns < b) {
+            continue;
+        }
+        let t_s = t_ns as f64 * 1e-9;
+        let kin = model
+            .eval(t_s)
+            .map_err(|source| SimError::Trajectory { t_s, source })?;
+        let p = kin.pos_m;
+        for (j, a) in u.anchors.iter().enumerate() {
+            let d = [p[0] - a.pos_m[0], p[1] - a.pos_m[1], p[2] - a.pos_m[2]];
+            range[j] = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            excess[j] = 0.0;
+            noise[j] = noise_rng.normal(anchor_sigma);
+        }
+        for (o, &(b0, b1)) in u.outliers.iter().zip(&bursts) {
+            if !(b0 <= t_ns && t_ns < b1) {
+                continue;
+            }
+            for (j, a) in u.anchors.iter().enumerate() {
+                if o.anchors.contains(a.id) && burst_rng.bernoulli(o.probability) {
+                    excess[j] += burst_rng.uniform_in(o.bias_m[0], o.bias_m[1]);
+                }
+            }
+        }
+        for ev in &random {
+            if ev.start_ns <= t_ns && t_ns < ev.end_ns {
+                if let Some(x) = excess.get_mut(ev.anchor) {
+                    *x += ev.excess_m;
+                }
+            }
+        }
+        let last = pairs.len().saturating_sub(1);
+        for (pi, &(ia, ib)) in pairs.iter().enumerate() {
+            let (aa, ab) = (&u.anchors[ia], &u.anchors[ib]);
+            let tr = TdoaTruth {
+                geometric_m: range[ib] - range[ia],
+                anchor_bias_m: ab.range_bias_m - aa.range_bias_m,
+                nlos_m: excess[ib] - excess[ia],
+                noise_m: noise[ib] - noise[ia] + noise_rng.normal(diff_sigma),
+            };
+            let mut m = UwbTdoa {
+                header: Header::new(seq, t_ns),
+                anchor_a: aa.id,
+                anchor_b: ab.id,
+                diff_m: tr.geometric_m + tr.anchor_bias_m + tr.nlos_m + tr.noise_m,
+                anchor_a_pos_m: aa.pos_m,
+                anchor_b_pos_m: ab.pos_m,
+            };
+            if pi == last {
+                m.header.flags |= UwbTdoa::FLAG_EPOCH_END;
+            }
+            seq += 1;
+            tdoa.push(m);
+            annot.push(tr);
+        }
+    }
+    Ok((tdoa, annot))
+}
