@@ -6,6 +6,7 @@
 
 mod dataset;
 mod eval_cmd;
+mod group_cmd;
 mod log_cmd;
 
 use anyhow::Result;
@@ -34,6 +35,12 @@ enum Cmd {
     /// Inspect logs.
     #[command(subcommand)]
     Log(log_cmd::LogCmd),
+    /// Start the process group of a robot config and keep it running.
+    Launch(group_cmd::LaunchArgs),
+    /// Run the whole group on simulated sensors, then report accuracy, rates and latency.
+    Demo(group_cmd::DemoArgs),
+    /// Live per-topic rates, last-sample ages, publishers and subscribers of a running group.
+    Inspect(group_cmd::InspectArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -46,6 +53,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
@@ -67,5 +75,8 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::FitAr(a) => eval_cmd::fit_ar(&a),
         Cmd::Import(ImportCmd::Util(a)) => eval_cmd::import_util(&a),
         Cmd::Log(c) => log_cmd::run(&c),
+        Cmd::Launch(a) => group_cmd::launch(&a),
+        Cmd::Demo(a) => group_cmd::demo(&a),
+        Cmd::Inspect(a) => group_cmd::inspect(&a),
     }
 }

@@ -136,6 +136,7 @@ pub fn init_tracing(stage_name: &str) -> Result<(), TracingInitError> {
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .event_format(StagePrefixed {
             stage: stage_name.to_owned(),
             inner: tracing_subscriber::fmt::format::Format::default(),

@@ -1,0 +1,426 @@
+//! `insuwb launch`, `insuwb demo` and `insuwb inspect`: the process group.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use insuwb_launch::{Event, StageSpec, Supervisor, SupervisorState};
+use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, UwbFix};
+use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
+use insuwb_stage::group::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
+
+/// Shutdown order: sources first so nothing new enters, the logger last so it records the end.
+const SHUTDOWN_ORDER: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
+
+/// The stage binaries live next to this executable.
+fn stage_program(stage: &str) -> Result<PathBuf> {
+    let exe = std::env::current_exe().context("locating the insuwb executable")?;
+    let dir = exe.parent().context("the insuwb executable has no folder")?;
+    let p = dir.join(format!("insuwb-{stage}"));
+    if !p.is_file() {
+        bail!(
+            "stage binary {} not found (build the workspace: cargo build --release)",
+            p.display()
+        );
+    }
+    Ok(p)
+}
+
+/// What a group run measured.
+#[derive(Debug, Default, serde::Serialize)]
+pub struct GroupReport {
+    /// Horizontal RMS error of the valid fused states against ground truth, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rmse_horizontal: Option<f64>,
+    /// Rate of fused states from UWB updates, Hz.
+    pub fused_rate_hz: f64,
+    /// Rate of IMU samples, Hz.
+    pub imu_rate_hz: f64,
+    /// Rate of UWB fixes, Hz.
+    pub uwb_fix_rate_hz: f64,
+    /// Stage restarts.
+    pub restarts: u32,
+    /// UWB fix publish to fused publish, p50, us.
+    pub latency_p50_us: f64,
+    /// p99, us.
+    pub latency_p99_us: f64,
+    /// Samples dropped in the group (invalid, out of order, version, logger overflow).
+    pub dropped: u64,
+    /// Outliers flagged by the filter.
+    pub outliers: u64,
+    /// Fused states published while coasting (no UWB).
+    pub degraded: u64,
+    /// Largest gap between fused states, ms.
+    pub max_gap_ms: f64,
+    /// Seconds run.
+    pub duration_s: f64,
+}
+
+/// Options of a group run.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Stop after this long (None: until SIGINT/SIGTERM).
+    pub duration: Option<Duration>,
+    /// Print a live line each second on standard error.
+    pub live: bool,
+}
+
+struct Monitor {
+    fused: Vec<FusedState>,
+    truth: Vec<GroundTruth>,
+    imu_times: (u64, u64, u64),
+    fix_times: (u64, u64, u64),
+    health: std::collections::BTreeMap<String, Health>,
+}
+
+fn count(t: &mut (u64, u64, u64), at: u64) {
+    if t.2 == 0 {
+        t.0 = at;
+    }
+    t.1 = at;
+    t.2 += 1;
+}
+
+fn rate(t: (u64, u64, u64)) -> f64 {
+    if t.2 < 2 || t.1 <= t.0 {
+        return 0.0;
+    }
+    (t.2 - 1) as f64 / ((t.1 - t.0) as f64 * 1e-9)
+}
+
+/// Starts the group of `cfg` (from the file `cfg_path`), supervises it and
+/// returns what it measured once it stops.
+pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Result<GroupReport> {
+    std::fs::create_dir_all(&cfg.group.run_dir)
+        .with_context(|| format!("{}: cannot create the run directory", cfg.group.run_dir.display()))?;
+    let rt = cfg.runtime("launcher");
+    // Resources left by a previous run of this group that died.
+    let _ = cleanup::cleanup_dead_nodes(&rt);
+    let epoch = choose_start_epoch(monotonic_ns() + 500_000_000);
+    let cfg_arg = cfg_path.display().to_string();
+    let mut specs = Vec::new();
+    for s in &cfg.stages {
+        let mut spec = StageSpec::new(s, stage_program(s)?, &["--config", &cfg_arg]);
+        spec.env.push((START_EPOCH_ENV.to_owned(), epoch.to_string()));
+        specs.push(spec);
+    }
+    let monitor_stage = Stage::new(rt.clone())?;
+    let fused_sub = monitor_stage.subscriber::<FusedState>(topics::FUSED)?;
+    let truth_sub = monitor_stage.subscriber::<GroundTruth>(topics::TRUTH)?;
+    let imu_sub = monitor_stage.subscriber::<ImuSample>(topics::IMU)?;
+    let fix_sub = monitor_stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
+    let health_sub = monitor_stage.subscriber::<Health>(topics::HEALTH)?;
+    let waiter = monitor_stage.waiter()?;
+    let tick = waiter.attach_interval(Duration::from_millis(50))?;
+
+    let mut sup = Supervisor::new(cfg.launch.clone(), specs)?;
+    let hook_rt = rt.clone();
+    sup.set_before_restart(Box::new(move |stage: &str| {
+        match cleanup::cleanup_dead_nodes(&hook_rt) {
+            Ok(n) if n > 0 => tracing::info!("cleaned {n} dead node(s) before restarting {stage}"),
+            Ok(_) => {}
+            Err(e) => tracing::warn!("cleaning dead nodes before restarting {stage}: {e}"),
+        }
+    }));
+    let t0 = Instant::now();
+    sup.start(t0)?;
+    let mut mon = Monitor {
+        fused: Vec::new(),
+        truth: Vec::new(),
+        imu_times: (0, 0, 0),
+        fix_times: (0, 0, 0),
+        health: std::collections::BTreeMap::new(),
+    };
+    let mut last_live = Instant::now();
+    let mut last_live_counts = (0u64, 0u64, 0u64);
+    let mut failed = None;
+    loop {
+        let wake = waiter.wait_timeout(Duration::from_millis(100))?;
+        let now = Instant::now();
+        fused_sub.drain(|f| mon.fused.push(f))?;
+        truth_sub.drain(|t| mon.truth.push(t))?;
+        imu_sub.drain(|s| count(&mut mon.imu_times, s.header.meas_time_ns))?;
+        fix_sub.drain(|s| count(&mut mon.fix_times, s.header.meas_time_ns))?;
+        health_sub.drain(|h| {
+            let name = insuwb_msg::name_str(&h.stage);
+            sup.note_heartbeat_from(&name, h.pid, now);
+            mon.health.insert(name, h);
+        })?;
+        for e in sup.poll(now) {
+            if let Event::BudgetExhausted { stage } = &e {
+                failed = Some(stage.clone());
+            }
+        }
+        if let SupervisorState::Failed { stage } = sup.state() {
+            failed = Some(stage);
+        }
+        if opts.live && now.duration_since(last_live) >= Duration::from_secs(1) {
+            let dt = now.duration_since(last_live).as_secs_f64();
+            last_live = now;
+            let upd = mon.fused.iter().filter(|f| f.uwb_seq != 0 || f.header.flags & FusedState::FLAG_DEGRADED == 0).count() as u64;
+            let c = (mon.imu_times.2, mon.fix_times.2, upd);
+            let outliers: u64 = mon.health.get("fusion").map_or(0, |h| h.extra[1]);
+            let p = mon.fused.last().map_or([f64::NAN; 3], |f| f.pos_m);
+            eprintln!(
+                "[{:5.1} s] imu {:6.1} Hz  uwb {:5.1} Hz  fused {:5.1} Hz  pos ({:6.2}, {:6.2})  outliers {outliers}  restarts {}",
+                now.duration_since(t0).as_secs_f64(),
+                (c.0 - last_live_counts.0) as f64 / dt,
+                (c.1 - last_live_counts.1) as f64 / dt,
+                (c.2 - last_live_counts.2) as f64 / dt,
+                p[0],
+                p[1],
+                sup.total_restarts()
+            );
+            last_live_counts = c;
+        }
+        if matches!(wake, Wake::Shutdown) || failed.is_some() {
+            break;
+        }
+        if opts.duration.is_some_and(|d| now.duration_since(t0) >= d) {
+            break;
+        }
+    }
+    let elapsed = t0.elapsed().as_secs_f64();
+    sup.shutdown(&SHUTDOWN_ORDER);
+    let restarts = sup.total_restarts();
+    let report = summarise(&mon, restarts, elapsed);
+    drop(tick);
+    drop(waiter);
+    drop((fused_sub, truth_sub, imu_sub, fix_sub, health_sub));
+    drop(monitor_stage);
+    let removed = cleanup::remove_prefix_files(&cfg.group.prefix, Some(&cfg.iox_root()));
+    if let Err(e) = removed {
+        tracing::warn!("removing the group's shared-memory files: {e}");
+    }
+    if let Some(stage) = failed {
+        bail!("stage {stage} exhausted its restart budget");
+    }
+    Ok(report)
+}
+
+fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
+    let updates: Vec<&FusedState> = mon
+        .fused
+        .iter()
+        .filter(|f| f.header.flags & FusedState::FLAG_DEGRADED == 0)
+        .collect();
+    let mut hist = hdrhistogram::Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).ok();
+    for f in &updates {
+        if f.uwb_pub_time_ns > 0 && f.header.pub_time_ns > f.uwb_pub_time_ns {
+            if let Some(h) = hist.as_mut() {
+                let _ = h.record(((f.header.pub_time_ns - f.uwb_pub_time_ns) / 1000).max(1));
+            }
+        }
+    }
+    let (p50, p99) = hist
+        .as_ref()
+        .filter(|h| !h.is_empty())
+        .map_or((0.0, 0.0), |h| (h.value_at_quantile(0.5) as f64, h.value_at_quantile(0.99) as f64));
+    let mut truth = mon.truth.clone();
+    truth.sort_by_key(|t| t.header.meas_time_ns);
+    let track = insuwb_eval::metrics::TruthTrack::new(&truth, 100_000_000);
+    let (mut se, mut n) = (0.0, 0usize);
+    for f in updates.iter().filter(|f| f.header.flags & FusedState::FLAG_VALID != 0) {
+        if let Some((p, _)) = track.at(f.header.meas_time_ns) {
+            se += (f.pos_m[0] - p[0]).powi(2) + (f.pos_m[1] - p[1]).powi(2);
+            n += 1;
+        }
+    }
+    let fused_times: (u64, u64, u64) = updates.iter().fold((0, 0, 0), |mut t, f| {
+        count(&mut t, f.header.meas_time_ns);
+        t
+    });
+    let mut pub_times: Vec<u64> = mon.fused.iter().map(|f| f.header.pub_time_ns).collect();
+    pub_times.sort_unstable();
+    let max_gap = pub_times.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+    let dropped: u64 = mon
+        .health
+        .values()
+        .map(|h| h.dropped_invalid + h.dropped_time + h.dropped_version)
+        .sum::<u64>()
+        + mon.health.get("logger").map_or(0, |h| h.extra[1]);
+    GroupReport {
+        rmse_horizontal: (n > 0).then(|| (se / n as f64).sqrt()),
+        fused_rate_hz: rate(fused_times),
+        imu_rate_hz: rate(mon.imu_times),
+        uwb_fix_rate_hz: rate(mon.fix_times),
+        restarts,
+        latency_p50_us: p50,
+        latency_p99_us: p99,
+        dropped,
+        outliers: mon.health.get("fusion").map_or(0, |h| h.extra[1]),
+        degraded: (mon.fused.len() - updates.len()) as u64,
+        max_gap_ms: max_gap as f64 * 1e-6,
+        duration_s: elapsed,
+    }
+}
+
+/// Arguments of `insuwb launch`.
+#[derive(Debug, clap::Args)]
+pub struct LaunchArgs {
+    /// The robot group configuration (e.g. config/robot.toml).
+    pub config: PathBuf,
+    /// Stop after this many seconds (default: run until SIGINT/SIGTERM).
+    #[arg(long)]
+    pub duration: Option<f64>,
+}
+
+/// Runs `insuwb launch`.
+pub fn launch(a: &LaunchArgs) -> Result<()> {
+    let cfg = RobotConfig::load(&a.config)?;
+    let report = run_group(
+        &a.config,
+        &cfg,
+        &RunOptions {
+            duration: a.duration.map(Duration::from_secs_f64),
+            live: true,
+        },
+    )?;
+    eprintln!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
+}
+
+/// Arguments of `insuwb demo`.
+#[derive(Debug, clap::Args)]
+pub struct DemoArgs {
+    /// Seconds to run (the scenario lasts 60 s).
+    #[arg(long, default_value_t = 20.0)]
+    pub duration: f64,
+    /// Filter (kf, shaf, stf, iakf, iakf_tdoa).
+    #[arg(long, default_value = "iakf")]
+    pub filter: String,
+    /// Print one JSON object on standard output.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `insuwb demo`: the whole group on simulated sensors in real time.
+pub fn demo(a: &DemoArgs) -> Result<()> {
+    if !(a.duration.is_finite() && a.duration > 0.0 && a.duration <= 60.0) {
+        bail!("--duration must be in (0, 60] s (the demo scenario lasts 60 s), got {}", a.duration);
+    }
+    let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
+    let run_dir = std::env::temp_dir().join(format!("insuwb-demo-{id}"));
+    std::fs::create_dir_all(&run_dir)?;
+    let text = format!(
+        "[group]\nname = \"demo\"\nprefix = \"insuwb_demo{id}_\"\nrun_dir = \"{}\"\n\
+         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\nspeed = 1.0\n\
+         [fusion]\nfilter = \"{}\"\n",
+        run_dir.display(),
+        a.filter
+    );
+    let cfg_path = run_dir.join("demo.toml");
+    std::fs::write(&cfg_path, &text)?;
+    let cfg = RobotConfig::load(&cfg_path)?;
+    eprintln!(
+        "insuwb demo: {} stages on the simulated scenario nlos-long for {} s (run directory {})",
+        cfg.stages.len(),
+        a.duration,
+        run_dir.display()
+    );
+    let result = run_group(
+        &cfg_path,
+        &cfg,
+        &RunOptions {
+            duration: Some(Duration::from_secs_f64(a.duration)),
+            live: true,
+        },
+    );
+    let _ = std::fs::remove_dir_all(&run_dir);
+    let r = result?;
+    if a.json {
+        let v = serde_json::to_value(&r)?;
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer(&mut out, &v)?;
+        writeln!(out)?;
+    } else {
+        println!(
+            "accuracy: horizontal RMS {} m against ground truth\nrates: fused {:.2} Hz, IMU {:.1} Hz, UWB fixes {:.1} Hz\nrestarts: {}\nlatency UWB fix -> fused: p50 {:.0} us, p99 {:.0} us\ndropped: {}, outliers flagged: {}, degraded outputs: {}",
+            r.rmse_horizontal.map_or("n/a".into(), |v| format!("{v:.3}")),
+            r.fused_rate_hz,
+            r.imu_rate_hz,
+            r.uwb_fix_rate_hz,
+            r.restarts,
+            r.latency_p50_us,
+            r.latency_p99_us,
+            r.dropped,
+            r.outliers,
+            r.degraded
+        );
+    }
+    Ok(())
+}
+
+/// Arguments of `insuwb inspect`.
+#[derive(Debug, clap::Args)]
+pub struct InspectArgs {
+    /// The robot group configuration (for its prefix and run directory).
+    pub config: PathBuf,
+    /// Seconds to measure topic rates over.
+    #[arg(long, default_value_t = 2.0)]
+    pub duration: f64,
+}
+
+/// Runs `insuwb inspect`: per-topic rate, last-sample age, publishers and subscribers.
+pub fn inspect(a: &InspectArgs) -> Result<()> {
+    let cfg = RobotConfig::load(&a.config)?;
+    let rt = cfg.runtime("inspect");
+    let nodes = cleanup::list_nodes(&rt)?;
+    println!("nodes:");
+    for n in &nodes {
+        println!("  {:<12} pid {:>7} {:?}", n.name, n.pid.map_or("-".into(), |p| p.to_string()), n.state);
+    }
+    let services = cleanup::list_services(&rt)?;
+    let stage = Stage::new(rt)?;
+    let subs: Vec<(String, Box<dyn Fn() -> (u64, Option<u64>)>)> = vec![
+        probe::<ImuSample>(&stage, topics::IMU)?,
+        probe::<insuwb_msg::UwbTdoa>(&stage, topics::UWB_TDOA)?,
+        probe::<UwbFix>(&stage, topics::UWB_FIX)?,
+        probe::<insuwb_msg::NavState>(&stage, topics::NAV)?,
+        probe::<FusedState>(&stage, topics::FUSED)?,
+        probe::<insuwb_msg::FilterDiag>(&stage, topics::DIAG)?,
+        probe::<insuwb_msg::InsCorrection>(&stage, topics::CORRECTION)?,
+        probe::<Health>(&stage, topics::HEALTH)?,
+        probe::<GroundTruth>(&stage, topics::TRUTH)?,
+    ];
+    let start: Vec<u64> = subs.iter().map(|(_, f)| f().0).collect();
+    let _ = stage.sleep(Duration::from_secs_f64(a.duration.clamp(0.1, 60.0)));
+    let now = monotonic_ns();
+    println!("{:<12} {:>9} {:>12} {:>5} {:>5}", "topic", "rate Hz", "age ms", "pubs", "subs");
+    for (i, (topic, f)) in subs.iter().enumerate() {
+        let (n, last) = f();
+        let svc = services.iter().find(|s| s.name.ends_with(topic.as_str()));
+        println!(
+            "{:<12} {:>9.1} {:>12} {:>5} {:>5}",
+            topic,
+            (n - start[i]) as f64 / a.duration,
+            last.map_or("-".into(), |t| format!("{:.1}", now.saturating_sub(t) as f64 * 1e-6)),
+            svc.and_then(|s| s.publishers).map_or("-".into(), |v| v.to_string()),
+            svc.and_then(|s| s.subscribers).map_or("-".into(), |v| v.to_string())
+        );
+    }
+    Ok(())
+}
+
+type Probe = (String, Box<dyn Fn() -> (u64, Option<u64>)>);
+
+fn probe<T>(stage: &Stage, topic: &str) -> Result<Probe>
+where
+    T: insuwb_msg::HasHeader + Copy + std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static,
+{
+    let sub = stage.subscriber::<T>(topic)?;
+    let state = std::cell::Cell::new((0u64, None::<u64>));
+    Ok((
+        topic.to_owned(),
+        Box::new(move || {
+            let (mut n, mut last) = state.get();
+            let _ = sub.drain(|s| {
+                n += 1;
+                last = Some(s.header().pub_time_ns);
+            });
+            state.set((n, last));
+            (n, last)
+        }),
+    ))
+}

@@ -1,0 +1,90 @@
+//! The command line shared by the stage binaries.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+
+use crate::group::{start_epoch_ns, RobotConfig};
+use crate::source::Want;
+
+/// Which stage a binary runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StageKind {
+    /// IMU driver.
+    Imu,
+    /// UWB driver.
+    Uwb,
+    /// INS mechanisation.
+    Ins,
+    /// Fusion.
+    Fusion,
+    /// Logger.
+    Logger,
+}
+
+/// Arguments of every stage binary.
+#[derive(Debug, Parser)]
+#[command(version, about = "An insuwb stage process (normally started by `insuwb launch`).")]
+pub struct StageArgs {
+    /// The robot group configuration (config/robot.toml).
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Driver source, overriding the config: `sim` or `replay:FILE`.
+    #[arg(long)]
+    pub source: Option<String>,
+    /// Replay speed, overriding the config.
+    #[arg(long)]
+    pub speed: Option<f64>,
+    /// Start epoch (CLOCK_MONOTONIC ns) shared by the drivers; default: the
+    /// launcher's (INSUWB_START_EPOCH_NS) or the next whole second.
+    #[arg(long)]
+    pub start_epoch_ns: Option<u64>,
+}
+
+/// Parses the arguments, sets up tracing and runs the stage; exit code 0 on a clean stop.
+#[must_use]
+pub fn main(kind: StageKind) -> ExitCode {
+    let args = StageArgs::parse();
+    let name = match kind {
+        StageKind::Imu => "imu",
+        StageKind::Uwb => "uwb",
+        StageKind::Ins => "ins",
+        StageKind::Fusion => "fusion",
+        StageKind::Logger => "logger",
+    };
+    let _ = insuwb_runtime::init_tracing(name);
+    match run(kind, &args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
+    let cfg = RobotConfig::load(&args.config)?;
+    let epoch = args.start_epoch_ns.unwrap_or_else(start_epoch_ns);
+    let speed = args.speed.unwrap_or(cfg.sources.speed);
+    if !(speed.is_finite() && speed > 0.0) {
+        anyhow::bail!("--speed must be > 0, got {speed}");
+    }
+    let result = match kind {
+        StageKind::Imu => {
+            let src = args.source.clone().unwrap_or_else(|| cfg.sources.imu.clone());
+            crate::driver::run(Want::Imu, &cfg, &src, speed, epoch)
+        }
+        StageKind::Uwb => {
+            let src = args.source.clone().unwrap_or_else(|| cfg.sources.uwb.clone());
+            crate::driver::run(Want::Uwb, &cfg, &src, speed, epoch)
+        }
+        StageKind::Ins => crate::ins::run(&cfg),
+        StageKind::Fusion => crate::fusion::run(&cfg),
+        StageKind::Logger => crate::logger::run(&cfg),
+    };
+    match result {
+        Err(e) if e.downcast_ref::<insuwb_runtime::StageError>().is_some_and(|s| matches!(s, insuwb_runtime::StageError::ShutdownRequested(_))) => Ok(()),
+        r => r,
+    }
+}

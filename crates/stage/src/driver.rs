@@ -1,0 +1,153 @@
+//! The IMU and UWB driver stages: read a source, check each sample, pace
+//! recorded samples against the group's start epoch, publish.
+//!
+//! Recorded times are mapped onto CLOCK_MONOTONIC as `start_epoch + t`
+//! (an offset, never a scale: every interval the algorithms see is the
+//! recorded one, and the start epoch is a whole second so the fix epochs fall
+//! as in the recording); a sample is published at `start_epoch + t / speed`.
+//! At speed 1 the measurement times are real monotonic times, so ages and
+//! latencies are meaningful. A restarted driver resumes at the sample the
+//! recording has reached, so its consumers see a sequence gap.
+
+use std::time::Duration;
+
+use anyhow::Result;
+use insuwb_msg::{topics, GroundTruth, Health, ImuSample, UwbFix, UwbTdoa};
+use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
+
+use crate::group::RobotConfig;
+use crate::source::{self, Item, Source, Want};
+
+/// Samples dropped at the driver, by reason.
+#[derive(Debug, Default, Clone, Copy)]
+struct Drops {
+    invalid: u64,
+    time: u64,
+}
+
+/// Largest plausible accelerometer (m/s^2) and gyro (rad/s) magnitudes.
+const MAX_ACCEL_MPS2: f64 = 400.0;
+const MAX_RATE_RPS: f64 = 70.0;
+
+fn imu_ok(s: &ImuSample) -> bool {
+    s.accel_mps2.iter().all(|v| v.is_finite() && v.abs() < MAX_ACCEL_MPS2)
+        && s.gyro_rps.iter().all(|v| v.is_finite() && v.abs() < MAX_RATE_RPS)
+}
+
+fn tdoa_ok(s: &UwbTdoa) -> bool {
+    s.diff_m.is_finite()
+        && s.diff_m.abs() < 1000.0
+        && s.anchor_a_pos_m.iter().chain(&s.anchor_b_pos_m).all(|v| v.is_finite())
+        && s.anchor_a != s.anchor_b
+}
+
+/// Runs a driver stage until SIGINT/SIGTERM.
+pub fn run(want: Want, cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> Result<()> {
+    let name = match want {
+        Want::Imu => "imu",
+        Want::Uwb => "uwb",
+    };
+    let stage = Stage::new(cfg.runtime(name))?;
+    let gen = stage.generation();
+    let mut src = source::open(source_spec, &cfg.sources.scenario, cfg.sources.seed, want)?;
+    let now = monotonic_ns();
+    if now > epoch_ns {
+        let reached = ((now - epoch_ns) as f64 * speed) as u64;
+        let skipped = src.skip_before(reached);
+        if skipped > 0 {
+            tracing::warn!("generation {gen}: resuming the recording at {:.3} s ({skipped} samples skipped)", reached as f64 * 1e-9);
+        }
+    }
+    let fcfg = cfg.fusion_config()?;
+    let mut imu_pub = stage.publisher::<ImuSample>(topics::IMU)?;
+    let mut truth_pub = stage.publisher::<GroundTruth>(topics::TRUTH)?;
+    let mut tdoa_pub = stage.publisher::<UwbTdoa>(topics::UWB_TDOA)?;
+    let mut fix_pub = stage.publisher::<UwbFix>(topics::UWB_FIX)?;
+    let mut fixes = insuwb_uwb::fix::FixBuilder::new(fcfg.fix.clone())?;
+    let mut health = stage.health_reporter()?;
+    let waiter = stage.waiter()?;
+    let hb = waiter.attach_interval(health.period())?;
+    let mut counters = HealthCounters::default();
+    let mut drops = Drops::default();
+    let mut last_t: Option<u64> = None;
+    let mut pending = src.next_item();
+    let source_id = stage.source_id();
+    tracing::info!("{name} driver: source {source_spec}, speed {speed}, epoch {epoch_ns} ns, generation {gen}");
+    loop {
+        let now = monotonic_ns();
+        while let Some(item) = pending {
+            let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
+            if due > now {
+                break;
+            }
+            pending = src.next_item();
+            let t = epoch_ns + item.time_ns();
+            match item {
+                Item::Truth(mut s) => {
+                    s.header.meas_time_ns = t;
+                    s.header.generation = gen;
+                    s.header.source_id = source_id;
+                    truth_pub.publish_raw(s)?;
+                }
+                Item::Imu(mut s) => {
+                    if !imu_ok(&s) {
+                        drops.invalid += 1;
+                        continue;
+                    }
+                    if last_t.is_some_and(|l| t <= l) {
+                        drops.time += 1;
+                        continue;
+                    }
+                    last_t = Some(t);
+                    s.header.meas_time_ns = t;
+                    s.header.generation = gen;
+                    s.header.source_id = source_id;
+                    imu_pub.publish_raw(s)?;
+                    counters.published += 1;
+                }
+                Item::Tdoa(mut s) => {
+                    if !tdoa_ok(&s) {
+                        drops.invalid += 1;
+                        continue;
+                    }
+                    if last_t.is_some_and(|l| t < l) {
+                        drops.time += 1;
+                        continue;
+                    }
+                    last_t = Some(t);
+                    s.header.meas_time_ns = t;
+                    s.header.generation = gen;
+                    s.header.source_id = source_id;
+                    // The fixes this measurement completes go out before it (the
+                    // fusion stage relies on that order).
+                    if let Ok(Some(f)) = fixes.push(&s) {
+                        fix_pub.publish(f)?;
+                    }
+                    tdoa_pub.publish_raw(s)?;
+                    counters.published += 1;
+                }
+            }
+        }
+        let timeout = pending.map_or(Duration::from_millis(200), |item| {
+            let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
+            Duration::from_nanos(due.saturating_sub(monotonic_ns()).min(200_000_000))
+        });
+        match waiter.wait_timeout(timeout)? {
+            Wake::Shutdown => break,
+            Wake::Fired(f) if f.contains(&hb) => {
+                counters.dropped_invalid = drops.invalid;
+                counters.dropped_time = drops.time;
+                counters.extra[0] = fixes.stats().fixes;
+                let state = if pending.is_none() { Health::STATE_DEGRADED } else { Health::STATE_OK };
+                health.report(&counters, state)?;
+                // Late subscribers get history only when the publisher acts.
+                imu_pub.update_connections()?;
+                tdoa_pub.update_connections()?;
+            }
+            _ => {}
+        }
+    }
+    health.report(&counters, Health::STATE_STOPPING)?;
+    tracing::info!("{name} driver: stopped after {} samples", counters.published);
+    Ok(())
+}

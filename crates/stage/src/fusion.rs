@@ -1,0 +1,170 @@
+//! The fusion stage: runs the configured filter in the fusion engine (the
+//! code `insuwb eval` runs), publishes fused states, diagnostics and INS
+//! corrections; coasts (INS only, flagged degraded) when UWB is silent,
+//! flags stale INS input, and checkpoints so a restart resumes.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
+use insuwb_msg::{
+    topics, FilterDiag, FusedState, Health, InsCorrection, NavState, UwbFix, UwbTdoa,
+};
+use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
+use serde::{Deserialize, Serialize};
+
+use crate::group::RobotConfig;
+
+/// What a checkpoint holds: enough to resume without re-converging.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Checkpoint {
+    /// Last correction id sent.
+    pub correction_id: u64,
+    /// Time the checkpoint was written (monotonic ns).
+    pub written_ns: u64,
+    /// Position/velocity covariance of the last fused state (row-major 6 x 6).
+    pub cov: Vec<f64>,
+}
+
+/// Path of the fusion checkpoint in the run directory.
+#[must_use]
+pub fn checkpoint_path(run_dir: &Path) -> PathBuf {
+    run_dir.join("fusion.ckpt.toml")
+}
+
+fn write_checkpoint(path: &Path, c: &Checkpoint) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, toml::to_string(c)?).with_context(|| format!("{}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("{}", path.display()))?;
+    Ok(())
+}
+
+fn read_checkpoint(path: &Path) -> Option<Checkpoint> {
+    let text = std::fs::read_to_string(path).ok()?;
+    toml::from_str(&text).ok()
+}
+
+/// Runs the fusion stage until SIGINT/SIGTERM.
+pub fn run(cfg: &RobotConfig) -> Result<()> {
+    let stage = Stage::new(cfg.runtime("fusion"))?;
+    let fcfg = cfg.fusion_config()?;
+    let kind = cfg.filter_kind();
+    let est = insuwb_fusion::offline::build_estimator(kind, &fcfg)?;
+    let tight = est.is_tight();
+    let mut engine = FusionEngine::new(fcfg.engine.clone(), est);
+    std::fs::create_dir_all(&cfg.group.run_dir)
+        .with_context(|| format!("{}: cannot create the run directory", cfg.group.run_dir.display()))?;
+    let ckpt_path = checkpoint_path(&cfg.group.run_dir);
+    if stage.generation() > 0 {
+        if let Some(c) = read_checkpoint(&ckpt_path) {
+            engine.resume_correction_id(c.correction_id);
+            tracing::warn!("generation {}: resumed from the checkpoint (correction id {})", stage.generation(), c.correction_id);
+        }
+    }
+    let nav_sub = stage.subscriber::<NavState>(topics::NAV)?;
+    let fix_sub = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
+    let tdoa_sub = stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?;
+    let mut fused_pub = stage.publisher::<FusedState>(topics::FUSED)?;
+    let mut diag_pub = stage.publisher::<FilterDiag>(topics::DIAG)?;
+    let mut corr_pub = stage.publisher::<InsCorrection>(topics::CORRECTION)?;
+    let mut health = stage.health_reporter()?;
+    let waiter = stage.waiter()?;
+    let nav_a = waiter.attach(&nav_sub)?;
+    let fix_a = waiter.attach(&fix_sub)?;
+    let tdoa_a = waiter.attach(&tdoa_sub)?;
+    let tick_period = Duration::from_secs_f64((0.5 / cfg.fusion.coast_rate_hz).min(0.05));
+    let tick = waiter.attach_interval(tick_period)?;
+    let hb = waiter.attach_interval(health.period())?;
+    let mut out = Outputs::default();
+    out.fused.reserve(64);
+    out.diag.reserve(64);
+    out.corrections.reserve(64);
+    let coast_ns = (cfg.fusion.coast_timeout_s * 1e9) as u64;
+    let coast_period_ns = (1e9 / cfg.fusion.coast_rate_hz) as u64;
+    let stale_ns = (cfg.fusion.stale_ins_timeout_s * 1e9) as u64;
+    let ckpt_ns = (cfg.fusion.checkpoint_period_s * 1e9) as u64;
+    let mut last_update_pub = monotonic_ns();
+    let mut last_coast_pub = 0u64;
+    let mut last_ckpt = 0u64;
+    let mut counters = HealthCounters::default();
+    let mut stale = false;
+    loop {
+        let wake = waiter.wait_timeout(Duration::from_millis(500))?;
+        let Wake::Fired(f) = wake else {
+            if matches!(wake, Wake::Shutdown) {
+                break;
+            }
+            continue;
+        };
+        if f.contains(&nav_a) || f.contains(&fix_a) || f.contains(&tdoa_a) {
+            // Fixes before the TDOA measurements that completed them, then INS states.
+            fix_sub.drain(|m| engine.on_measurement(Measurement::Fix(m), &mut out))?;
+            if tight {
+                tdoa_sub.drain(|m| engine.on_measurement(Measurement::Tdoa(m), &mut out))?;
+            } else {
+                tdoa_sub.drain(|_| {})?;
+            }
+            nav_sub.drain(|n| engine.on_nav(&n, &mut out))?;
+            for c in &out.corrections {
+                corr_pub.publish(*c)?;
+            }
+            for s in &out.fused {
+                let mut s = *s;
+                if stale {
+                    s.header.flags = (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
+                }
+                fused_pub.publish(s)?;
+                last_update_pub = monotonic_ns();
+            }
+            for d in &out.diag {
+                diag_pub.publish(*d)?;
+            }
+            out.clear();
+        }
+        let now = monotonic_ns();
+        if f.contains(&tick) {
+            // Stale INS: the newest INS state is too old to build a pose on.
+            stale = nav_sub.age_ns(now).is_none_or(|a| a > stale_ns);
+            if now.saturating_sub(last_update_pub) > coast_ns
+                && now.saturating_sub(last_coast_pub) >= coast_period_ns
+            {
+                if let Some(mut s) = engine.coasting_state() {
+                    if stale {
+                        s.header.flags = (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
+                    }
+                    fused_pub.publish(s)?;
+                    last_coast_pub = now;
+                }
+            }
+            if now.saturating_sub(last_ckpt) >= ckpt_ns {
+                if let Some(fs) = engine.last_fused() {
+                    let c = Checkpoint {
+                        correction_id: engine.correction_id(),
+                        written_ns: now,
+                        cov: fs.cov.iter().flatten().copied().collect(),
+                    };
+                    if let Err(e) = write_checkpoint(&ckpt_path, &c) {
+                        tracing::warn!("checkpoint: {e:#}");
+                    }
+                }
+                last_ckpt = now;
+            }
+        }
+        if f.contains(&hb) {
+            let c = engine.counters();
+            counters = HealthCounters::default();
+            counters.add_sub(&nav_sub.stats());
+            counters.add_sub(&fix_sub.stats());
+            counters.published = fused_pub.published();
+            counters.dropped_invalid = c.dropped_invalid;
+            counters.dropped_time = c.meas_late;
+            counters.extra = [c.updates, c.outliers, c.resets, c.corrections];
+            let state = if stale { Health::STATE_DEGRADED } else { Health::STATE_OK };
+            health.report(&counters, state)?;
+            fused_pub.update_connections()?;
+        }
+    }
+    health.report(&counters, Health::STATE_STOPPING)?;
+    Ok(())
+}

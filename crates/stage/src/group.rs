@@ -1,0 +1,291 @@
+//! The robot group configuration (`config/robot.toml`): deployment (prefix,
+//! run directory), sensor sources, fusion settings, logger and restart
+//! policy. Every stage and the launcher read the same file, so they agree.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use insuwb_fusion::offline::FusionConfig;
+use insuwb_msg::FilterKind;
+use serde::{Deserialize, Serialize};
+
+/// Environment variable carrying the replay start epoch (CLOCK_MONOTONIC ns),
+/// set by the launcher so the drivers replay in step.
+pub const START_EPOCH_ENV: &str = "INSUWB_START_EPOCH_NS";
+
+/// Deployment settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GroupConfig {
+    /// Name of the robot (for logs).
+    pub name: String,
+    /// iceoryx2 service prefix: several robots (or test runs) on one PC never collide.
+    pub prefix: String,
+    /// Run directory: checkpoints, recorded logs, iceoryx2 root. Relative
+    /// paths are taken from the config file's folder.
+    pub run_dir: PathBuf,
+}
+
+impl Default for GroupConfig {
+    fn default() -> Self {
+        Self {
+            name: "robot".into(),
+            prefix: "insuwb_robot_".into(),
+            run_dir: PathBuf::from("/tmp/insuwb-robot"),
+        }
+    }
+}
+
+/// Where the drivers get their samples.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SourcesConfig {
+    /// IMU source: `sim` or `replay:FILE` (an insuwb log).
+    pub imu: String,
+    /// UWB source: `sim` or `replay:FILE`.
+    pub uwb: String,
+    /// Scenario for `sim` sources (built-in name or TOML file).
+    pub scenario: String,
+    /// Simulation seed.
+    pub seed: u64,
+    /// Replay/simulation speed (1 = real time).
+    pub speed: f64,
+}
+
+impl Default for SourcesConfig {
+    fn default() -> Self {
+        Self {
+            imu: "sim".into(),
+            uwb: "sim".into(),
+            scenario: "nlos-long".into(),
+            seed: 1,
+            speed: 1.0,
+        }
+    }
+}
+
+/// Fusion stage settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionStageConfig {
+    /// Filter: kf, shaf, stf, iakf, iakf_tdoa.
+    pub filter: String,
+    /// Fusion settings file (with a `[fusion]` table); empty: the scenario's
+    /// (sim sources) or the replayed log's own.
+    pub config: String,
+    /// With no UWB update for this long, publish the INS-only coasting state
+    /// at `coast_rate_hz`, flagged degraded, s.
+    pub coast_timeout_s: f64,
+    /// Rate of coasting outputs, Hz.
+    pub coast_rate_hz: f64,
+    /// An INS state older than this is stale: outputs are flagged and not valid, s.
+    pub stale_ins_timeout_s: f64,
+    /// Checkpoint period, s (a restarted fusion stage resumes from it).
+    pub checkpoint_period_s: f64,
+}
+
+impl Default for FusionStageConfig {
+    fn default() -> Self {
+        Self {
+            filter: "iakf".into(),
+            config: String::new(),
+            coast_timeout_s: 0.15,
+            coast_rate_hz: 10.0,
+            stale_ins_timeout_s: 0.25,
+            checkpoint_period_s: 0.5,
+        }
+    }
+}
+
+/// Logger settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoggerConfig {
+    /// Segment files (rotation, flush policy).
+    pub segments: insuwb_log::SegmentConfig,
+    /// Directory of the recording, relative to the run directory (default `log`).
+    pub dir: Option<PathBuf>,
+}
+
+/// The whole file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct RobotConfig {
+    /// Deployment.
+    pub group: GroupConfig,
+    /// Sensor sources.
+    pub sources: SourcesConfig,
+    /// Fusion stage.
+    pub fusion: FusionStageConfig,
+    /// Logger.
+    pub logger: LoggerConfig,
+    /// Stages to run, in start order (imu, uwb, ins, fusion, logger).
+    pub stages: Vec<String>,
+    /// Restart policy of the launcher.
+    pub launch: insuwb_launch::RestartPolicy,
+}
+
+/// Stage names the launcher knows.
+pub const STAGES: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
+
+impl RobotConfig {
+    /// Loads and checks a robot config file; relative paths become relative to its folder.
+    pub fn load(path: &Path) -> Result<Self> {
+        let mut c: Self = insuwb_config::load_file(path)?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        c.resolve(base, &path.display().to_string())?;
+        Ok(c)
+    }
+
+    /// Parses a config text (for built-ins and tests).
+    pub fn from_str(text: &str, origin: &str, base: &Path) -> Result<Self> {
+        let mut c: Self = insuwb_config::load_str(text, origin)?;
+        c.resolve(base, origin)?;
+        Ok(c)
+    }
+
+    fn resolve(&mut self, base: &Path, origin: &str) -> Result<()> {
+        if self.stages.is_empty() {
+            self.stages = STAGES.iter().map(|s| (*s).to_owned()).collect();
+        }
+        for s in &self.stages {
+            if !STAGES.contains(&s.as_str()) {
+                bail!("{origin}: key 'stages': unknown stage '{s}' (known: {})", STAGES.join(", "));
+            }
+        }
+        if self.group.run_dir.is_relative() {
+            self.group.run_dir = base.join(&self.group.run_dir);
+        }
+        for (key, src) in [("sources.imu", &mut self.sources.imu), ("sources.uwb", &mut self.sources.uwb)] {
+            match src.split_once(':') {
+                None if src == "sim" => {}
+                Some(("replay", file)) => {
+                    let p = Path::new(file);
+                    let p = if p.is_relative() { base.join(p) } else { p.to_owned() };
+                    if !p.is_file() {
+                        bail!("{origin}: key '{key}': replay file {} does not exist", p.display());
+                    }
+                    *src = format!("replay:{}", p.display());
+                }
+                _ => bail!("{origin}: key '{key}': unknown source '{src}' (sim or replay:FILE)"),
+            }
+        }
+        if !(self.sources.speed.is_finite() && self.sources.speed > 0.0 && self.sources.speed <= 1000.0) {
+            bail!("{origin}: key 'sources.speed': must be in (0, 1000], got {}", self.sources.speed);
+        }
+        if insuwb_eval::run::parse_filter(&self.fusion.filter).is_none() {
+            bail!(
+                "{origin}: key 'fusion.filter': unknown filter '{}' (kf, shaf, stf, iakf, iakf_tdoa)",
+                self.fusion.filter
+            );
+        }
+        if !self.fusion.config.is_empty() {
+            let p = Path::new(&self.fusion.config);
+            let p = if p.is_relative() { base.join(p) } else { p.to_owned() };
+            if !p.is_file() {
+                bail!("{origin}: key 'fusion.config': file {} does not exist", p.display());
+            }
+            self.fusion.config = p.display().to_string();
+        }
+        for (key, v) in [
+            ("fusion.coast_timeout_s", self.fusion.coast_timeout_s),
+            ("fusion.coast_rate_hz", self.fusion.coast_rate_hz),
+            ("fusion.stale_ins_timeout_s", self.fusion.stale_ins_timeout_s),
+            ("fusion.checkpoint_period_s", self.fusion.checkpoint_period_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                bail!("{origin}: key '{key}': must be > 0, got {v}");
+            }
+        }
+        self.launch
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{origin}: key 'launch': {e}"))?;
+        self.logger
+            .segments
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{origin}: key 'logger.segments': {e}"))?;
+        if matches!(self.sources.imu.as_str(), "sim") || matches!(self.sources.uwb.as_str(), "sim") {
+            insuwb_eval::scenario::ScenarioFile::load(&self.sources.scenario)
+                .with_context(|| format!("{origin}: key 'sources.scenario'"))?;
+        }
+        Ok(())
+    }
+
+    /// The filter to run.
+    #[must_use]
+    pub fn filter_kind(&self) -> FilterKind {
+        insuwb_eval::run::parse_filter(&self.fusion.filter).unwrap_or(FilterKind::Iakf)
+    }
+
+    /// The iceoryx2 root folder of this group.
+    #[must_use]
+    pub fn iox_root(&self) -> PathBuf {
+        self.group.run_dir.join("iox2")
+    }
+
+    /// The runtime config of stage `name`.
+    #[must_use]
+    pub fn runtime(&self, name: &str) -> insuwb_runtime::RuntimeConfig {
+        insuwb_runtime::RuntimeConfig {
+            prefix: self.group.prefix.clone(),
+            root_path: Some(self.iox_root()),
+            stage_name: name.to_owned(),
+            ..insuwb_runtime::RuntimeConfig::default()
+        }
+    }
+
+    /// The fusion settings every stage uses: `fusion.config`'s `[fusion]`
+    /// table if set, else the scenario's (sim, INS start for `sources.seed`),
+    /// else the replayed log's metadata.
+    pub fn fusion_config(&self) -> Result<FusionConfig> {
+        #[derive(Deserialize)]
+        struct Wrap {
+            #[serde(default)]
+            fusion: FusionConfig,
+        }
+        if !self.fusion.config.is_empty() {
+            let text = std::fs::read_to_string(&self.fusion.config)
+                .with_context(|| format!("{}: cannot read", self.fusion.config))?;
+            // Only the [fusion] table matters here; other tables are the file's business.
+            let table: toml::Table = insuwb_config::load_str(&text, &self.fusion.config)?;
+            let mut t = toml::Table::new();
+            if let Some(f) = table.get("fusion") {
+                t.insert("fusion".into(), f.clone());
+            }
+            let w: Wrap = insuwb_config::load_str(&toml::to_string(&t)?, &self.fusion.config)?;
+            return Ok(w.fusion);
+        }
+        if let Some(file) = self.sources.imu.strip_prefix("replay:") {
+            let (_, _, header) = insuwb_log::read_all(file).with_context(|| format!("{file}: cannot read"))?;
+            if let Some(text) = header.meta.entries.get("fusion_config") {
+                let table: toml::Table = insuwb_config::load_str(text, file)?;
+                let mut t = toml::Table::new();
+                if let Some(f) = table.get("fusion") {
+                    t.insert("fusion".into(), f.clone());
+                }
+                let w: Wrap = insuwb_config::load_str(&toml::to_string(&t)?, file)?;
+                return Ok(w.fusion);
+            }
+            return Ok(FusionConfig::default());
+        }
+        let sc = insuwb_eval::scenario::ScenarioFile::load(&self.sources.scenario)?;
+        Ok(sc.fusion_for_seed(self.sources.seed)?)
+    }
+}
+
+/// The start epoch from the environment, or one chosen now: the next whole
+/// second at least 0.5 s ahead (a multiple of every fix period, so fix
+/// epochs fall as in the recording).
+#[must_use]
+pub fn start_epoch_ns() -> u64 {
+    if let Some(v) = std::env::var(START_EPOCH_ENV).ok().and_then(|v| v.parse().ok()) {
+        return v;
+    }
+    choose_start_epoch(insuwb_runtime::monotonic_ns())
+}
+
+/// The next whole second at least 0.5 s after `now_ns`.
+#[must_use]
+pub fn choose_start_epoch(now_ns: u64) -> u64 {
+    (now_ns + 500_000_000).div_ceil(1_000_000_000) * 1_000_000_000
+}

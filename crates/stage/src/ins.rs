@@ -1,0 +1,108 @@
+//! The INS stage: mechanisation of the IMU samples and the correction
+//! protocol (see `insuwb_fusion::ins_engine`). A restarted INS
+//! re-initialises from the latest fused state and ignores IMU samples older
+//! than it.
+
+use std::time::Duration;
+
+use anyhow::Result;
+use insuwb_fusion::ins_engine::InsEngine;
+use insuwb_msg::{topics, FusedState, Health, ImuSample, InsCorrection, NavState};
+use insuwb_runtime::{HealthCounters, Stage, Wake};
+
+use crate::group::RobotConfig;
+
+/// Runs the INS stage until SIGINT/SIGTERM.
+pub fn run(cfg: &RobotConfig) -> Result<()> {
+    let stage = Stage::new(cfg.runtime("ins"))?;
+    let fcfg = cfg.fusion_config()?;
+    let mut ins = InsEngine::new(fcfg.ins.clone())?;
+    let imu_sub = stage.subscriber::<ImuSample>(topics::IMU)?;
+    let corr_sub = stage.subscriber::<InsCorrection>(topics::CORRECTION)?;
+    let fused_sub = stage.subscriber::<FusedState>(topics::FUSED)?;
+    let mut nav_pub = stage.publisher::<NavState>(topics::NAV)?;
+    let mut health = stage.health_reporter()?;
+    let waiter = stage.waiter()?;
+    let imu_a = waiter.attach(&imu_sub)?;
+    let corr_a = waiter.attach(&corr_sub)?;
+    let hb = waiter.attach_interval(health.period())?;
+    let mut renav: Vec<NavState> = Vec::with_capacity(4096);
+    // A restarted INS takes its state from the latest fused state (history of
+    // the fused topic) and skips the IMU samples before it.
+    let mut min_imu_t: u64 = 0;
+    if stage.generation() > 0 {
+        let mut last: Option<FusedState> = None;
+        let mut max_id = 0u64;
+        for _ in 0..20 {
+            fused_sub.drain(|f| {
+                if f.header.flags & FusedState::FLAG_VALID != 0 {
+                    last = Some(f);
+                }
+            })?;
+            corr_sub.drain(|c| max_id = max_id.max(c.correction_id))?;
+            if last.is_some() {
+                break;
+            }
+            if stage.sleep(Duration::from_millis(25)).is_err() {
+                return Ok(());
+            }
+        }
+        if let Some(f) = last {
+            ins.reinit_from(f.pos_m, f.vel_mps, f.quat, max_id);
+            min_imu_t = f.header.meas_time_ns;
+            tracing::warn!(
+                "generation {}: re-initialised from the fused state at {} ns, correction id {max_id}",
+                stage.generation(),
+                min_imu_t
+            );
+        }
+    }
+    let mut counters = HealthCounters::default();
+    loop {
+        match waiter.wait_timeout(Duration::from_millis(500))? {
+            Wake::Shutdown => break,
+            Wake::Timeout => {}
+            Wake::Fired(f) => {
+                if f.contains(&imu_a) || f.contains(&corr_a) {
+                    // Corrections first: they may name samples about to be re-propagated.
+                    let mut err = None;
+                    corr_sub.drain(|c| {
+                        ins.on_correction(&c, &mut renav);
+                        for n in &renav {
+                            if let Err(e) = nav_pub.publish(*n) {
+                                err = Some(e);
+                            }
+                        }
+                    })?;
+                    imu_sub.drain(|s| {
+                        if s.header.meas_time_ns <= min_imu_t {
+                            return;
+                        }
+                        if let Some(n) = ins.on_imu(&s) {
+                            if let Err(e) = nav_pub.publish(n) {
+                                err = Some(e);
+                            }
+                        }
+                    })?;
+                    if let Some(e) = err {
+                        return Err(e.into());
+                    }
+                }
+                if f.contains(&hb) {
+                    let c = ins.counters();
+                    counters = HealthCounters::default();
+                    counters.add_sub(&imu_sub.stats());
+                    counters.published = nav_pub.published();
+                    counters.dropped_invalid = c.dropped_invalid;
+                    counters.dropped_time = c.dropped_time;
+                    counters.dropped_version += c.dropped_version;
+                    counters.extra = [c.corrections, c.repropagated, c.corrections_too_old, c.imu_restarts];
+                    health.report(&counters, Health::STATE_OK)?;
+                    nav_pub.update_connections()?;
+                }
+            }
+        }
+    }
+    health.report(&counters, Health::STATE_STOPPING)?;
+    Ok(())
+}
