@@ -148,6 +148,10 @@ pub struct PaperEstimator {
     acc_ae: f64,
     acc_an: f64,
     predict_errors: u64,
+    /// Attitude of the last INS state seen (to express bias feedback in the body frame).
+    last_quat: [f64; 4],
+    /// The model's AR blocks are random-walk biases (erratum 19): feed them back.
+    bias_feedback: bool,
 }
 
 impl PaperEstimator {
@@ -159,7 +163,10 @@ impl PaperEstimator {
         p0: insuwb_filter::model::Mat14,
     ) -> Self {
         let step_s = filter.model().ar_step_s();
+        let bias_feedback = filter.model().config().bias_random_walk.is_some();
         Self {
+            last_quat: [1.0, 0.0, 0.0, 0.0],
+            bias_feedback,
             filter,
             cfg,
             p0,
@@ -224,6 +231,7 @@ impl Estimator for PaperEstimator {
         if !(dt_s > 0.0 && dt_s.is_finite()) {
             return;
         }
+        self.last_quat = nav.quat;
         self.acc_dt += dt_s;
         self.acc_ae += nav.accel_nav_mps2[0] * dt_s;
         self.acc_an += nav.accel_nav_mps2[1] * dt_s;
@@ -268,12 +276,26 @@ impl Estimator for PaperEstimator {
 
     fn take_correction(&mut self) -> Delta {
         let x = self.filter.take_correction();
-        Delta {
+        let mut d = Delta {
             d_pos_m: [x[0], x[1], 0.0],
             d_vel_mps: [x[2], x[3], 0.0],
             d_att_rad: [0.0, 0.0, x[4]],
             ..Delta::default()
+        };
+        if self.bias_feedback {
+            // States 5, 8, 11 are `d a = a_true - a_meas` (ENU) and `d w`
+            // (erratum 4): the INS bias (subtracted from the samples) moves by
+            // minus their body-frame value.
+            let q = self.last_quat;
+            let r = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                q[0], q[1], q[2], q[3],
+            ));
+            let ba = r.inverse() * nalgebra::Vector3::new(-x[5], -x[8], 0.0);
+            let bg = r.inverse() * nalgebra::Vector3::new(0.0, 0.0, -x[11]);
+            d.d_accel_bias_mps2 = [ba.x, ba.y, ba.z];
+            d.d_gyro_bias_rps = [bg.x, bg.y, bg.z];
         }
+        d
     }
 
     fn pos_vel_cov(&self) -> [[f64; 6]; 6] {
