@@ -70,7 +70,8 @@ pub enum FileKind {
 /// Reads at most `limit` bytes of `path`, with an error naming the file.
 fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>> {
     use std::io::Read;
-    let f = std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
+    let f =
+        std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
     let mut buf = Vec::new();
     f.take(limit)
         .read_to_end(&mut buf)
@@ -125,7 +126,11 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
     let (records, tail, header) = insuwb_log::read_all(path)
         .with_context(|| format!("{}: cannot read the log", path.display()))?;
     if let Some(t) = tail {
-        tracing::warn!("{}: {t}; using the {} records before it", path.display(), records.len());
+        tracing::warn!(
+            "{}: {t}; using the {} records before it",
+            path.display(),
+            records.len()
+        );
     }
     let mut data = Dataset {
         name: path.display().to_string(),
@@ -152,7 +157,10 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
         Some(c) => (ConfigFile::load(c)?, c.to_owned()),
         None => match header.meta.entries.get(META_FUSION_CONFIG) {
             Some(text) => (
-                insuwb_config::load_str::<ConfigFile>(text, &format!("{} (metadata)", path.display()))?,
+                insuwb_config::load_str::<ConfigFile>(
+                    text,
+                    &format!("{} (metadata)", path.display()),
+                )?,
                 format!("{} (metadata)", path.display()),
             ),
             None => (ConfigFile::default(), "built-in defaults".to_owned()),
@@ -191,7 +199,10 @@ fn load_util(
         None => (ConfigFile::load("util")?, "built-in preset util".to_owned()),
     };
     if ignore_crc {
-        tracing::warn!("{}: --ignore-crc: reading it even if its CRC does not match", path.display());
+        tracing::warn!(
+            "{}: --ignore-crc: reading it even if its CRC does not match",
+            path.display()
+        );
     }
     let flight = insuwb_data::util::load_util_flight(
         path,

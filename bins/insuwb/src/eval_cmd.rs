@@ -13,8 +13,12 @@ use insuwb_msg::FilterKind;
 use crate::dataset::{self, ConfigFile, META_FUSION_CONFIG};
 
 /// Filters run when `--filters` is not given.
-pub const DEFAULT_FILTERS: [FilterKind; 4] =
-    [FilterKind::Kf, FilterKind::Shaf, FilterKind::Stf, FilterKind::Iakf];
+pub const DEFAULT_FILTERS: [FilterKind; 4] = [
+    FilterKind::Kf,
+    FilterKind::Shaf,
+    FilterKind::Stf,
+    FilterKind::Iakf,
+];
 
 /// Parses `--filters kf,iakf`.
 pub fn parse_filters(list: Option<&str>, default: &[FilterKind]) -> Result<Vec<FilterKind>> {
@@ -85,13 +89,20 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         let rows = monte_carlo(&file, &filters, a.runs, seed)?;
         (
             rows,
-            format!("scenario {} ({} run(s) from seed {seed})", file.sim.name, a.runs.max(1)),
+            format!(
+                "scenario {} ({} run(s) from seed {seed})",
+                file.sim.name,
+                a.runs.max(1)
+            ),
         )
     } else if let Some(path) = &a.file {
         let loaded = dataset::load(path, a.anchors.as_ref(), a.config.as_deref(), a.ignore_crc)?;
         tracing::info!("config: {}", loaded.config_origin);
-        let default = parse_filters(Some(&loaded.config.eval.filters.join(",")), &DEFAULT_FILTERS)
-            .context("[eval] filters")?;
+        let default = parse_filters(
+            Some(&loaded.config.eval.filters.join(",")),
+            &DEFAULT_FILTERS,
+        )
+        .context("[eval] filters")?;
         let filters = parse_filters(a.filters.as_deref(), &default)?;
         let t0 = std::time::Instant::now();
         let rep = evaluate(&loaded.data, &loaded.config.fusion, &filters)?;
@@ -163,7 +174,16 @@ pub fn format_table(title: &str, rows: &[(String, Metrics)]) -> String {
     let _ = writeln!(
         s,
         "{:<10} {:>8} {:>8} {:>8}  {:>19}  {:>19} {:>8} {:>8} {:>7} {:>7}",
-        "", "RMSE E", "RMSE N", "Mean", "range E (m)", "range N (m)", "RMS hor", "max", "NEES", "NIS"
+        "",
+        "RMSE E",
+        "RMSE N",
+        "Mean",
+        "range E (m)",
+        "range N (m)",
+        "RMS hor",
+        "max",
+        "NEES",
+        "NIS"
     );
     for (k, m) in rows {
         let opt = |v: Option<f64>| v.map_or("-".to_owned(), |x| format!("{x:.2}"));
@@ -267,9 +287,9 @@ pub fn fit_ar(a: &FitArArgs) -> Result<()> {
                     break;
                 }
             }
-            let seg = seg.or_else(|| det.finish()).context(
-                "no static segment found at the start of the log: give --from and --to",
-            )?;
+            let seg = seg
+                .or_else(|| det.finish())
+                .context("no static segment found at the start of the log: give --from and --to")?;
             (seg.start_ns, seg.end_ns)
         }
         _ => bail!("give both --from and --to (seconds, from < to), or neither"),
@@ -347,10 +367,23 @@ pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
         .with_context(|| format!("{}: cannot create the log", a.out.display()))?;
     let d = &loaded.data;
     // Merge by time: truth, IMU, TDOA at equal times.
-    let mut recs: Vec<(u64, u8, Record)> = Vec::with_capacity(d.imu.len() + d.tdoa.len() + d.truth.len());
-    recs.extend(d.truth.iter().map(|s| (s.header.meas_time_ns, 0, Record::Truth(*s))));
-    recs.extend(d.imu.iter().map(|s| (s.header.meas_time_ns, 1, Record::Imu(*s))));
-    recs.extend(d.tdoa.iter().map(|s| (s.header.meas_time_ns, 2, Record::Tdoa(*s))));
+    let mut recs: Vec<(u64, u8, Record)> =
+        Vec::with_capacity(d.imu.len() + d.tdoa.len() + d.truth.len());
+    recs.extend(
+        d.truth
+            .iter()
+            .map(|s| (s.header.meas_time_ns, 0, Record::Truth(*s))),
+    );
+    recs.extend(
+        d.imu
+            .iter()
+            .map(|s| (s.header.meas_time_ns, 1, Record::Imu(*s))),
+    );
+    recs.extend(
+        d.tdoa
+            .iter()
+            .map(|s| (s.header.meas_time_ns, 2, Record::Tdoa(*s))),
+    );
     recs.sort_by_key(|r| (r.0, r.1));
     for (_, _, r) in &recs {
         w.append(r)?;

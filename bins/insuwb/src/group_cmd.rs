@@ -16,7 +16,9 @@ const SHUTDOWN_ORDER: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
 /// The stage binaries live next to this executable.
 fn stage_program(stage: &str) -> Result<PathBuf> {
     let exe = std::env::current_exe().context("locating the insuwb executable")?;
-    let dir = exe.parent().context("the insuwb executable has no folder")?;
+    let dir = exe
+        .parent()
+        .context("the insuwb executable has no folder")?;
     let p = dir.join(format!("insuwb-{stage}"));
     if !p.is_file() {
         bail!(
@@ -51,7 +53,7 @@ pub struct GroupReport {
     pub outliers: u64,
     /// Fused states published while coasting (no UWB).
     pub degraded: u64,
-    /// Largest gap between fused states, ms.
+    /// Largest gap between valid fused states from UWB updates, ms.
     pub max_gap_ms: f64,
     /// Seconds run.
     pub duration_s: f64,
@@ -64,6 +66,52 @@ pub struct RunOptions {
     pub duration: Option<Duration>,
     /// Print a live line each second on standard error.
     pub live: bool,
+    /// Faults to inject: signal a stage at a time after start.
+    pub faults: Vec<Fault>,
+}
+
+/// A fault to inject into a running group (tests, chaos).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fault {
+    /// Stage to hit.
+    pub stage: String,
+    /// When, after start.
+    pub at: Duration,
+    /// Signal number (SIGKILL = 9, SIGSTOP = 19).
+    pub signal: i32,
+}
+
+impl std::str::FromStr for Fault {
+    type Err = String;
+    /// `STAGE@SECONDS` (SIGKILL) or `STAGE@SECONDS:SIGNAL` (a number or KILL/TERM/STOP).
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (stage, rest) = s
+            .split_once('@')
+            .ok_or_else(|| format!("fault '{s}': expected STAGE@SECONDS[:SIGNAL]"))?;
+        let (at, sig) = rest.split_once(':').unwrap_or((rest, "KILL"));
+        let at: f64 = at
+            .parse()
+            .map_err(|_| format!("fault '{s}': bad time '{at}'"))?;
+        if !(at.is_finite() && at >= 0.0) {
+            return Err(format!("fault '{s}': time must be >= 0"));
+        }
+        let signal = match sig {
+            "KILL" => 9,
+            "TERM" => 15,
+            "STOP" => 19,
+            n => n
+                .parse()
+                .map_err(|_| format!("fault '{s}': bad signal '{n}'"))?,
+        };
+        if !insuwb_stage::group::STAGES.contains(&stage) {
+            return Err(format!("fault '{s}': unknown stage '{stage}'"));
+        }
+        Ok(Self {
+            stage: stage.to_owned(),
+            at: Duration::from_secs_f64(at),
+            signal,
+        })
+    }
 }
 
 struct Monitor {
@@ -92,8 +140,12 @@ fn rate(t: (u64, u64, u64)) -> f64 {
 /// Starts the group of `cfg` (from the file `cfg_path`), supervises it and
 /// returns what it measured once it stops.
 pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Result<GroupReport> {
-    std::fs::create_dir_all(&cfg.group.run_dir)
-        .with_context(|| format!("{}: cannot create the run directory", cfg.group.run_dir.display()))?;
+    std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
+        format!(
+            "{}: cannot create the run directory",
+            cfg.group.run_dir.display()
+        )
+    })?;
     let rt = cfg.runtime("launcher");
     // Resources left by a previous run of this group that died.
     let _ = cleanup::cleanup_dead_nodes(&rt);
@@ -102,7 +154,8 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     let mut specs = Vec::new();
     for s in &cfg.stages {
         let mut spec = StageSpec::new(s, stage_program(s)?, &["--config", &cfg_arg]);
-        spec.env.push((START_EPOCH_ENV.to_owned(), epoch.to_string()));
+        spec.env
+            .push((START_EPOCH_ENV.to_owned(), epoch.to_string()));
         specs.push(spec);
     }
     let monitor_stage = Stage::new(rt.clone())?;
@@ -116,13 +169,13 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
 
     let mut sup = Supervisor::new(cfg.launch.clone(), specs)?;
     let hook_rt = rt.clone();
-    sup.set_before_restart(Box::new(move |stage: &str| {
-        match cleanup::cleanup_dead_nodes(&hook_rt) {
+    sup.set_before_restart(Box::new(
+        move |stage: &str| match cleanup::cleanup_dead_nodes(&hook_rt) {
             Ok(n) if n > 0 => tracing::info!("cleaned {n} dead node(s) before restarting {stage}"),
             Ok(_) => {}
             Err(e) => tracing::warn!("cleaning dead nodes before restarting {stage}: {e}"),
-        }
-    }));
+        },
+    ));
     let t0 = Instant::now();
     sup.start(t0)?;
     let mut mon = Monitor {
@@ -135,6 +188,9 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     let mut last_live = Instant::now();
     let mut last_live_counts = (0u64, 0u64, 0u64);
     let mut failed = None;
+    let mut faults = opts.faults.clone();
+    faults.sort_by_key(|f| f.at);
+    let mut faults = faults.into_iter().peekable();
     loop {
         let wake = waiter.wait_timeout(Duration::from_millis(100))?;
         let now = Instant::now();
@@ -147,6 +203,12 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
             sup.note_heartbeat_from(&name, h.pid, now);
             mon.health.insert(name, h);
         })?;
+        while let Some(f) = faults.next_if(|f| now.duration_since(t0) >= f.at) {
+            tracing::warn!("injecting signal {} into stage {}", f.signal, f.stage);
+            if let Err(e) = sup.kill_stage(&f.stage, f.signal) {
+                tracing::warn!("fault injection: {e}");
+            }
+        }
         for e in sup.poll(now) {
             if let Event::BudgetExhausted { stage } = &e {
                 failed = Some(stage.clone());
@@ -158,7 +220,11 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
         if opts.live && now.duration_since(last_live) >= Duration::from_secs(1) {
             let dt = now.duration_since(last_live).as_secs_f64();
             last_live = now;
-            let upd = mon.fused.iter().filter(|f| f.uwb_seq != 0 || f.header.flags & FusedState::FLAG_DEGRADED == 0).count() as u64;
+            let upd = mon
+                .fused
+                .iter()
+                .filter(|f| f.uwb_seq != 0 || f.header.flags & FusedState::FLAG_DEGRADED == 0)
+                .count() as u64;
             let c = (mon.imu_times.2, mon.fix_times.2, upd);
             let outliers: u64 = mon.health.get("fusion").map_or(0, |h| h.extra[1]);
             let p = mon.fused.last().map_or([f64::NAN; 3], |f| f.pos_m);
@@ -216,12 +282,20 @@ fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
     let (p50, p99) = hist
         .as_ref()
         .filter(|h| !h.is_empty())
-        .map_or((0.0, 0.0), |h| (h.value_at_quantile(0.5) as f64, h.value_at_quantile(0.99) as f64));
+        .map_or((0.0, 0.0), |h| {
+            (
+                h.value_at_quantile(0.5) as f64,
+                h.value_at_quantile(0.99) as f64,
+            )
+        });
     let mut truth = mon.truth.clone();
     truth.sort_by_key(|t| t.header.meas_time_ns);
     let track = insuwb_eval::metrics::TruthTrack::new(&truth, 100_000_000);
     let (mut se, mut n) = (0.0, 0usize);
-    for f in updates.iter().filter(|f| f.header.flags & FusedState::FLAG_VALID != 0) {
+    for f in updates
+        .iter()
+        .filter(|f| f.header.flags & FusedState::FLAG_VALID != 0)
+    {
         if let Some((p, _)) = track.at(f.header.meas_time_ns) {
             se += (f.pos_m[0] - p[0]).powi(2) + (f.pos_m[1] - p[1]).powi(2);
             n += 1;
@@ -231,7 +305,11 @@ fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         count(&mut t, f.header.meas_time_ns);
         t
     });
-    let mut pub_times: Vec<u64> = mon.fused.iter().map(|f| f.header.pub_time_ns).collect();
+    let mut pub_times: Vec<u64> = updates
+        .iter()
+        .filter(|f| f.header.flags & FusedState::FLAG_VALID != 0)
+        .map(|f| f.header.pub_time_ns)
+        .collect();
     pub_times.sort_unstable();
     let max_gap = pub_times.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
     let dropped: u64 = mon
@@ -264,6 +342,12 @@ pub struct LaunchArgs {
     /// Stop after this many seconds (default: run until SIGINT/SIGTERM).
     #[arg(long)]
     pub duration: Option<f64>,
+    /// Inject a fault: STAGE@SECONDS[:SIGNAL] (KILL, TERM, STOP or a number); repeatable.
+    #[arg(long)]
+    pub fault: Vec<Fault>,
+    /// Print the run's report as one JSON object on standard output.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Runs `insuwb launch`.
@@ -275,9 +359,16 @@ pub fn launch(a: &LaunchArgs) -> Result<()> {
         &RunOptions {
             duration: a.duration.map(Duration::from_secs_f64),
             live: true,
+            faults: a.fault.clone(),
         },
     )?;
-    eprintln!("{}", serde_json::to_string_pretty(&report)?);
+    if a.json {
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer(&mut out, &serde_json::to_value(&report)?)?;
+        writeln!(out)?;
+    } else {
+        eprintln!("{}", serde_json::to_string_pretty(&report)?);
+    }
     Ok(())
 }
 
@@ -298,7 +389,10 @@ pub struct DemoArgs {
 /// Runs `insuwb demo`: the whole group on simulated sensors in real time.
 pub fn demo(a: &DemoArgs) -> Result<()> {
     if !(a.duration.is_finite() && a.duration > 0.0 && a.duration <= 60.0) {
-        bail!("--duration must be in (0, 60] s (the demo scenario lasts 60 s), got {}", a.duration);
+        bail!(
+            "--duration must be in (0, 60] s (the demo scenario lasts 60 s), got {}",
+            a.duration
+        );
     }
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
     let run_dir = std::env::temp_dir().join(format!("insuwb-demo-{id}"));
@@ -325,6 +419,7 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
         &RunOptions {
             duration: Some(Duration::from_secs_f64(a.duration)),
             live: true,
+            faults: Vec::new(),
         },
     );
     let _ = std::fs::remove_dir_all(&run_dir);
@@ -369,7 +464,12 @@ pub fn inspect(a: &InspectArgs) -> Result<()> {
     let nodes = cleanup::list_nodes(&rt)?;
     println!("nodes:");
     for n in &nodes {
-        println!("  {:<12} pid {:>7} {:?}", n.name, n.pid.map_or("-".into(), |p| p.to_string()), n.state);
+        println!(
+            "  {:<12} pid {:>7} {:?}",
+            n.name,
+            n.pid.map_or("-".into(), |p| p.to_string()),
+            n.state
+        );
     }
     let services = cleanup::list_services(&rt)?;
     let stage = Stage::new(rt)?;
@@ -387,7 +487,10 @@ pub fn inspect(a: &InspectArgs) -> Result<()> {
     let start: Vec<u64> = subs.iter().map(|(_, f)| f().0).collect();
     let _ = stage.sleep(Duration::from_secs_f64(a.duration.clamp(0.1, 60.0)));
     let now = monotonic_ns();
-    println!("{:<12} {:>9} {:>12} {:>5} {:>5}", "topic", "rate Hz", "age ms", "pubs", "subs");
+    println!(
+        "{:<12} {:>9} {:>12} {:>5} {:>5}",
+        "topic", "rate Hz", "age ms", "pubs", "subs"
+    );
     for (i, (topic, f)) in subs.iter().enumerate() {
         let (n, last) = f();
         let svc = services.iter().find(|s| s.name.ends_with(topic.as_str()));
@@ -395,9 +498,14 @@ pub fn inspect(a: &InspectArgs) -> Result<()> {
             "{:<12} {:>9.1} {:>12} {:>5} {:>5}",
             topic,
             (n - start[i]) as f64 / a.duration,
-            last.map_or("-".into(), |t| format!("{:.1}", now.saturating_sub(t) as f64 * 1e-6)),
-            svc.and_then(|s| s.publishers).map_or("-".into(), |v| v.to_string()),
-            svc.and_then(|s| s.subscribers).map_or("-".into(), |v| v.to_string())
+            last.map_or("-".into(), |t| format!(
+                "{:.1}",
+                now.saturating_sub(t) as f64 * 1e-6
+            )),
+            svc.and_then(|s| s.publishers)
+                .map_or("-".into(), |v| v.to_string()),
+            svc.and_then(|s| s.subscribers)
+                .map_or("-".into(), |v| v.to_string())
         );
     }
     Ok(())

@@ -40,7 +40,10 @@ fn files_of(path: &PathBuf) -> Result<Vec<PathBuf>> {
         let segs = insuwb_log::list_segments(path)
             .with_context(|| format!("{}: cannot list segments", path.display()))?;
         if segs.is_empty() {
-            bail!("{}: no seg-*.iulog segment in this directory", path.display());
+            bail!(
+                "{}: no seg-*.iulog segment in this directory",
+                path.display()
+            );
         }
         Ok(segs.into_iter().map(|s| s.path).collect())
     } else {
@@ -80,7 +83,13 @@ fn info(path: &PathBuf) -> Result<()> {
             }
         }
         if let Some((a, b)) = span {
-            writeln!(out, "  time {:.3} .. {:.3} s ({:.3} s)", a as f64 * 1e-9, b as f64 * 1e-9, (b - a) as f64 * 1e-9)?;
+            writeln!(
+                out,
+                "  time {:.3} .. {:.3} s ({:.3} s)",
+                a as f64 * 1e-9,
+                b as f64 * 1e-9,
+                (b - a) as f64 * 1e-9
+            )?;
         }
         match r.tail() {
             Some(t) => writeln!(out, "  DAMAGED: {t}")?,
@@ -92,25 +101,70 @@ fn info(path: &PathBuf) -> Result<()> {
 
 fn csv_line(rec: &Record) -> String {
     let h = rec.header();
-    let head = format!("{},{},{},{},{}", rec.topic(), h.seq, h.generation, h.meas_time_ns, h.pub_time_ns);
-    let f = |v: &[f64]| v.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(",");
+    let head = format!(
+        "{},{},{},{},{}",
+        rec.topic(),
+        h.seq,
+        h.generation,
+        h.meas_time_ns,
+        h.pub_time_ns
+    );
+    let f = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x}"))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
     match rec {
         Record::Imu(s) => format!("{head},{},{}", f(&s.accel_mps2), f(&s.gyro_rps)),
         Record::Tdoa(s) => format!("{head},{},{},{}", s.anchor_a, s.anchor_b, s.diff_m),
         Record::Fix(s) => format!("{head},{},{},{}", f(&s.pos_m), f(&s.vel_mps), s.gdop),
-        Record::Nav(s) => format!("{head},{},{},{},{}", s.correction_id, f(&s.pos_m), f(&s.vel_mps), f(&s.quat)),
-        Record::Correction(s) => format!("{head},{},{},{},{},{}", s.correction_id, s.apply_at_seq, f(&s.d_pos_m), f(&s.d_vel_mps), f(&s.d_att_rad)),
-        Record::Fused(s) => format!("{head},{},{},{},{}", f(&s.pos_m), f(&s.vel_mps), s.yaw_rad, s.header.flags),
-        Record::Diag(s) => format!("{head},{},{},{}", s.nis, s.fading, f(&s.lambda[..s.dim.min(8) as usize])),
+        Record::Nav(s) => format!(
+            "{head},{},{},{},{}",
+            s.correction_id,
+            f(&s.pos_m),
+            f(&s.vel_mps),
+            f(&s.quat)
+        ),
+        Record::Correction(s) => format!(
+            "{head},{},{},{},{},{}",
+            s.correction_id,
+            s.apply_at_seq,
+            f(&s.d_pos_m),
+            f(&s.d_vel_mps),
+            f(&s.d_att_rad)
+        ),
+        Record::Fused(s) => format!(
+            "{head},{},{},{},{}",
+            f(&s.pos_m),
+            f(&s.vel_mps),
+            s.yaw_rad,
+            s.header.flags
+        ),
+        Record::Diag(s) => format!(
+            "{head},{},{},{}",
+            s.nis,
+            s.fading,
+            f(&s.lambda[..s.dim.min(8) as usize])
+        ),
         Record::Truth(s) => format!("{head},{},{},{}", f(&s.pos_m), f(&s.vel_mps), f(&s.quat)),
-        Record::Health(s) => format!("{head},{},{},{},{}", insuwb_msg::name_str(&s.stage), s.pid, s.received, s.published),
+        Record::Health(s) => format!(
+            "{head},{},{},{},{}",
+            insuwb_msg::name_str(&s.stage),
+            s.pid,
+            s.received,
+            s.published
+        ),
     }
 }
 
 fn cat(path: &PathBuf, topic: Option<&str>, csv: bool) -> Result<()> {
     if let Some(t) = topic {
         if !Record::TOPICS.contains(&t) {
-            bail!("--topic: unknown topic '{t}' (known: {})", Record::TOPICS.join(", "));
+            bail!(
+                "--topic: unknown topic '{t}' (known: {})",
+                Record::TOPICS.join(", ")
+            );
         }
     }
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());

@@ -44,7 +44,21 @@ pub struct FusionEngineConfig {
     pub max_nav_buffer: usize,
     /// Reset the INS from the next UWB fix when the estimator reports divergence.
     pub reset_on_divergence: bool,
+    /// Initialisations and resets wait for this many consecutive UWB fixes
+    /// that agree (each within `reset_gate_m` of the previous one) and take
+    /// the last of them. Default 1 (the first fix). UWB near the floor can be
+    /// off by metres, with fixes jumping from one epoch to the next (UTIL
+    /// 0426 logs, dataset README): a few agreeing fixes skip that. At most
+    /// [`MAX_RESET_FIXES`].
+    pub reset_min_fixes: usize,
+    /// Largest distance between two consecutive fixes that count as agreeing
+    /// for `reset_min_fixes`, m (the motion over one fix period included).
+    /// Default 0.3.
+    pub reset_gate_m: f64,
 }
+
+/// Largest [`FusionEngineConfig::reset_min_fixes`].
+pub const MAX_RESET_FIXES: usize = 64;
 
 impl Default for FusionEngineConfig {
     fn default() -> Self {
@@ -55,6 +69,8 @@ impl Default for FusionEngineConfig {
             max_pending: 8192,
             max_nav_buffer: 8192,
             reset_on_divergence: true,
+            reset_min_fixes: 1,
+            reset_gate_m: 0.3,
         }
     }
 }
@@ -84,6 +100,8 @@ pub struct FusionCounters {
     pub resets: u64,
     /// Corrections sent.
     pub corrections: u64,
+    /// INS states that followed missing IMU samples.
+    pub ins_gaps: u64,
 }
 
 /// A UWB measurement for the engine.
@@ -149,6 +167,9 @@ pub struct FusionEngine {
     fused_seq: u64,
     counters: FusionCounters,
     last_fused: Option<FusedState>,
+    /// While waiting to (re-)initialise: the last fix position and how many
+    /// consecutive fixes up to it agreed.
+    reset_run: Option<([f64; 3], usize)>,
 }
 
 impl FusionEngine {
@@ -170,7 +191,27 @@ impl FusionEngine {
             fused_seq: 0,
             counters: FusionCounters::default(),
             last_fused: None,
+            reset_run: None,
         }
+    }
+
+    /// Counts `fix` into the run of agreeing fixes; true when the run is long
+    /// enough to (re-)initialise from it.
+    fn reset_fix_ready(&mut self, fix: &UwbFix) -> bool {
+        let p = fix.pos_m;
+        let n = match self.reset_run {
+            Some((q, n)) => {
+                let d2: f64 = (0..3).map(|i| (p[i] - q[i]) * (p[i] - q[i])).sum();
+                if !(d2.sqrt() > self.cfg.reset_gate_m) {
+                    n + 1
+                } else {
+                    1
+                }
+            }
+            None => 1,
+        };
+        self.reset_run = Some((p, n));
+        n >= self.cfg.reset_min_fixes.clamp(1, MAX_RESET_FIXES)
     }
 
     /// Counters so far.
@@ -183,6 +224,11 @@ impl FusionEngine {
     #[must_use]
     pub fn estimator(&self) -> &dyn Estimator {
         self.est.as_ref()
+    }
+
+    /// The estimator, mutable (checkpoint restore).
+    pub fn estimator_mut(&mut self) -> &mut dyn Estimator {
+        self.est.as_mut()
     }
 
     /// The last fused state published.
@@ -276,7 +322,10 @@ impl FusionEngine {
             Measurement::Fix(f) => f.pos_m.iter().chain(&f.vel_mps).all(|v| v.is_finite()),
             Measurement::Tdoa(t) => {
                 t.diff_m.is_finite()
-                    && t.anchor_a_pos_m.iter().chain(&t.anchor_b_pos_m).all(|v| v.is_finite())
+                    && t.anchor_a_pos_m
+                        .iter()
+                        .chain(&t.anchor_b_pos_m)
+                        .all(|v| v.is_finite())
             }
         };
         if !finite {
@@ -296,8 +345,15 @@ impl FusionEngine {
 
     fn advance_to(&mut self, n: &NavState) {
         if let Some(last) = self.last_nav {
-            let dt = (n.header.meas_time_ns.saturating_sub(last.header.meas_time_ns)) as f64 * 1e-9;
+            let dt = (n
+                .header
+                .meas_time_ns
+                .saturating_sub(last.header.meas_time_ns)) as f64
+                * 1e-9;
             self.est.predict(dt, n);
+        }
+        if n.header.flags & NavState::FLAG_GAP != 0 {
+            self.counters.ins_gaps += 1;
         }
         self.prev_nav = self.last_nav;
         self.last_nav = Some(*n);
@@ -318,24 +374,32 @@ impl FusionEngine {
                     continue;
                 }
             }
+            // The oldest INS time a measurement can still be processed at:
+            // the start of the interval processed last (a measurement inside
+            // it is interpolated; tight coupling delivers a fix after the
+            // TDOA differences of its epoch moved the INS to or past it),
+            // else the first INS state known.
             let Some(first_t) = self
-                .last_nav
+                .prev_nav
                 .as_ref()
+                .or(self.last_nav.as_ref())
                 .or(self.nav_buf.front())
                 .map(|n| n.header.meas_time_ns)
             else {
                 return; // no INS yet
             };
             let last_t = self.last_nav.map_or(0, |n| n.header.meas_time_ns);
-            let older_than_processed = self.prev_nav.is_some_and(|p| t_m < p.header.meas_time_ns);
-            if t_m < first_t || older_than_processed {
+            if t_m < first_t {
                 self.pending.pop_front();
                 self.counters.meas_late += 1;
                 continue;
             }
             if self.last_nav.is_none() || t_m > last_t {
                 // Predict through the INS states up to the one covering t_m.
-                let Some(cover) = self.nav_buf.iter().position(|n| n.header.meas_time_ns >= t_m)
+                let Some(cover) = self
+                    .nav_buf
+                    .iter()
+                    .position(|n| n.header.meas_time_ns >= t_m)
                 else {
                     return; // wait for INS data
                 };
@@ -358,6 +422,14 @@ impl FusionEngine {
         let b = self.last_nav?;
         let tb = b.header.meas_time_ns;
         let a = match self.prev_nav {
+            Some(a) if a.header.meas_time_ns == t => {
+                return Some(InsAt {
+                    t_ns: t,
+                    pos_m: a.pos_m,
+                    vel_mps: a.vel_mps,
+                    quat: a.quat,
+                })
+            }
             Some(a) if a.header.meas_time_ns < t && t < tb => a,
             _ => {
                 return Some(InsAt {
@@ -395,9 +467,13 @@ impl FusionEngine {
         // Position initialisation and divergence resets come from fixes.
         if let Measurement::Fix(fix) = m {
             let want_reset = !self.initialised
-                || (self.cfg.reset_on_divergence && (self.reset_requested || self.est.needs_reset()));
+                || (self.cfg.reset_on_divergence
+                    && (self.reset_requested || self.est.needs_reset()));
             if want_reset {
-                self.reset_from_fix(&fix, &ins, &last, out);
+                if self.reset_fix_ready(&fix) {
+                    self.reset_run = None;
+                    self.reset_from_fix(&fix, &ins, &last, out);
+                }
                 return;
             }
         }
@@ -483,7 +559,11 @@ impl FusionEngine {
             pos[2] = last.pos_m[2];
         }
         let reset = (pos, vel, last.quat);
-        let flag = if self.initialised { FusedState::FLAG_RESET } else { 0 };
+        let flag = if self.initialised {
+            FusedState::FLAG_RESET
+        } else {
+            0
+        };
         self.initialised = true;
         self.reset_requested = false;
         self.send_correction(&Delta::default(), Some(reset), last, out);

@@ -112,6 +112,15 @@ pub trait Estimator: std::fmt::Debug + Send {
     fn is_tight(&self) -> bool {
         false
     }
+    /// The full error covariance, row-major (for checkpoints; empty when not supported).
+    fn covariance_snapshot(&self) -> Vec<f64> {
+        Vec::new()
+    }
+    /// Restores a covariance from [`Estimator::covariance_snapshot`] (state zero);
+    /// false when the snapshot does not fit or is not a covariance.
+    fn restore_covariance(&mut self, _p: &[f64]) -> bool {
+        false
+    }
 }
 
 /// Settings of the loosely coupled paper filters inside the engine.
@@ -121,11 +130,66 @@ pub struct LooseConfig {
     /// Fuse the UWB velocity (eq. 13) when the fix carries a valid one; else
     /// position only.
     pub use_velocity: bool,
+    /// How the random-walk acceleration-error states are fed back (only with
+    /// `model.bias_random_walk`). Default `bias`.
+    pub accel_feedback: AccelFeedback,
+    /// The paper's filter is 2D: on a 3D vehicle the INS height and vertical
+    /// velocity drift without bound. A value > 0 steers them to the height of
+    /// 3D UWB fixes with a second-order, critically damped complementary loop
+    /// of this natural frequency `w`, rad/s: per fix, with `T` the time since
+    /// the previous fix (clamped to [0.01, 1] s) and `dz` the INS height
+    /// minus the fix's, `d_pos_z = 2 w T dz`, `d_vel_z = w^2 T dz`. Default 0
+    /// (off, the paper's 2D filter).
+    pub vertical_bandwidth_rps: f64,
 }
 
 impl Default for LooseConfig {
     fn default() -> Self {
-        Self { use_velocity: true }
+        Self {
+            use_velocity: true,
+            accel_feedback: AccelFeedback::Bias,
+            vertical_bandwidth_rps: 0.0,
+        }
+    }
+}
+
+/// How the random-walk acceleration-error states (`model.bias_random_walk`,
+/// erratum 19) are fed back into the INS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AccelFeedback {
+    /// As an accelerometer bias, rotated into the body frame with the current
+    /// attitude (default).
+    #[default]
+    Bias,
+    /// As the tilt (roll/pitch) error that causes it: a level INS tilted by
+    /// the ENU rotation vector `d_att` sees `g [d_att_n, -d_att_e]` of false
+    /// horizontal acceleration, so `d_att = [d_a_n, -d_a_e, 0] / g`. On a 3D
+    /// vehicle whose attitude drifts (the UTIL quadrotor: gyro errors under
+    /// fast yaw), the error is a tilt, fixed in the navigation frame, which a
+    /// body-frame bias only matches until the vehicle turns.
+    Tilt,
+}
+
+/// A [`LooseConfig`] value out of range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LooseConfigError {
+    /// `vertical_bandwidth_rps` is negative, not finite or above 10 rad/s.
+    #[error("loose.vertical_bandwidth_rps must be in [0, 10] rad/s, got {0}")]
+    VerticalBandwidth(f64),
+}
+
+impl LooseConfig {
+    /// Checks every value, naming the first offending key.
+    ///
+    /// # Errors
+    /// [`LooseConfigError`] naming the key and its value.
+    pub fn validate(&self) -> Result<(), LooseConfigError> {
+        let w = self.vertical_bandwidth_rps;
+        if !(w.is_finite() && (0.0..=10.0).contains(&w)) {
+            return Err(LooseConfigError::VerticalBandwidth(w));
+        }
+        Ok(())
     }
 }
 
@@ -152,6 +216,10 @@ pub struct PaperEstimator {
     last_quat: [f64; 4],
     /// The model's AR blocks are random-walk biases (erratum 19): feed them back.
     bias_feedback: bool,
+    gravity_mps2: f64,
+    /// Vertical correction of the last fix, not yet taken: `(d_pos_z, d_vel_z)`.
+    vertical: Option<(f64, f64)>,
+    last_fix_t_ns: Option<u64>,
 }
 
 impl PaperEstimator {
@@ -167,6 +235,9 @@ impl PaperEstimator {
         Self {
             last_quat: [1.0, 0.0, 0.0, 0.0],
             bias_feedback,
+            gravity_mps2: insuwb_nav::ins::STANDARD_GRAVITY_MPS2,
+            vertical: None,
+            last_fix_t_ns: None,
             filter,
             cfg,
             p0,
@@ -176,6 +247,32 @@ impl PaperEstimator {
             acc_an: 0.0,
             predict_errors: 0,
         }
+    }
+
+    /// Sets the gravity magnitude of the tilt feedback (m/s^2; the INS's
+    /// `ins.gravity_mps2`, default standard gravity). A value that is not
+    /// finite and positive is ignored.
+    #[must_use]
+    pub fn with_gravity(mut self, gravity_mps2: f64) -> Self {
+        if gravity_mps2.is_finite() && gravity_mps2 > 0.0 {
+            self.gravity_mps2 = gravity_mps2;
+        }
+        self
+    }
+
+    /// The vertical loop's correction for a fix ([`LooseConfig::vertical_bandwidth_rps`]).
+    fn vertical_correction(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<(f64, f64)> {
+        let w = self.cfg.vertical_bandwidth_rps;
+        let t = fix.header.meas_time_ns;
+        let prev = self.last_fix_t_ns.replace(t);
+        if w <= 0.0 || fix.header.flags & UwbFix::FLAG_2D != 0 {
+            return None;
+        }
+        let dt_s = prev
+            .map_or(0.1, |p| t.saturating_sub(p) as f64 * 1e-9)
+            .clamp(0.01, 1.0);
+        let dz = ins.pos_m[2] - fix.pos_m[2];
+        Some((2.0 * w * dt_s * dz, w * w * dt_s * dz))
     }
 
     /// The wrapped filter.
@@ -248,6 +345,7 @@ impl Estimator for PaperEstimator {
     }
 
     fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo> {
+        self.vertical = self.vertical_correction(ins, fix);
         let dp = [ins.pos_m[0] - fix.pos_m[0], ins.pos_m[1] - fix.pos_m[1]];
         let vel_ok = self.cfg.use_velocity && fix.header.flags & UwbFix::FLAG_VEL_VALID != 0;
         let rep = if vel_ok {
@@ -259,7 +357,8 @@ impl Estimator for PaperEstimator {
             );
             self.filter.update(&z)
         } else {
-            self.filter.update_pos(&nalgebra::SVector::<f64, 2>::new(dp[0], dp[1]))
+            self.filter
+                .update_pos(&nalgebra::SVector::<f64, 2>::new(dp[0], dp[1]))
         };
         Some(match rep {
             Ok(r) => report_to_info(&r),
@@ -276,13 +375,24 @@ impl Estimator for PaperEstimator {
 
     fn take_correction(&mut self) -> Delta {
         let x = self.filter.take_correction();
+        let (dz, dvz) = self.vertical.take().unwrap_or((0.0, 0.0));
         let mut d = Delta {
-            d_pos_m: [x[0], x[1], 0.0],
-            d_vel_mps: [x[2], x[3], 0.0],
+            d_pos_m: [x[0], x[1], dz],
+            d_vel_mps: [x[2], x[3], dvz],
             d_att_rad: [0.0, 0.0, x[4]],
             ..Delta::default()
         };
-        if self.bias_feedback {
+        if self.bias_feedback && self.cfg.accel_feedback == AccelFeedback::Tilt {
+            // `d a = a_true - a_meas` (erratum 4): the INS's own error is
+            // `-d a = g [d_att_n, -d_att_e]`.
+            let q = self.last_quat;
+            let r = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                q[0], q[1], q[2], q[3],
+            ));
+            let bg = r.inverse() * nalgebra::Vector3::new(0.0, 0.0, -x[11]);
+            d.d_att_rad = [x[8] / self.gravity_mps2, -x[5] / self.gravity_mps2, x[4]];
+            d.d_gyro_bias_rps = [bg.x, bg.y, bg.z];
+        } else if self.bias_feedback {
             // States 5, 8, 11 are `d a = a_true - a_meas` (ENU) and `d w`
             // (erratum 4): the INS bias (subtracted from the samples) moves by
             // minus their body-frame value.
@@ -313,9 +423,26 @@ impl Estimator for PaperEstimator {
         c
     }
 
+    fn covariance_snapshot(&self) -> Vec<f64> {
+        let p = self.filter.covariance();
+        (0..14)
+            .flat_map(|i| (0..14).map(move |j| p[(i, j)]))
+            .collect()
+    }
+
+    fn restore_covariance(&mut self, p: &[f64]) -> bool {
+        if p.len() != 14 * 14 {
+            return false;
+        }
+        let m = insuwb_filter::model::Mat14::from_fn(|i, j| p[i * 14 + j]);
+        let _ = self.filter.take_correction();
+        self.filter.reset(&m).is_ok()
+    }
+
     fn reset(&mut self) {
         let _ = self.filter.take_correction();
         let _ = self.filter.reset(&self.p0);
+        self.vertical = None;
         self.acc_dt = 0.0;
         self.acc_ae = 0.0;
         self.acc_an = 0.0;

@@ -165,12 +165,10 @@ impl InsEngine {
     /// # Errors
     /// An invalid configuration.
     pub fn new(cfg: InsEngineConfig) -> Result<Self, InsEngineError> {
-        cfg.ins
-            .validate()
-            .map_err(|e| InsEngineError::Invalid {
-                key: "ins",
-                message: e.to_string(),
-            })?;
+        cfg.ins.validate().map_err(|e| InsEngineError::Invalid {
+            key: "ins",
+            message: e.to_string(),
+        })?;
         let i = &cfg.init;
         if !(i.align_window_s.is_finite() && (0.0..=60.0).contains(&i.align_window_s)) {
             return Err(InsEngineError::Invalid {
@@ -184,7 +182,11 @@ impl InsEngine {
                 message: "pos_m, vel_mps and yaw_rad must be finite".into(),
             });
         }
-        let history_len = if cfg.history_len == 0 { 2048 } else { cfg.history_len };
+        let history_len = if cfg.history_len == 0 {
+            2048
+        } else {
+            cfg.history_len
+        };
         Ok(Self {
             ring: VecDeque::with_capacity(history_len),
             cfg: InsEngineConfig { history_len, ..cfg },
@@ -226,7 +228,13 @@ impl InsEngine {
     /// Re-initialise from a fused state (a restarted INS): position,
     /// velocity and attitude are taken from `fused`, the next IMU sample
     /// starts integration.
-    pub fn reinit_from(&mut self, pos_m: [f64; 3], vel_mps: [f64; 3], quat: [f64; 4], correction_id: u64) {
+    pub fn reinit_from(
+        &mut self,
+        pos_m: [f64; 3],
+        vel_mps: [f64; 3],
+        quat: [f64; 4],
+        correction_id: u64,
+    ) {
         let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             quat[0], quat[1], quat[2], quat[3],
         ));
@@ -251,7 +259,11 @@ impl InsEngine {
             self.counters.dropped_version += 1;
             return None;
         }
-        let finite = s.accel_mps2.iter().chain(&s.gyro_rps).all(|v| v.is_finite());
+        let finite = s
+            .accel_mps2
+            .iter()
+            .chain(&s.gyro_rps)
+            .all(|v| v.is_finite());
         let in_range = s.accel_mps2.iter().all(|v| v.abs() < MAX_ACCEL_MPS2)
             && s.gyro_rps.iter().all(|v| v.abs() < MAX_RATE_RPS);
         if !finite || !in_range {
@@ -313,6 +325,9 @@ impl InsEngine {
         let mut flags = NavState::FLAG_ALIGNED;
         if self.reinit_flag {
             flags |= NavState::FLAG_REINIT;
+        }
+        if out.gap_clamped {
+            flags |= NavState::FLAG_GAP;
         }
         let nav_seq = self.out_seq;
         self.out_seq += 1;

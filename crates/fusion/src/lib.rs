@@ -5,10 +5,12 @@
 //! applies corrections; [`engine::FusionEngine`] turns navigation states and
 //! UWB measurements into fused states and corrections; [`offline`] wires the
 //! two (and the UWB fix builder) together in one process, in lockstep, with
-//! exactly the code the stage processes run.
+//! exactly the code the stage processes run; [`tight`] wraps the tightly
+//! coupled error-state filter as an estimator.
 #![warn(missing_docs)]
 
 pub mod engine;
 pub mod estimator;
 pub mod ins_engine;
 pub mod offline;
+pub mod tight;

@@ -9,8 +9,9 @@ use insuwb_msg::{
 use serde::{Deserialize, Serialize};
 
 use crate::engine::{FusionCounters, FusionEngine, FusionEngineConfig, Measurement, Outputs};
-use crate::estimator::{Estimator, LooseConfig, PaperEstimator};
+use crate::estimator::{Estimator, LooseConfig, LooseConfigError, PaperEstimator};
 use crate::ins_engine::{InsCounters, InsEngine, InsEngineConfig, InsEngineError};
+use crate::tight::{TightBuildError, TightConfig, TightEstimator};
 
 /// Everything a run needs: the INS, the fix builder, the engine and every filter's settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -30,6 +31,11 @@ pub struct FusionConfig {
     pub setup: insuwb_filter::FilterSetup,
     /// Loose-coupling options.
     pub loose: LooseConfig,
+    /// The tightly coupled error-state filter (`iakf_tdoa`): noise, initial
+    /// uncertainty, TDOA noise, robust weighting and divergence monitor.
+    pub eskf: insuwb_eskf::EskfConfig,
+    /// Tight-coupling settings outside the ESKF (antenna lever arm, specific-force smoothing).
+    pub tight: TightConfig,
 }
 
 /// Why a run could not start.
@@ -47,20 +53,38 @@ pub enum RunError {
     /// A filter could not be built.
     #[error("filter: {0}")]
     Filter(#[from] insuwb_filter::BuildError),
+    /// The loose-coupling settings were refused.
+    #[error(transparent)]
+    Loose(#[from] LooseConfigError),
+    /// The tightly coupled filter could not be built.
+    #[error(transparent)]
+    Tight(#[from] TightBuildError),
 }
 
-/// Builds the estimator for `kind` from `cfg`.
+/// Builds the estimator for `kind` from `cfg`: the paper's filters from
+/// `model`, `filter`, `setup` and `loose`; [`FilterKind::IakfTdoa`] the
+/// tightly coupled ESKF from `eskf` and `tight`.
 ///
 /// # Errors
 /// A model or filter config that does not validate.
-pub fn build_estimator(kind: FilterKind, cfg: &FusionConfig) -> Result<Box<dyn Estimator>, RunError> {
+pub fn build_estimator(
+    kind: FilterKind,
+    cfg: &FusionConfig,
+) -> Result<Box<dyn Estimator>, RunError> {
+    if kind == FilterKind::IakfTdoa {
+        return Ok(Box::new(TightEstimator::new(
+            cfg.eskf.clone(),
+            cfg.tight.clone(),
+            cfg.ins.ins.gravity_mps2,
+        )?));
+    }
+    cfg.loose.validate()?;
     let model = insuwb_filter::PaperModel::new(cfg.model.clone())?;
     let f = insuwb_filter::build(kind, model, &cfg.filter, &cfg.setup)?;
-    Ok(Box::new(PaperEstimator::new(
-        f,
-        cfg.loose.clone(),
-        cfg.setup.p0(),
-    )))
+    Ok(Box::new(
+        PaperEstimator::new(f, cfg.loose.clone(), cfg.setup.p0())
+            .with_gravity(cfg.ins.ins.gravity_mps2),
+    ))
 }
 
 /// What a run produced.

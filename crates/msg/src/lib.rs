@@ -176,6 +176,9 @@ impl NavState {
     pub const FLAG_ALIGNED: u32 = 1;
     /// The INS was re-initialised from a fused state (after a restart).
     pub const FLAG_REINIT: u32 = 2;
+    /// IMU samples were missing before this state (a dropout or a restarted
+    /// IMU driver): the INS coasted over the gap and its error grew.
+    pub const FLAG_GAP: u32 = 4;
 }
 
 /// Correction from fusion to INS (topic [`topics::CORRECTION`]).

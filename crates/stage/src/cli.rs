@@ -25,7 +25,10 @@ pub enum StageKind {
 
 /// Arguments of every stage binary.
 #[derive(Debug, Parser)]
-#[command(version, about = "An insuwb stage process (normally started by `insuwb launch`).")]
+#[command(
+    version,
+    about = "An insuwb stage process (normally started by `insuwb launch`)."
+)]
 pub struct StageArgs {
     /// The robot group configuration (config/robot.toml).
     #[arg(long)]
@@ -72,11 +75,17 @@ fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
     }
     let result = match kind {
         StageKind::Imu => {
-            let src = args.source.clone().unwrap_or_else(|| cfg.sources.imu.clone());
+            let src = args
+                .source
+                .clone()
+                .unwrap_or_else(|| cfg.sources.imu.clone());
             crate::driver::run(Want::Imu, &cfg, &src, speed, epoch)
         }
         StageKind::Uwb => {
-            let src = args.source.clone().unwrap_or_else(|| cfg.sources.uwb.clone());
+            let src = args
+                .source
+                .clone()
+                .unwrap_or_else(|| cfg.sources.uwb.clone());
             crate::driver::run(Want::Uwb, &cfg, &src, speed, epoch)
         }
         StageKind::Ins => crate::ins::run(&cfg),
@@ -84,7 +93,12 @@ fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
         StageKind::Logger => crate::logger::run(&cfg),
     };
     match result {
-        Err(e) if e.downcast_ref::<insuwb_runtime::StageError>().is_some_and(|s| matches!(s, insuwb_runtime::StageError::ShutdownRequested(_))) => Ok(()),
+        Err(e)
+            if e.downcast_ref::<insuwb_runtime::StageError>()
+                .is_some_and(|s| matches!(s, insuwb_runtime::StageError::ShutdownRequested(_))) =>
+        {
+            Ok(())
+        }
         r => r,
     }
 }

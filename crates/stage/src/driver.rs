@@ -30,19 +30,32 @@ const MAX_ACCEL_MPS2: f64 = 400.0;
 const MAX_RATE_RPS: f64 = 70.0;
 
 fn imu_ok(s: &ImuSample) -> bool {
-    s.accel_mps2.iter().all(|v| v.is_finite() && v.abs() < MAX_ACCEL_MPS2)
-        && s.gyro_rps.iter().all(|v| v.is_finite() && v.abs() < MAX_RATE_RPS)
+    s.accel_mps2
+        .iter()
+        .all(|v| v.is_finite() && v.abs() < MAX_ACCEL_MPS2)
+        && s.gyro_rps
+            .iter()
+            .all(|v| v.is_finite() && v.abs() < MAX_RATE_RPS)
 }
 
 fn tdoa_ok(s: &UwbTdoa) -> bool {
     s.diff_m.is_finite()
         && s.diff_m.abs() < 1000.0
-        && s.anchor_a_pos_m.iter().chain(&s.anchor_b_pos_m).all(|v| v.is_finite())
+        && s.anchor_a_pos_m
+            .iter()
+            .chain(&s.anchor_b_pos_m)
+            .all(|v| v.is_finite())
         && s.anchor_a != s.anchor_b
 }
 
 /// Runs a driver stage until SIGINT/SIGTERM.
-pub fn run(want: Want, cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> Result<()> {
+pub fn run(
+    want: Want,
+    cfg: &RobotConfig,
+    source_spec: &str,
+    speed: f64,
+    epoch_ns: u64,
+) -> Result<()> {
     let name = match want {
         Want::Imu => "imu",
         Want::Uwb => "uwb",
@@ -55,7 +68,10 @@ pub fn run(want: Want, cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_n
         let reached = ((now - epoch_ns) as f64 * speed) as u64;
         let skipped = src.skip_before(reached);
         if skipped > 0 {
-            tracing::warn!("generation {gen}: resuming the recording at {:.3} s ({skipped} samples skipped)", reached as f64 * 1e-9);
+            tracing::warn!(
+                "generation {gen}: resuming the recording at {:.3} s ({skipped} samples skipped)",
+                reached as f64 * 1e-9
+            );
         }
     }
     let fcfg = cfg.fusion_config()?;
@@ -72,7 +88,9 @@ pub fn run(want: Want, cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_n
     let mut last_t: Option<u64> = None;
     let mut pending = src.next_item();
     let source_id = stage.source_id();
-    tracing::info!("{name} driver: source {source_spec}, speed {speed}, epoch {epoch_ns} ns, generation {gen}");
+    tracing::info!(
+        "{name} driver: source {source_spec}, speed {speed}, epoch {epoch_ns} ns, generation {gen}"
+    );
     loop {
         let now = monotonic_ns();
         while let Some(item) = pending {
@@ -138,7 +156,11 @@ pub fn run(want: Want, cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_n
                 counters.dropped_invalid = drops.invalid;
                 counters.dropped_time = drops.time;
                 counters.extra[0] = fixes.stats().fixes;
-                let state = if pending.is_none() { Health::STATE_DEGRADED } else { Health::STATE_OK };
+                let state = if pending.is_none() {
+                    Health::STATE_DEGRADED
+                } else {
+                    Health::STATE_OK
+                };
                 health.report(&counters, state)?;
                 // Late subscribers get history only when the publisher acts.
                 imu_pub.update_connections()?;
@@ -148,6 +170,9 @@ pub fn run(want: Want, cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_n
         }
     }
     health.report(&counters, Health::STATE_STOPPING)?;
-    tracing::info!("{name} driver: stopped after {} samples", counters.published);
+    tracing::info!(
+        "{name} driver: stopped after {} samples",
+        counters.published
+    );
     Ok(())
 }

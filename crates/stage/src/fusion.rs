@@ -23,7 +23,7 @@ pub struct Checkpoint {
     pub correction_id: u64,
     /// Time the checkpoint was written (monotonic ns).
     pub written_ns: u64,
-    /// Position/velocity covariance of the last fused state (row-major 6 x 6).
+    /// The estimator's full error covariance (row-major).
     pub cov: Vec<f64>,
 }
 
@@ -53,13 +53,23 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let est = insuwb_fusion::offline::build_estimator(kind, &fcfg)?;
     let tight = est.is_tight();
     let mut engine = FusionEngine::new(fcfg.engine.clone(), est);
-    std::fs::create_dir_all(&cfg.group.run_dir)
-        .with_context(|| format!("{}: cannot create the run directory", cfg.group.run_dir.display()))?;
+    std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
+        format!(
+            "{}: cannot create the run directory",
+            cfg.group.run_dir.display()
+        )
+    })?;
     let ckpt_path = checkpoint_path(&cfg.group.run_dir);
     if stage.generation() > 0 {
         if let Some(c) = read_checkpoint(&ckpt_path) {
             engine.resume_correction_id(c.correction_id);
-            tracing::warn!("generation {}: resumed from the checkpoint (correction id {})", stage.generation(), c.correction_id);
+            let restored = engine.estimator_mut().restore_covariance(&c.cov);
+            tracing::warn!(
+                "generation {}: resumed from the checkpoint (correction id {}, covariance {})",
+                stage.generation(),
+                c.correction_id,
+                if restored { "restored" } else { "not restored" }
+            );
         }
     }
     let nav_sub = stage.subscriber::<NavState>(topics::NAV)?;
@@ -76,6 +86,9 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let tick_period = Duration::from_secs_f64((0.5 / cfg.fusion.coast_rate_hz).min(0.05));
     let tick = waiter.attach_interval(tick_period)?;
     let hb = waiter.attach_interval(health.period())?;
+    // Samples published before this process started (iceoryx2 history) were
+    // already handled by the previous generation: never fold them in again.
+    let started_ns = monotonic_ns();
     let mut out = Outputs::default();
     out.fused.reserve(64);
     out.diag.reserve(64);
@@ -99,20 +112,34 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         };
         if f.contains(&nav_a) || f.contains(&fix_a) || f.contains(&tdoa_a) {
             // Fixes before the TDOA measurements that completed them, then INS states.
-            fix_sub.drain(|m| engine.on_measurement(Measurement::Fix(m), &mut out))?;
+            let fresh = |pub_ns: u64| pub_ns >= started_ns;
+            fix_sub.drain(|m| {
+                if fresh(m.header.pub_time_ns) {
+                    engine.on_measurement(Measurement::Fix(m), &mut out);
+                }
+            })?;
             if tight {
-                tdoa_sub.drain(|m| engine.on_measurement(Measurement::Tdoa(m), &mut out))?;
+                tdoa_sub.drain(|m| {
+                    if fresh(m.header.pub_time_ns) {
+                        engine.on_measurement(Measurement::Tdoa(m), &mut out);
+                    }
+                })?;
             } else {
                 tdoa_sub.drain(|_| {})?;
             }
-            nav_sub.drain(|n| engine.on_nav(&n, &mut out))?;
+            nav_sub.drain(|n| {
+                if fresh(n.header.pub_time_ns) {
+                    engine.on_nav(&n, &mut out);
+                }
+            })?;
             for c in &out.corrections {
                 corr_pub.publish(*c)?;
             }
             for s in &out.fused {
                 let mut s = *s;
                 if stale {
-                    s.header.flags = (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
+                    s.header.flags =
+                        (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
                 }
                 fused_pub.publish(s)?;
                 last_update_pub = monotonic_ns();
@@ -131,7 +158,8 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             {
                 if let Some(mut s) = engine.coasting_state() {
                     if stale {
-                        s.header.flags = (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
+                        s.header.flags =
+                            (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
                     }
                     fused_pub.publish(s)?;
                     last_coast_pub = now;
@@ -142,7 +170,10 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                     let c = Checkpoint {
                         correction_id: engine.correction_id(),
                         written_ns: now,
-                        cov: fs.cov.iter().flatten().copied().collect(),
+                        cov: {
+                            let _ = fs;
+                            engine.estimator().covariance_snapshot()
+                        },
                     };
                     if let Err(e) = write_checkpoint(&ckpt_path, &c) {
                         tracing::warn!("checkpoint: {e:#}");
@@ -160,7 +191,11 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             counters.dropped_invalid = c.dropped_invalid;
             counters.dropped_time = c.meas_late;
             counters.extra = [c.updates, c.outliers, c.resets, c.corrections];
-            let state = if stale { Health::STATE_DEGRADED } else { Health::STATE_OK };
+            let state = if stale {
+                Health::STATE_DEGRADED
+            } else {
+                Health::STATE_OK
+            };
             health.report(&counters, state)?;
             fused_pub.update_connections()?;
         }

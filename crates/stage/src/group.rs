@@ -150,28 +150,47 @@ impl RobotConfig {
         }
         for s in &self.stages {
             if !STAGES.contains(&s.as_str()) {
-                bail!("{origin}: key 'stages': unknown stage '{s}' (known: {})", STAGES.join(", "));
+                bail!(
+                    "{origin}: key 'stages': unknown stage '{s}' (known: {})",
+                    STAGES.join(", ")
+                );
             }
         }
         if self.group.run_dir.is_relative() {
             self.group.run_dir = base.join(&self.group.run_dir);
         }
-        for (key, src) in [("sources.imu", &mut self.sources.imu), ("sources.uwb", &mut self.sources.uwb)] {
+        for (key, src) in [
+            ("sources.imu", &mut self.sources.imu),
+            ("sources.uwb", &mut self.sources.uwb),
+        ] {
             match src.split_once(':') {
                 None if src == "sim" => {}
                 Some(("replay", file)) => {
                     let p = Path::new(file);
-                    let p = if p.is_relative() { base.join(p) } else { p.to_owned() };
+                    let p = if p.is_relative() {
+                        base.join(p)
+                    } else {
+                        p.to_owned()
+                    };
                     if !p.is_file() {
-                        bail!("{origin}: key '{key}': replay file {} does not exist", p.display());
+                        bail!(
+                            "{origin}: key '{key}': replay file {} does not exist",
+                            p.display()
+                        );
                     }
                     *src = format!("replay:{}", p.display());
                 }
                 _ => bail!("{origin}: key '{key}': unknown source '{src}' (sim or replay:FILE)"),
             }
         }
-        if !(self.sources.speed.is_finite() && self.sources.speed > 0.0 && self.sources.speed <= 1000.0) {
-            bail!("{origin}: key 'sources.speed': must be in (0, 1000], got {}", self.sources.speed);
+        if !(self.sources.speed.is_finite()
+            && self.sources.speed > 0.0
+            && self.sources.speed <= 1000.0)
+        {
+            bail!(
+                "{origin}: key 'sources.speed': must be in (0, 1000], got {}",
+                self.sources.speed
+            );
         }
         if insuwb_eval::run::parse_filter(&self.fusion.filter).is_none() {
             bail!(
@@ -181,17 +200,30 @@ impl RobotConfig {
         }
         if !self.fusion.config.is_empty() {
             let p = Path::new(&self.fusion.config);
-            let p = if p.is_relative() { base.join(p) } else { p.to_owned() };
+            let p = if p.is_relative() {
+                base.join(p)
+            } else {
+                p.to_owned()
+            };
             if !p.is_file() {
-                bail!("{origin}: key 'fusion.config': file {} does not exist", p.display());
+                bail!(
+                    "{origin}: key 'fusion.config': file {} does not exist",
+                    p.display()
+                );
             }
             self.fusion.config = p.display().to_string();
         }
         for (key, v) in [
             ("fusion.coast_timeout_s", self.fusion.coast_timeout_s),
             ("fusion.coast_rate_hz", self.fusion.coast_rate_hz),
-            ("fusion.stale_ins_timeout_s", self.fusion.stale_ins_timeout_s),
-            ("fusion.checkpoint_period_s", self.fusion.checkpoint_period_s),
+            (
+                "fusion.stale_ins_timeout_s",
+                self.fusion.stale_ins_timeout_s,
+            ),
+            (
+                "fusion.checkpoint_period_s",
+                self.fusion.checkpoint_period_s,
+            ),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 bail!("{origin}: key '{key}': must be > 0, got {v}");
@@ -204,7 +236,8 @@ impl RobotConfig {
             .segments
             .validate()
             .map_err(|e| anyhow::anyhow!("{origin}: key 'logger.segments': {e}"))?;
-        if matches!(self.sources.imu.as_str(), "sim") || matches!(self.sources.uwb.as_str(), "sim") {
+        if matches!(self.sources.imu.as_str(), "sim") || matches!(self.sources.uwb.as_str(), "sim")
+        {
             insuwb_eval::scenario::ScenarioFile::load(&self.sources.scenario)
                 .with_context(|| format!("{origin}: key 'sources.scenario'"))?;
         }
@@ -256,7 +289,8 @@ impl RobotConfig {
             return Ok(w.fusion);
         }
         if let Some(file) = self.sources.imu.strip_prefix("replay:") {
-            let (_, _, header) = insuwb_log::read_all(file).with_context(|| format!("{file}: cannot read"))?;
+            let (_, _, header) =
+                insuwb_log::read_all(file).with_context(|| format!("{file}: cannot read"))?;
             if let Some(text) = header.meta.entries.get("fusion_config") {
                 let table: toml::Table = insuwb_config::load_str(text, file)?;
                 let mut t = toml::Table::new();
@@ -278,7 +312,10 @@ impl RobotConfig {
 /// epochs fall as in the recording).
 #[must_use]
 pub fn start_epoch_ns() -> u64 {
-    if let Some(v) = std::env::var(START_EPOCH_ENV).ok().and_then(|v| v.parse().ok()) {
+    if let Some(v) = std::env::var(START_EPOCH_ENV)
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
         return v;
     }
     choose_start_epoch(insuwb_runtime::monotonic_ns())

@@ -96,7 +96,12 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                     counters.dropped_invalid = c.dropped_invalid;
                     counters.dropped_time = c.dropped_time;
                     counters.dropped_version += c.dropped_version;
-                    counters.extra = [c.corrections, c.repropagated, c.corrections_too_old, c.imu_restarts];
+                    counters.extra = [
+                        c.corrections,
+                        c.repropagated,
+                        c.corrections_too_old,
+                        c.imu_restarts,
+                    ];
                     health.report(&counters, Health::STATE_OK)?;
                     nav_pub.update_connections()?;
                 }

@@ -22,9 +22,21 @@ use crate::group::RobotConfig;
 /// Runs the logger stage until SIGINT/SIGTERM.
 pub fn run(cfg: &RobotConfig) -> Result<()> {
     let stage = Stage::new(cfg.runtime("logger"))?;
-    let dir = cfg.group.run_dir.join(cfg.logger.dir.clone().unwrap_or_else(|| "log".into()));
-    let meta = Metadata::new(format!("insuwb logger {} generation {}", cfg.group.name, stage.generation()))
-        .with("fusion_config", toml::to_string(&FusionWrap { fusion: cfg.fusion_config()? })?);
+    let dir = cfg
+        .group
+        .run_dir
+        .join(cfg.logger.dir.clone().unwrap_or_else(|| "log".into()));
+    let meta = Metadata::new(format!(
+        "insuwb logger {} generation {}",
+        cfg.group.name,
+        stage.generation()
+    ))
+    .with(
+        "fusion_config",
+        toml::to_string(&FusionWrap {
+            fusion: cfg.fusion_config()?,
+        })?,
+    );
     let writer = SegmentWriter::open(&dir, meta, cfg.logger.segments.clone(), monotonic_ns())
         .with_context(|| format!("{}: cannot open a log segment", dir.display()))?;
     tracing::info!("recording into {}", dir.display());

@@ -66,7 +66,11 @@ impl Recorded {
     /// Skips every sample before `t_ns` (a restarted driver resumes where the recording is now).
     pub fn skip_before(&mut self, t_ns: u64) -> usize {
         let start = self.next;
-        while self.items.get(self.next).is_some_and(|i| i.time_ns() < t_ns) {
+        while self
+            .items
+            .get(self.next)
+            .is_some_and(|i| i.time_ns() < t_ns)
+        {
             self.next += 1;
         }
         self.next - start

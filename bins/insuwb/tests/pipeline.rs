@@ -1,0 +1,274 @@
+//! The process pipeline with real processes and real iceoryx2 shared memory:
+//! rates, restarts of every stage, the logger's record across its restart,
+//! and replay through the processes against `insuwb eval`'s code path.
+//!
+//! Every test runs its group under its own service prefix and run directory
+//! and checks that no /dev/shm file of that prefix is left. The tests start
+//! processes and measure time, so they run one at a time (a lock).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Mutex;
+
+use insuwb_log::Record;
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn insuwb() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_insuwb"))
+}
+
+struct Group {
+    name: String,
+    dir: PathBuf,
+    prefix: String,
+}
+
+impl Group {
+    fn new(name: &str, sources: &str, filter: &str) -> Self {
+        let id = format!("{}_{name}", std::process::id());
+        let dir = std::env::temp_dir().join(format!("insuwb-test-{id}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let prefix = format!("iutest{}_{name}_", std::process::id());
+        let text = format!(
+            "[group]\nname = \"{name}\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
+             [sources]\n{sources}\n[fusion]\nfilter = \"{filter}\"\n\
+             [logger.segments.flush]\nevery_ms = 100\n",
+            dir.join("run").display()
+        );
+        std::fs::write(dir.join("robot.toml"), text).unwrap();
+        Self {
+            name: name.to_owned(),
+            dir,
+            prefix,
+        }
+    }
+
+    /// Runs `insuwb launch` for `secs` with `faults`; returns the JSON report.
+    fn launch(&self, secs: f64, faults: &[&str]) -> serde_json::Value {
+        let mut cmd = Command::new(insuwb());
+        cmd.arg("launch").arg(self.dir.join("robot.toml")).args([
+            "--duration",
+            &secs.to_string(),
+            "--json",
+        ]);
+        for f in faults {
+            cmd.args(["--fault", f]);
+        }
+        let out = cmd.output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success(),
+            "{}: launch failed:\n{stderr}",
+            self.name
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+            panic!(
+                "{}: stdout is not one JSON object ({e}):\n{stderr}",
+                self.name
+            )
+        });
+        assert_eq!(
+            self.leftover_shm(),
+            Vec::<String>::new(),
+            "{}: /dev/shm files left",
+            self.name
+        );
+        v
+    }
+
+    fn leftover_shm(&self) -> Vec<String> {
+        std::fs::read_dir("/dev/shm")
+            .map(|d| {
+                d.filter_map(Result::ok)
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .filter(|n| n.starts_with(&self.prefix))
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    fn log_dir(&self) -> PathBuf {
+        self.dir.join("run").join("log")
+    }
+}
+
+impl Drop for Group {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn f(v: &serde_json::Value, key: &str) -> f64 {
+    v[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no number '{key}' in {v}"))
+}
+
+const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 3";
+
+fn records(dir: &Path) -> Vec<Record> {
+    insuwb_log::read_segments(dir).unwrap().records
+}
+
+#[test]
+fn group_runs_at_10hz_and_survives_a_sigkill_of_every_stage() {
+    let _lock = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let base = Group::new("base", SIM, "iakf").launch(10.0, &[]);
+    let rate = f(&base, "fused_rate_hz");
+    assert!((9.8..=10.2).contains(&rate), "fused rate {rate} Hz: {base}");
+    assert!((99.0..=101.0).contains(&f(&base, "imu_rate_hz")), "{base}");
+    let base_rmse = f(&base, "rmse_horizontal");
+    assert!(base_rmse.is_finite() && base_rmse < 0.2, "{base}");
+    assert_eq!(f(&base, "restarts"), 0.0);
+
+    for stage in ["fusion", "ins", "imu", "uwb"] {
+        let g = Group::new(stage, SIM, "iakf");
+        let r = g.launch(10.0, &[&format!("{stage}@4")]);
+        assert!(f(&r, "restarts") >= 1.0, "{stage}: no restart: {r}");
+        let gap = f(&r, "max_gap_ms");
+        // Fused output every 100 ms; after the kill it must resume within 500 ms.
+        assert!(
+            gap <= 600.0,
+            "{stage}: fused output stopped for {gap} ms: {r}"
+        );
+        let rmse = f(&r, "rmse_horizontal");
+        eprintln!("{stage} killed at 4 s: rmse {rmse:.4} m (undisturbed {base_rmse:.4} m), max gap {gap:.0} ms, restarts {}", f(&r, "restarts"));
+        assert!(
+            rmse <= base_rmse * 1.1 + 0.002,
+            "{stage}: accuracy {rmse} m against {base_rmse} m undisturbed: {r}"
+        );
+    }
+}
+
+#[test]
+fn a_restarted_logger_records_the_imu_topic_without_a_gap() {
+    let _lock = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let g = Group::new("logger", SIM, "iakf");
+    let r = g.launch(8.0, &["logger@3"]);
+    assert!(f(&r, "restarts") >= 1.0, "{r}");
+    let recs = records(&g.log_dir());
+    let mut seqs: Vec<u64> = recs
+        .iter()
+        .filter_map(|r| match r {
+            Record::Imu(s) => Some(s.header.seq),
+            _ => None,
+        })
+        .collect();
+    seqs.sort_unstable();
+    seqs.dedup();
+    assert!(seqs.len() > 500, "only {} IMU records", seqs.len());
+    let gaps: Vec<(u64, u64)> = seqs
+        .windows(2)
+        .filter(|w| w[1] != w[0] + 1)
+        .map(|w| (w[0], w[1]))
+        .collect();
+    assert!(
+        gaps.is_empty(),
+        "IMU sequence gaps in the recording: {gaps:?}"
+    );
+    let segs = insuwb_log::list_segments(g.log_dir()).unwrap();
+    assert!(
+        segs.len() >= 2,
+        "the restarted logger must open a new segment"
+    );
+}
+
+#[test]
+fn replay_at_10x_through_the_processes_equals_eval() {
+    let _lock = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let tmp = std::env::temp_dir().join(format!("insuwb-test-replay-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).unwrap();
+    let log = tmp.join("dyn.iulog");
+    let st = Command::new(insuwb())
+        .args([
+            "sim",
+            "--scenario",
+            "paper-4.4-dynamic",
+            "--seed",
+            "5",
+            "--out",
+        ])
+        .arg(&log)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let g = Group::new(
+        "replay",
+        &format!(
+            "imu = \"replay:{0}\"\nuwb = \"replay:{0}\"\nspeed = 10.0",
+            log.display()
+        ),
+        "iakf",
+    );
+    // 18 s of data at 10x.
+    g.launch(4.0, &[]);
+    let piped: Vec<insuwb_msg::FusedState> = records(&g.log_dir())
+        .into_iter()
+        .filter_map(|r| match r {
+            Record::Fused(s) if s.header.flags & insuwb_msg::FusedState::FLAG_DEGRADED == 0 => {
+                Some(s)
+            }
+            _ => None,
+        })
+        .collect();
+
+    // The same log through the in-process code path of `insuwb eval`.
+    let (recs, _, header) = insuwb_log::read_all(&log).unwrap();
+    let mut imu = Vec::new();
+    let mut tdoa = Vec::new();
+    for r in recs {
+        match r {
+            Record::Imu(s) => imu.push(s),
+            Record::Tdoa(s) => tdoa.push(s),
+            _ => {}
+        }
+    }
+    #[derive(serde::Deserialize)]
+    struct Wrap {
+        fusion: insuwb_fusion::offline::FusionConfig,
+    }
+    let text = &header.meta.entries["fusion_config"];
+    let table: toml::Table = toml::from_str(text).unwrap();
+    let mut only = toml::Table::new();
+    only.insert("fusion".into(), table["fusion"].clone());
+    let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
+    let out =
+        insuwb_fusion::offline::run(&imu, &tdoa, &w.fusion, insuwb_msg::FilterKind::Iakf).unwrap();
+
+    assert!(
+        out.fused.len() > 150,
+        "{} fused states in process",
+        out.fused.len()
+    );
+    assert!(
+        piped.len() >= out.fused.len() - 2,
+        "{} piped vs {} in process",
+        piped.len(),
+        out.fused.len()
+    );
+    let mut matched = 0;
+    let mut worst: f64 = 0.0;
+    for p in &piped {
+        if let Some(o) = out.fused.iter().find(|o| o.uwb_seq == p.uwb_seq) {
+            let d = ((p.pos_m[0] - o.pos_m[0]).powi(2) + (p.pos_m[1] - o.pos_m[1]).powi(2)).sqrt();
+            worst = worst.max(d);
+            matched += 1;
+        }
+    }
+    assert!(
+        matched >= out.fused.len() - 2,
+        "matched {matched} of {}",
+        out.fused.len()
+    );
+    assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
+    let _ = std::fs::remove_dir_all(&tmp);
+}

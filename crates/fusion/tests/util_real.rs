@@ -1,0 +1,317 @@
+//! Real flights: the four UTIL logs of `shared/data/util` through the offline
+//! runner with the `config/util.toml` preset (the one parameter set `insuwb
+//! eval` uses for Crazyflie logs), scored by the horizontal RMSE over the
+//! flight segment at the UWB fix epochs, as `insuwb eval` scores them.
+//!
+//! The data are not part of the repository: they are looked for at
+//! `INSUWB_UTIL_DIR`, else at `<workspace>/../shared/data/util`. When they
+//! are absent the tests say so and pass, unless the environment variable
+//! `CI` is set, where they fail.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::path::PathBuf;
+
+use insuwb_data::segment::{flight_segment, interpolate_truth};
+use insuwb_data::util::{load_util_flight, ImportOptions, UtilFlight};
+use insuwb_fusion::offline::{self, FusionConfig};
+use insuwb_msg::{FilterKind, FusedState, UwbFix};
+
+/// The preset, as `insuwb eval` reads it (`[fusion]`, `[import]`, `[eval]`).
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Preset {
+    #[serde(default)]
+    fusion: FusionConfig,
+    #[serde(default)]
+    import: ImportOptions,
+    #[serde(default)]
+    eval: Option<toml::Value>,
+}
+
+const PRESET: &str = include_str!("../../../config/util.toml");
+
+/// Log, anchor file, UTIL's own ESKF horizontal RMSE (dataset README), m.
+const LOGS: [(&str, &str, f64); 4] = [
+    ("cfBolt-log00", "anchors-const3.txt", 0.099),
+    ("test-log00", "anchors-const3.txt", 0.093),
+    ("0426-traj3", "anchors-0426.txt", 0.174),
+    ("0426-traj5", "anchors-0426.txt", 0.207),
+];
+
+const FILTERS: [FilterKind; 5] = [
+    FilterKind::Kf,
+    FilterKind::Shaf,
+    FilterKind::Stf,
+    FilterKind::Iakf,
+    FilterKind::IakfTdoa,
+];
+
+fn preset() -> Preset {
+    toml::from_str(PRESET).expect("config/util.toml parses as [fusion], [import], [eval]")
+}
+
+fn min_height_m(p: &Preset) -> f64 {
+    p.eval
+        .as_ref()
+        .and_then(|e| e.get("min_height_m"))
+        .and_then(toml::Value::as_float)
+        .unwrap_or(insuwb_data::segment::DEFAULT_MIN_HEIGHT_M)
+}
+
+/// The data directory, or `None` (after saying so) when it is absent outside CI.
+fn data_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("INSUWB_UTIL_DIR").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/util"),
+        PathBuf::from,
+    );
+    if dir.join(LOGS[0].0).is_file() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "UTIL data not found at {} (set INSUWB_UTIL_DIR); CI is set, so this fails instead of skipping",
+        dir.display()
+    );
+    eprintln!(
+        "SKIPPED: UTIL data not found at {} (set INSUWB_UTIL_DIR to run the real-flight tests)",
+        dir.display()
+    );
+    None
+}
+
+fn load(dir: &std::path::Path, log: &str, anchors: &str, p: &Preset) -> UtilFlight {
+    load_util_flight(
+        &dir.join(log),
+        &dir.join(anchors),
+        &insuwb_data::cflog::ParseOptions::default(),
+        &p.import,
+    )
+    .unwrap()
+}
+
+/// Horizontal errors at `epochs` inside `segment`, of the estimates `est(t)`.
+fn horizontal_rmse(
+    flight: &UtilFlight,
+    segment: (u64, u64),
+    points: impl Iterator<Item = (u64, [f64; 2])>,
+) -> (f64, usize) {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (t, p) in points {
+        if t < segment.0 || t > segment.1 {
+            continue;
+        }
+        assert!(
+            p.iter().all(|v| v.is_finite()),
+            "non-finite estimate at {t} ns"
+        );
+        let Some(g) = interpolate_truth(&flight.truth, t) else {
+            continue;
+        };
+        sum += (p[0] - g.pos_m[0]).powi(2) + (p[1] - g.pos_m[1]).powi(2);
+        n += 1;
+    }
+    assert!(n > 0, "no estimate inside the flight segment");
+    ((sum / n as f64).sqrt(), n)
+}
+
+/// The fused state published last at each fix epoch (as `insuwb eval` samples it).
+fn fused_at_epochs<'a>(
+    fused: &'a [FusedState],
+    fixes: &'a [UwbFix],
+) -> impl Iterator<Item = (u64, [f64; 2])> + 'a {
+    let mut j = 0usize;
+    fixes.iter().filter_map(move |f| {
+        let t = f.header.meas_time_ns;
+        while j < fused.len() && fused[j].header.meas_time_ns < t {
+            j += 1;
+        }
+        let mut k = j;
+        while k + 1 < fused.len() && fused[k + 1].header.meas_time_ns == t {
+            k += 1;
+        }
+        fused
+            .get(k)
+            .filter(|s| s.header.meas_time_ns == t)
+            .map(|s| (t, [s.pos_m[0], s.pos_m[1]]))
+    })
+}
+
+struct LogResult {
+    uwb: f64,
+    filters: Vec<(FilterKind, f64, usize)>,
+}
+
+fn run_log(dir: &std::path::Path, log: &str, anchors: &str, p: &Preset) -> LogResult {
+    let flight = load(dir, log, anchors, p);
+    let segment = flight_segment(&flight.truth, min_height_m(p)).expect("a flight segment");
+    let cfg = &p.fusion;
+    let fixes = offline::run_fixes(&flight.tdoa, cfg).unwrap();
+    let (uwb, _) = horizontal_rmse(
+        &flight,
+        segment,
+        fixes
+            .iter()
+            .map(|f| (f.header.meas_time_ns, [f.pos_m[0], f.pos_m[1]])),
+    );
+    let mut filters = Vec::new();
+    for kind in FILTERS {
+        let out = offline::run(&flight.imu, &flight.tdoa, cfg, kind).unwrap();
+        for s in &out.fused {
+            assert!(
+                s.pos_m
+                    .iter()
+                    .chain(&s.vel_mps)
+                    .chain(&s.quat)
+                    .all(|v| v.is_finite()),
+                "{log} {kind:?}: non-finite fused state at {} ns",
+                s.header.meas_time_ns
+            );
+        }
+        let (rmse, n) = horizontal_rmse(&flight, segment, fused_at_epochs(&out.fused, &fixes));
+        filters.push((kind, rmse, n));
+    }
+    LogResult { uwb, filters }
+}
+
+#[test]
+fn preset_parses_and_validates() {
+    let p = preset();
+    for kind in FILTERS {
+        offline::build_estimator(kind, &p.fusion).unwrap();
+    }
+    assert!(min_height_m(&p) > 0.0);
+}
+
+#[test]
+fn util_logs_beat_utils_own_filter() {
+    let Some(dir) = data_dir() else {
+        return;
+    };
+    let p = preset();
+    let mut failures = Vec::new();
+    for (log, anchors, util_eskf) in LOGS {
+        let r = run_log(&dir, log, anchors, &p);
+        let line: Vec<String> = r
+            .filters
+            .iter()
+            .map(|(k, e, _)| format!("{k:?} {e:.3}"))
+            .collect();
+        eprintln!(
+            "{log}: UWB {:.3}, {} (UTIL ESKF {util_eskf:.3})",
+            r.uwb,
+            line.join(", ")
+        );
+        let best = r.filters.iter().map(|f| f.1).fold(f64::INFINITY, f64::min);
+        if best > util_eskf {
+            failures.push(format!(
+                "{log}: best filter {best:.3} m > UTIL's {util_eskf:.3} m"
+            ));
+        }
+        let get = |k: FilterKind| {
+            r.filters
+                .iter()
+                .find(|f| f.0 == k)
+                .map_or(f64::NAN, |f| f.1)
+        };
+        let (kf, iakf) = (get(FilterKind::Kf), get(FilterKind::Iakf));
+        if !(iakf < r.uwb && iakf < kf) {
+            failures.push(format!(
+                "{log}: IAKF {iakf:.3} m does not beat UWB-only {:.3} m and KF {kf:.3} m",
+                r.uwb
+            ));
+        }
+        for (k, e, _) in &r.filters {
+            if !(*e < 1.0) {
+                failures.push(format!("{log}: {k:?} diverged ({e:.3} m)"));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Diagnostics of one log and filter (`UTIL_LOG`, `UTIL_FILTER`, `UTIL_EVERY`):
+/// `cargo test -p insuwb-fusion --release --test util_real -- --ignored --nocapture`.
+#[test]
+#[ignore = "diagnostic output only"]
+fn trace() {
+    let Some(dir) = data_dir() else {
+        return;
+    };
+    let p = preset();
+    let log = std::env::var("UTIL_LOG").unwrap_or_else(|_| "cfBolt-log00".into());
+    let kind = match std::env::var("UTIL_FILTER").as_deref() {
+        Ok("kf") => FilterKind::Kf,
+        Ok("iakf") => FilterKind::Iakf,
+        Ok("stf") => FilterKind::Stf,
+        Ok("shaf") => FilterKind::Shaf,
+        _ => FilterKind::IakfTdoa,
+    };
+    let every: usize = std::env::var("UTIL_EVERY")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10);
+    let anchors = LOGS
+        .iter()
+        .find(|l| l.0 == log)
+        .map_or("anchors-const3.txt", |l| l.1);
+    let flight = load(&dir, &log, anchors, &p);
+    let out = offline::run(&flight.imu, &flight.tdoa, &p.fusion, kind).unwrap();
+    eprintln!(
+        "fused {} diag {} fixes {}",
+        out.fused.len(),
+        out.diag.len(),
+        out.fixes.len()
+    );
+    eprintln!("ins {:?}\nfusion {:?}", out.ins, out.fusion);
+    for (i, s) in out.fused.iter().enumerate() {
+        if i % every != 0 {
+            continue;
+        }
+        let t = s.header.meas_time_ns;
+        let Some(g) = interpolate_truth(&flight.truth, t) else {
+            continue;
+        };
+        let yaw_t = 2.0 * g.quat[3].atan2(g.quat[0]);
+        let tv = match interpolate_truth(&flight.truth, t.saturating_sub(50_000_000)) {
+            Some(a) => {
+                let b = interpolate_truth(&flight.truth, t + 50_000_000).unwrap_or(g);
+                [
+                    (b.pos_m[0] - a.pos_m[0]) / 0.1,
+                    (b.pos_m[1] - a.pos_m[1]) / 0.1,
+                ]
+            }
+            None => [0.0; 2],
+        };
+        let d = out.diag.iter().rev().find(|d| d.header.meas_time_ns <= t);
+        let fix = out.fixes.iter().find(|f| f.header.meas_time_ns == t);
+        if let (Some(d), Some(f)) = (d, fix) {
+            eprintln!(
+                "   fix e=({:+.3},{:+.3}) v=({:+.2},{:+.2}) fused v=({:+.2},{:+.2}) true v=({:+.2},{:+.2}) inn={:+.3?} r={:.4?} lam={:.2?} fad={:.2}",
+                f.pos_m[0] - g.pos_m[0],
+                f.pos_m[1] - g.pos_m[1],
+                f.vel_mps[0],
+                f.vel_mps[1],
+                s.vel_mps[0],
+                s.vel_mps[1],
+                tv[0],
+                tv[1],
+                &d.innovation[..4],
+                &d.r_diag[..4],
+                &d.lambda[..4],
+                d.fading
+            );
+        }
+        eprintln!(
+            "t={:7.3} e=({:+.3},{:+.3},{:+.3}) z={:.2} yaw={:+.1} (true {:+.1}) sd={:.3} flags={}",
+            t as f64 * 1e-9,
+            s.pos_m[0] - g.pos_m[0],
+            s.pos_m[1] - g.pos_m[1],
+            s.pos_m[2] - g.pos_m[2],
+            g.pos_m[2],
+            s.yaw_rad.to_degrees(),
+            yaw_t.to_degrees(),
+            s.cov[0][0].sqrt(),
+            s.header.flags
+        );
+    }
+}
