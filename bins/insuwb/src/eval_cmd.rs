@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use insuwb_eval::metrics::Metrics;
-use insuwb_eval::run::{evaluate, parse_filter};
+use insuwb_eval::run::{evaluate, filter_key, parse_filter};
 use insuwb_eval::scenario::{monte_carlo, ScenarioFile};
 use insuwb_log::{LogWriter, Metadata, Record};
 use insuwb_msg::FilterKind;
@@ -42,7 +42,8 @@ pub struct EvalArgs {
     /// A log to evaluate: an insuwb log or a UTIL Crazyflie log (detected from its content).
     pub file: Option<PathBuf>,
     /// Simulate a scenario instead: a built-in name (paper-3.4, paper-4.3-static,
-    /// paper-4.4-dynamic, nlos-long) or a TOML file.
+    /// paper-4.4-dynamic, nlos-long) or a TOML file; `model-true` runs the
+    /// consistency check on data drawn from the filter's own model.
     #[arg(long, conflicts_with = "file")]
     pub scenario: Option<String>,
     /// Monte-Carlo runs of the scenario (seeds seed, seed+1, ...); metrics are averaged.
@@ -73,6 +74,9 @@ pub struct EvalArgs {
 
 /// Runs `insuwb eval`.
 pub fn eval(a: &EvalArgs) -> Result<()> {
+    if a.scenario.as_deref() == Some("model-true") {
+        return model_true(a);
+    }
     let (rows, title): (Vec<(String, Metrics)>, String) = if let Some(name) = &a.scenario {
         let mut file = ScenarioFile::load(name)?;
         if let Some(c) = &a.config {
@@ -137,6 +141,73 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         let v = insuwb_eval::run::to_json(&rows).map_err(|e| anyhow::anyhow!("{e}"))?;
         let mut out = std::io::stdout().lock();
         serde_json::to_writer(&mut out, &v)?;
+        writeln!(out)?;
+    } else {
+        print!("{table}");
+    }
+    Ok(())
+}
+
+/// `--scenario model-true`: data generated from the filter's own model (the
+/// paper-3.4 settings' F, Q, H, R_0, P_0; no outliers), Monte-Carlo NEES and
+/// NIS against their chi-square bands, per filter.
+fn model_true(a: &EvalArgs) -> Result<()> {
+    use insuwb_eval::consistency::{run_consistency, ConsistencyConfig};
+    let file = ScenarioFile::load("paper-3.4")?;
+    let fusion = match &a.config {
+        Some(c) => ConfigFile::load(c)?.fusion,
+        None => file.fusion,
+    };
+    let filters = parse_filters(a.filters.as_deref(), &DEFAULT_FILTERS)?;
+    let mut map = serde_json::Map::new();
+    let mut table = format!(
+        "model-true: {} runs from seed {}, predict at {} Hz, update every 10 predicts, 150 updates\n{:<6} {:>9} {:>9} {:>16} {:>16}\n",
+        a.runs.max(1),
+        a.seed.unwrap_or(1),
+        fusion.model.ar_rate_hz,
+        "",
+        "NEES",
+        "NIS",
+        "NEES in band",
+        "NIS in band"
+    );
+    for kind in filters {
+        let cc = ConsistencyConfig {
+            runs: a.runs.max(1),
+            steps: 150,
+            update_every: 10,
+            seed: a.seed.unwrap_or(1),
+            kind,
+        };
+        let r = run_consistency(&fusion.model, &fusion.filter, &fusion.setup, &cc)?;
+        table.push_str(&format!(
+            "{:<6} {:>9.3} {:>9.3} {:>15.1}% {:>15.1}%   (95 % band of the mean NEES [{:.2}, {:.2}], NIS [{:.2}, {:.2}])\n",
+            filter_key(kind).to_uppercase(),
+            r.nees_mean,
+            r.nis_mean,
+            100.0 * r.nees_in_band_fraction,
+            100.0 * r.nis_in_band_fraction,
+            r.nees_band[0],
+            r.nees_band[1],
+            r.nis_band[0],
+            r.nis_band[1]
+        ));
+        map.insert(
+            filter_key(kind).to_owned(),
+            serde_json::json!({
+                "nees_mean": r.nees_mean,
+                "nis_mean": r.nis_mean,
+                "nees_in_band_fraction": r.nees_in_band_fraction,
+                "nis_in_band_fraction": r.nis_in_band_fraction,
+                "nees_band": r.nees_band,
+                "nis_band": r.nis_band,
+            }),
+        );
+    }
+    if a.json {
+        eprint!("{table}");
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer(&mut out, &serde_json::Value::Object(map))?;
         writeln!(out)?;
     } else {
         print!("{table}");
