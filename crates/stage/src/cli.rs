@@ -36,13 +36,24 @@ pub struct StageArgs {
     /// Driver source, overriding the config: `sim` or `replay:FILE`.
     #[arg(long)]
     pub source: Option<String>,
-    /// Replay speed, overriding the config.
-    #[arg(long)]
+    /// Replay speed, overriding the config: a factor (10 = ten times real
+    /// time) or `max` (lockstep with the consumers, never dropping a sample).
+    #[arg(long, value_parser = parse_speed)]
     pub speed: Option<f64>,
     /// Start epoch (CLOCK_MONOTONIC ns) shared by the drivers; default: the
     /// launcher's (INSUWB_START_EPOCH_NS) or the next whole second.
     #[arg(long)]
     pub start_epoch_ns: Option<u64>,
+}
+
+fn parse_speed(s: &str) -> Result<f64, String> {
+    if s == "max" {
+        return Ok(f64::INFINITY);
+    }
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("expected a positive factor or `max`, got '{s}'")),
+    }
 }
 
 /// Parses the arguments, sets up tracing and runs the stage; exit code 0 on a clean stop.
@@ -70,7 +81,7 @@ fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
     let cfg = RobotConfig::load(&args.config)?;
     let epoch = args.start_epoch_ns.unwrap_or_else(start_epoch_ns);
     let speed = args.speed.unwrap_or(cfg.sources.speed);
-    if !(speed.is_finite() && speed > 0.0) {
+    if !(speed > 0.0) {
         anyhow::bail!("--speed must be > 0, got {speed}");
     }
     let result = match kind {

@@ -12,7 +12,7 @@
 use std::time::Duration;
 
 use anyhow::Result;
-use insuwb_msg::{topics, GroundTruth, Health, ImuSample, UwbFix, UwbTdoa};
+use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, UwbFix, UwbTdoa};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 
 use crate::group::RobotConfig;
@@ -81,8 +81,30 @@ pub fn run(
     let mut fix_pub = stage.publisher::<UwbFix>(topics::UWB_FIX)?;
     let mut fixes = insuwb_uwb::fix::FixBuilder::new(fcfg.fix.clone())?;
     let mut health = stage.health_reporter()?;
+    // `--speed max`: publish as fast as the consumers keep up, never further
+    // ahead than their buffers hold (lockstep: nothing is ever dropped).
+    let lockstep = speed.is_infinite();
+    // IMU: stay a quarter second of data ahead of fusion (enough to cover the
+    // next fixes, little to re-propagate after a correction); UWB: stay a
+    // bounded number of fixes ahead of fusion.
+    let fixes_seen = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
+    let fused_sub = stage.subscriber::<FusedState>(topics::FUSED)?;
+    let mut consumed = 0u64;
+    let mut fix_time_seen = epoch_ns;
+    let mut fused_time_seen: Option<u64> = None;
+    const LEAD_NS: u64 = 250_000_000;
     let waiter = stage.waiter()?;
     let hb = waiter.attach_interval(health.period())?;
+    let _progress = if lockstep {
+        Some(match want {
+            Want::Imu => waiter.attach(&fused_sub)?,
+            Want::Uwb => waiter.attach(&fused_sub)?,
+        })
+    } else {
+        None
+    };
+    let ahead_limit = (insuwb_msg::qos::for_topic(topics::UWB_FIX).subscriber_max_buffer_size / 4) as u64;
+    let mut fixes_published = 0u64;
     let mut counters = HealthCounters::default();
     let mut drops = Drops::default();
     let mut last_t: Option<u64> = None;
@@ -93,10 +115,36 @@ pub fn run(
     );
     loop {
         let now = monotonic_ns();
+        if lockstep {
+            match want {
+                Want::Imu => {
+                    fixes_seen.drain(|f| fix_time_seen = fix_time_seen.max(f.header.meas_time_ns))?;
+                    fused_sub.drain(|f| {
+                        fused_time_seen = Some(fused_time_seen.unwrap_or(0).max(f.header.meas_time_ns));
+                    })?
+                }
+                Want::Uwb => fused_sub.drain(|f| {
+                    if f.header.flags & FusedState::FLAG_DEGRADED == 0 {
+                        consumed = consumed.max(f.uwb_seq + 1);
+                    }
+                })?,
+            };
+        }
         while let Some(item) = pending {
             let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
             if due > now {
                 break;
+            }
+            if lockstep {
+                let held = match want {
+                    // Before the first fused state, follow the fixes (the INS may
+                    // still be aligning); then follow fusion itself.
+                    Want::Imu => epoch_ns + item.time_ns() > fused_time_seen.unwrap_or(fix_time_seen) + LEAD_NS,
+                    Want::Uwb => fixes_published >= consumed + ahead_limit,
+                };
+                if held {
+                    break;
+                }
             }
             pending = src.next_item();
             let t = epoch_ns + item.time_ns();
@@ -140,6 +188,7 @@ pub fn run(
                     // fusion stage relies on that order).
                     if let Ok(Some(f)) = fixes.push(&s) {
                         fix_pub.publish(f)?;
+                        fixes_published += 1;
                     }
                     tdoa_pub.publish_raw(s)?;
                     counters.published += 1;
@@ -147,6 +196,10 @@ pub fn run(
             }
         }
         let timeout = pending.map_or(Duration::from_millis(200), |item| {
+            if lockstep {
+                // Woken by the consumers' progress; the timeout only bounds a stall.
+                return Duration::from_millis(20);
+            }
             let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
             Duration::from_nanos(due.saturating_sub(monotonic_ns()).min(200_000_000))
         });

@@ -48,8 +48,39 @@ pub struct SourcesConfig {
     pub scenario: String,
     /// Simulation seed.
     pub seed: u64,
-    /// Replay/simulation speed (1 = real time).
+    /// Replay/simulation speed: a factor (1 = real time) or `"max"`
+    /// (lockstep with the consumers, never dropping a sample).
+    #[serde(with = "speed_serde")]
     pub speed: f64,
+}
+
+mod speed_serde {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Speed {
+        Factor(f64),
+        Name(String),
+    }
+
+    pub(super) fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_infinite() {
+            s.serialize_str("max")
+        } else {
+            s.serialize_f64(*v)
+        }
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        match Speed::deserialize(d)? {
+            Speed::Factor(f) => Ok(f),
+            Speed::Name(n) if n == "max" => Ok(f64::INFINITY),
+            Speed::Name(n) => Err(serde::de::Error::custom(format!(
+                "expected a positive number or \"max\", got \"{n}\""
+            ))),
+        }
+    }
 }
 
 impl Default for SourcesConfig {
@@ -183,14 +214,9 @@ impl RobotConfig {
                 _ => bail!("{origin}: key '{key}': unknown source '{src}' (sim or replay:FILE)"),
             }
         }
-        if !(self.sources.speed.is_finite()
-            && self.sources.speed > 0.0
-            && self.sources.speed <= 1000.0)
-        {
-            bail!(
-                "{origin}: key 'sources.speed': must be in (0, 1000], got {}",
-                self.sources.speed
-            );
+        let sp = self.sources.speed;
+        if !(sp > 0.0 && (sp <= 1000.0 || sp.is_infinite())) {
+            bail!("{origin}: key 'sources.speed': must be in (0, 1000] or \"max\", got {sp}");
         }
         if insuwb_eval::run::parse_filter(&self.fusion.filter).is_none() {
             bail!(
