@@ -10,6 +10,13 @@ use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, UwbFix};
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
 use insuwb_stage::group::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
 
+/// Signal numbers (Linux).
+mod libc_sig {
+    pub const KILL: i32 = 9;
+    pub const STOP: i32 = 19;
+    pub const CONT: i32 = 18;
+}
+
 /// Shutdown order: sources first so nothing new enters, the logger last so it records the end.
 const SHUTDOWN_ORDER: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
 
@@ -57,6 +64,10 @@ pub struct GroupReport {
     pub max_gap_ms: f64,
     /// Seconds run.
     pub duration_s: f64,
+    /// Faults injected.
+    pub faults: u32,
+    /// Stretches of more than 5 s without a valid fused state after the first one.
+    pub deadlocks: u32,
 }
 
 /// Options of a group run.
@@ -68,6 +79,9 @@ pub struct RunOptions {
     pub live: bool,
     /// Faults to inject: signal a stage at a time after start.
     pub faults: Vec<Fault>,
+    /// Chaos: every 1-5 s a random stage gets SIGKILL, or SIGSTOP for 2 s
+    /// then SIGCONT, drawn from this seed.
+    pub chaos_seed: Option<u64>,
 }
 
 /// A fault to inject into a running group (tests, chaos).
@@ -191,6 +205,14 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     let mut faults = opts.faults.clone();
     faults.sort_by_key(|f| f.at);
     let mut faults = faults.into_iter().peekable();
+    let mut injected = 0u32;
+    let mut chaos = opts
+        .chaos_seed
+        .map(|seed| insuwb_sim::rng::Rng::stream(seed, 0xC4A0_5));
+    let mut next_chaos = chaos
+        .as_mut()
+        .map(|r| Duration::from_secs_f64(r.uniform_in(1.0, 5.0)));
+    let mut pending_cont: Vec<(Duration, String)> = Vec::new();
     loop {
         let wake = waiter.wait_timeout(Duration::from_millis(100))?;
         let now = Instant::now();
@@ -203,12 +225,45 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
             sup.note_heartbeat_from(&name, h.pid, now);
             mon.health.insert(name, h);
         })?;
-        while let Some(f) = faults.next_if(|f| now.duration_since(t0) >= f.at) {
+        let elapsed = now.duration_since(t0);
+        while let Some(f) = faults.next_if(|f| elapsed >= f.at) {
             tracing::warn!("injecting signal {} into stage {}", f.signal, f.stage);
+            injected += 1;
             if let Err(e) = sup.kill_stage(&f.stage, f.signal) {
                 tracing::warn!("fault injection: {e}");
             }
         }
+        if let (Some(rng), Some(at)) = (chaos.as_mut(), next_chaos) {
+            // Leave the last 3 s quiet so the group can show it recovered.
+            let quiet = opts
+                .duration
+                .is_some_and(|d| elapsed + Duration::from_secs(3) > d);
+            if elapsed >= at && !quiet {
+                let stage = cfg.stages[(rng.next_u64() % cfg.stages.len() as u64) as usize].clone();
+                let stop = rng.next_u64() % 2 == 1;
+                let signal = if stop { libc_sig::STOP } else { libc_sig::KILL };
+                tracing::warn!(
+                    "chaos: {} {stage}",
+                    if stop { "SIGSTOP (2 s)" } else { "SIGKILL" }
+                );
+                injected += 1;
+                if let Err(e) = sup.kill_stage(&stage, signal) {
+                    tracing::warn!("chaos: {e}");
+                }
+                if stop {
+                    pending_cont.push((elapsed + Duration::from_secs(2), stage));
+                }
+                next_chaos = Some(elapsed + Duration::from_secs_f64(rng.uniform_in(1.0, 5.0)));
+            }
+        }
+        pending_cont.retain(|(at, stage)| {
+            if elapsed >= *at {
+                let _ = sup.kill_stage(stage, libc_sig::CONT);
+                false
+            } else {
+                true
+            }
+        });
         for e in sup.poll(now) {
             if let Event::BudgetExhausted { stage } = &e {
                 failed = Some(stage.clone());
@@ -250,7 +305,8 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     let elapsed = t0.elapsed().as_secs_f64();
     sup.shutdown(&SHUTDOWN_ORDER);
     let restarts = sup.total_restarts();
-    let report = summarise(&mon, restarts, elapsed);
+    let mut report = summarise(&mon, restarts, elapsed);
+    report.faults = injected;
     drop(tick);
     drop(waiter);
     drop((fused_sub, truth_sub, imu_sub, fix_sub, health_sub));
@@ -312,6 +368,10 @@ fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         .collect();
     pub_times.sort_unstable();
     let max_gap = pub_times.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+    let deadlocks = pub_times
+        .windows(2)
+        .filter(|w| w[1] - w[0] > 5_000_000_000)
+        .count() as u32;
     let dropped: u64 = mon
         .health
         .values()
@@ -331,6 +391,8 @@ fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         degraded: (mon.fused.len() - updates.len()) as u64,
         max_gap_ms: max_gap as f64 * 1e-6,
         duration_s: elapsed,
+        faults: 0,
+        deadlocks,
     }
 }
 
@@ -360,6 +422,7 @@ pub fn launch(a: &LaunchArgs) -> Result<()> {
             duration: a.duration.map(Duration::from_secs_f64),
             live: true,
             faults: a.fault.clone(),
+            chaos_seed: None,
         },
     )?;
     if a.json {
@@ -420,6 +483,7 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
             duration: Some(Duration::from_secs_f64(a.duration)),
             live: true,
             faults: Vec::new(),
+            chaos_seed: None,
         },
     );
     let _ = std::fs::remove_dir_all(&run_dir);
@@ -531,4 +595,134 @@ where
             (n, last)
         }),
     ))
+}
+
+/// Arguments of `insuwb chaos`.
+#[derive(Debug, clap::Args)]
+pub struct ChaosArgs {
+    /// Seconds to run.
+    #[arg(long, default_value_t = 60.0)]
+    pub duration: f64,
+    /// Seed of the fault schedule.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print one JSON object on standard output.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What `insuwb chaos` checks.
+#[derive(Debug, serde::Serialize)]
+struct ChaosReport {
+    faults: u32,
+    restarts: u32,
+    max_gap_ms: f64,
+    records_lost: u64,
+    leftover_files: usize,
+    deadlocks: u32,
+    rmse_horizontal: Option<f64>,
+    fused_rate_hz: f64,
+}
+
+/// Runs `insuwb chaos`: the group on simulated sensors under random SIGKILL
+/// and SIGSTOP faults, then checks recovery, the recording and the cleanup.
+pub fn chaos(a: &ChaosArgs) -> Result<()> {
+    if !(a.duration.is_finite() && a.duration >= 5.0 && a.duration <= 3600.0) {
+        bail!("--duration must be in [5, 3600] s, got {}", a.duration);
+    }
+    let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
+    let run_dir = std::env::temp_dir().join(format!("insuwb-chaos-{id}"));
+    std::fs::create_dir_all(&run_dir)?;
+    let prefix = format!("insuwb_chaos{id}_");
+    // A 60 s scenario repeated is not needed: the drivers idle at its end; use
+    // the long scenario and the default restart policy.
+    let text = format!(
+        "[group]\nname = \"chaos\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
+         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\n\
+         [fusion]\nfilter = \"iakf\"\n[logger.segments.flush]\nevery_ms = 200\n",
+        run_dir.display()
+    );
+    let cfg_path = run_dir.join("chaos.toml");
+    std::fs::write(&cfg_path, &text)?;
+    let cfg = RobotConfig::load(&cfg_path)?;
+    let result = run_group(
+        &cfg_path,
+        &cfg,
+        &RunOptions {
+            duration: Some(Duration::from_secs_f64(a.duration)),
+            live: !a.json,
+            faults: Vec::new(),
+            chaos_seed: Some(a.seed),
+        },
+    );
+    let leftover = leftover_files(&prefix, &cfg.iox_root());
+    let lost = imu_records_lost(&run_dir.join("log"));
+    let _ = std::fs::remove_dir_all(&run_dir);
+    let r = result?;
+    let report = ChaosReport {
+        faults: r.faults,
+        restarts: r.restarts,
+        max_gap_ms: r.max_gap_ms,
+        records_lost: lost?,
+        leftover_files: leftover,
+        deadlocks: r.deadlocks,
+        rmse_horizontal: r.rmse_horizontal,
+        fused_rate_hz: r.fused_rate_hz,
+    };
+    if a.json {
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer(&mut out, &serde_json::to_value(&report)?)?;
+        writeln!(out)?;
+    } else {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    }
+    Ok(())
+}
+
+/// Files of the group left in /dev/shm and under its iceoryx2 root.
+fn leftover_files(prefix: &str, iox_root: &Path) -> usize {
+    let shm = std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.filter_map(std::result::Result::ok)
+                .filter(|e| e.file_name().to_string_lossy().starts_with(prefix))
+                .count()
+        })
+        .unwrap_or(0);
+    fn count(p: &Path) -> usize {
+        std::fs::read_dir(p).map_or(0, |d| {
+            d.filter_map(std::result::Result::ok)
+                .map(|e| {
+                    if e.path().is_dir() {
+                        count(&e.path())
+                    } else {
+                        1
+                    }
+                })
+                .sum()
+        })
+    }
+    shm + count(iox_root)
+}
+
+/// IMU samples missing from the recording while the IMU driver was up: gaps
+/// in the sequence within one driver generation (a gap across a generation
+/// change is the driver's own downtime, not a lost record).
+fn imu_records_lost(log_dir: &Path) -> Result<u64> {
+    let read = insuwb_log::read_segments(log_dir)
+        .with_context(|| format!("{}: cannot read the recording", log_dir.display()))?;
+    let mut imu: Vec<(u64, u32)> = read
+        .records
+        .iter()
+        .filter_map(|r| match r {
+            insuwb_log::Record::Imu(s) => Some((s.header.seq, s.header.generation)),
+            _ => None,
+        })
+        .collect();
+    imu.sort_unstable();
+    imu.dedup();
+    Ok(imu
+        .windows(2)
+        .filter(|w| w[0].1 == w[1].1)
+        .map(|w| w[1].0.saturating_sub(w[0].0 + 1))
+        .sum())
 }

@@ -39,6 +39,8 @@ enum Cmd {
     Launch(group_cmd::LaunchArgs),
     /// Run the whole group on simulated sensors, then report accuracy, rates and latency.
     Demo(group_cmd::DemoArgs),
+    /// Run the group on simulated sensors under random SIGKILL/SIGSTOP faults and check recovery.
+    Chaos(group_cmd::ChaosArgs),
     /// Live per-topic rates, last-sample ages, publishers and subscribers of a running group.
     Inspect(group_cmd::InspectArgs),
 }
@@ -78,5 +80,6 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Launch(a) => group_cmd::launch(&a),
         Cmd::Demo(a) => group_cmd::demo(&a),
         Cmd::Inspect(a) => group_cmd::inspect(&a),
+        Cmd::Chaos(a) => group_cmd::chaos(&a),
     }
 }

@@ -8,7 +8,7 @@
 //! any working directory; a `--config FILE` overrides them.
 //!
 //! ```
-//! #[derive(serde::Deserialize)]
+//! #[derive(Debug, serde::Deserialize)]
 //! struct Cfg { rate_hz: f64 }
 //! let c: Cfg = insuwb_config::load_str("rate_hz = 10.0", "inline").unwrap();
 //! assert_eq!(c.rate_hz, 10.0);
@@ -132,7 +132,10 @@ macro_rules! builtin_file {
 pub const SCENARIOS: &[Builtin] = &[
     builtin_file!("paper-3.4", "config/scenarios/paper-3.4.toml"),
     builtin_file!("paper-4.3-static", "config/scenarios/paper-4.3-static.toml"),
-    builtin_file!("paper-4.4-dynamic", "config/scenarios/paper-4.4-dynamic.toml"),
+    builtin_file!(
+        "paper-4.4-dynamic",
+        "config/scenarios/paper-4.4-dynamic.toml"
+    ),
     builtin_file!("nlos-long", "config/scenarios/nlos-long.toml"),
 ];
 
@@ -147,7 +150,11 @@ pub const PRESETS: &[Builtin] = &[
 /// # Errors
 /// [`ConfigError::UnknownBuiltin`] listing the names that exist.
 pub fn builtin(kind: &'static str, name: &str) -> Result<&'static Builtin, ConfigError> {
-    let list = if kind == "scenario" { SCENARIOS } else { PRESETS };
+    let list = if kind == "scenario" {
+        SCENARIOS
+    } else {
+        PRESETS
+    };
     list.iter()
         .find(|b| b.name == name)
         .ok_or_else(|| ConfigError::UnknownBuiltin {

@@ -26,7 +26,9 @@ pub struct Estimate {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MetricsError {
     /// No estimate lies inside the truth's time span (and the segment).
-    #[error("no estimate overlaps the ground truth (estimates: {estimates}, truth samples: {truth})")]
+    #[error(
+        "no estimate overlaps the ground truth (estimates: {estimates}, truth samples: {truth})"
+    )]
     NoOverlap {
         /// Estimates given.
         estimates: usize,

@@ -126,7 +126,14 @@ pub fn evaluate(
         let out = offline::run_with(&data.imu, &data.tdoa, cfg, est)?;
         let track = sample_fused(&out.fused, &epochs);
         let nis: Vec<f64> = out.diag.iter().map(|d| d.nis).collect();
-        solutions.push(solution(filter_key(kind), track, &truth, data.segment, &nis, Some(out))?);
+        solutions.push(solution(
+            filter_key(kind),
+            track,
+            &truth,
+            data.segment,
+            &nis,
+            Some(out),
+        )?);
     }
     Ok(EvalReport {
         dataset: data.name.clone(),
@@ -171,9 +178,17 @@ fn sample_nav(nav: &[NavState], epochs: &[u64]) -> Vec<Estimate> {
         .filter_map(|&t| {
             let i = nav.partition_point(|n| n.header.meas_time_ns < t);
             let b = nav.get(i)?;
-            let a = if b.header.meas_time_ns == t { b } else { nav.get(i.checked_sub(1)?)? };
+            let a = if b.header.meas_time_ns == t {
+                b
+            } else {
+                nav.get(i.checked_sub(1)?)?
+            };
             let (ta, tb) = (a.header.meas_time_ns, b.header.meas_time_ns);
-            let w = if tb > ta { (t - ta) as f64 / (tb - ta) as f64 } else { 0.0 };
+            let w = if tb > ta {
+                (t - ta) as f64 / (tb - ta) as f64
+            } else {
+                0.0
+            };
             let p = |k: usize| a.pos_m[k] + w * (b.pos_m[k] - a.pos_m[k]);
             Some(Estimate {
                 t_ns: t,

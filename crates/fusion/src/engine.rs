@@ -14,7 +14,13 @@
 //!   that sample are dropped: the INS re-propagates and publishes them again
 //!   with the new correction id;
 //! - INS states that carry an older correction id than the last one sent are
-//!   stale and ignored.
+//!   stale and ignored;
+//! - a measurement older than the start of the INS interval processed last
+//!   is late and dropped (counted); one inside it is interpolated (tight
+//!   coupling: a fix arrives after the TDOA differences of its epoch moved
+//!   the INS to or past it);
+//! - the INS position is (re-)initialised from a UWB fix, once
+//!   `reset_min_fixes` consecutive fixes agree within `reset_gate_m`.
 
 use std::collections::VecDeque;
 
@@ -202,10 +208,11 @@ impl FusionEngine {
         let n = match self.reset_run {
             Some((q, n)) => {
                 let d2: f64 = (0..3).map(|i| (p[i] - q[i]) * (p[i] - q[i])).sum();
-                if !(d2.sqrt() > self.cfg.reset_gate_m) {
-                    n + 1
-                } else {
+                // A NaN gate accepts every fix (as the default of one fix would).
+                if d2.sqrt() > self.cfg.reset_gate_m {
                     1
+                } else {
+                    n + 1
                 }
             }
             None => 1,
@@ -707,4 +714,106 @@ fn apply_delta(n: &mut NavState, d: &Delta) {
         n.vel_mps[i] -= d.d_vel_mps[i];
     }
     n.quat = corrected_quat(n.quat, d.d_att_rad);
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::panic)]
+
+    use super::*;
+    use crate::offline::{build_estimator, FusionConfig};
+    use insuwb_msg::FilterKind;
+
+    fn nav(k: u64) -> NavState {
+        NavState {
+            header: Header::new(k, k * 1_000_000),
+            imu_seq: k,
+            quat: [1.0, 0.0, 0.0, 0.0],
+            ..NavState::default()
+        }
+    }
+
+    fn fix(t_ns: u64, pos_m: [f64; 3]) -> UwbFix {
+        UwbFix {
+            header: Header::new(0, t_ns),
+            pos_m,
+            ..UwbFix::default()
+        }
+    }
+
+    /// Initialisation waits for three consecutive fixes within 0.3 m of each
+    /// other and takes the last one; a jump restarts the count.
+    #[test]
+    fn initialisation_waits_for_agreeing_fixes() {
+        let cfg = FusionEngineConfig {
+            init_from_first_fix: true,
+            reset_min_fixes: 3,
+            reset_gate_m: 0.3,
+            ..FusionEngineConfig::default()
+        };
+        let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
+        let mut e = FusionEngine::new(cfg, est);
+        let mut out = Outputs::default();
+        let fixes = [
+            [0.0, 0.0, 0.0],
+            [2.0, 0.0, 0.0],
+            [2.1, 0.0, 0.0],
+            [5.0, 0.0, 0.0],
+            [5.1, 0.1, 0.0],
+            [5.2, 0.2, 0.0],
+        ];
+        let mut k = 0;
+        for (i, p) in fixes.iter().enumerate() {
+            let t = (i as u64 + 1) * 100;
+            while k <= t {
+                e.on_nav(&nav(k), &mut out);
+                k += 1;
+            }
+            e.on_measurement(Measurement::Fix(fix(t * 1_000_000, *p)), &mut out);
+            let resets = e.counters().resets;
+            assert_eq!(resets, u64::from(i == fixes.len() - 1), "after fix {i}");
+        }
+        let c = out.corrections.last().unwrap();
+        assert!(c.header.flags & InsCorrection::FLAG_RESET != 0);
+        assert_eq!(c.reset_pos_m, [5.2, 0.2, 0.0]);
+        assert_eq!(out.fused.len(), 1);
+    }
+
+    /// A fix stamped inside the INS interval processed last is not late (the
+    /// TDOA differences of its epoch moved the INS past it).
+    #[test]
+    fn a_fix_inside_the_last_interval_is_used() {
+        let cfg = FusionEngineConfig {
+            init_from_first_fix: true,
+            ..FusionEngineConfig::default()
+        };
+        let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
+        let mut e = FusionEngine::new(cfg, est);
+        let mut out = Outputs::default();
+        for k in 0..=10 {
+            e.on_nav(&nav(k), &mut out);
+        }
+        // A measurement at 9.5 ms moves the engine to the state at 10 ms.
+        e.on_measurement(Measurement::Fix(fix(9_500_000, [9.0, 9.0, 0.0])), &mut out);
+        assert_eq!(e.counters().resets, 1);
+        out.clear();
+        for k in 11..=20 {
+            // As the INS re-publishes them after the reset.
+            let n = NavState {
+                correction_id: e.correction_id(),
+                ..nav(k)
+            };
+            e.on_nav(&n, &mut out);
+        }
+        // The fix at 15 ms is processed at the state of 15 ms (interval 14-15 ms).
+        e.on_measurement(Measurement::Fix(fix(15_000_000, [1.0, 2.0, 0.0])), &mut out);
+        assert_eq!(e.counters().updates, 1, "{:?}", e.counters());
+        // One at 14.9 ms lies inside that interval: interpolated, not late.
+        e.on_measurement(Measurement::Fix(fix(14_900_000, [1.0, 2.0, 0.0])), &mut out);
+        assert_eq!(e.counters().updates, 2, "{:?}", e.counters());
+        assert_eq!(e.counters().meas_late, 0, "{:?}", e.counters());
+        // Older than the interval processed last: late.
+        e.on_measurement(Measurement::Fix(fix(5_000_000, [1.0, 2.0, 0.0])), &mut out);
+        assert_eq!(e.counters().meas_late, 1);
+    }
 }

@@ -171,6 +171,15 @@ pub enum AccelFeedback {
     Tilt,
 }
 
+/// The tilt (ENU rotation vector, INS minus truth, east and north
+/// components, rad) that makes a level INS see the horizontal acceleration
+/// error `d a = a_true - a_meas` (erratum 4) under gravity `g`: the INS's
+/// error `-d a` is `g [d_att_n, -d_att_e]`, so `d_att = [d_a_n, -d_a_e] / g`.
+#[must_use]
+pub fn tilt_from_accel_error(d_a_e_mps2: f64, d_a_n_mps2: f64, gravity_mps2: f64) -> [f64; 2] {
+    [d_a_n_mps2 / gravity_mps2, -d_a_e_mps2 / gravity_mps2]
+}
+
 /// A [`LooseConfig`] value out of range.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LooseConfigError {
@@ -390,7 +399,8 @@ impl Estimator for PaperEstimator {
                 q[0], q[1], q[2], q[3],
             ));
             let bg = r.inverse() * nalgebra::Vector3::new(0.0, 0.0, -x[11]);
-            d.d_att_rad = [x[8] / self.gravity_mps2, -x[5] / self.gravity_mps2, x[4]];
+            let [tilt_e, tilt_n] = tilt_from_accel_error(x[5], x[8], self.gravity_mps2);
+            d.d_att_rad = [tilt_e, tilt_n, x[4]];
             d.d_gyro_bias_rps = [bg.x, bg.y, bg.z];
         } else if self.bias_feedback {
             // States 5, 8, 11 are `d a = a_true - a_meas` (ENU) and `d w`
@@ -446,5 +456,169 @@ impl Estimator for PaperEstimator {
         self.acc_dt = 0.0;
         self.acc_ae = 0.0;
         self.acc_an = 0.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::panic)]
+
+    use insuwb_msg::Header;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    use super::*;
+    use crate::offline::{build_estimator, FusionConfig};
+
+    const G: f64 = 9.80665;
+
+    /// A level, static vehicle seen by an INS tilted by `tilt`: the INS's
+    /// horizontal acceleration error, turned into `d a`, maps back to `tilt`.
+    #[test]
+    fn tilt_feedback_inverts_the_ins_tilt_error() {
+        let tilt = Vector3::new(0.01, -0.02, 0.0);
+        let q_ins = UnitQuaternion::from_scaled_axis(tilt);
+        let cfg = insuwb_nav::ins::InsConfig::default();
+        let state = insuwb_nav::ins::InsState {
+            att: q_ins,
+            ..insuwb_nav::ins::InsState::default()
+        };
+        let mut ins = insuwb_nav::ins::Ins::new(cfg, state).unwrap();
+        ins.step(0, [0.0, 0.0, G], [0.0; 3]).unwrap();
+        let out = ins.step(1_000_000, [0.0, 0.0, G], [0.0; 3]).unwrap();
+        // d a = a_true - a_ins = -a_ins (the vehicle is at rest).
+        let [e, n] = tilt_from_accel_error(-out.accel_nav_mps2[0], -out.accel_nav_mps2[1], G);
+        assert!(
+            (e - tilt.x).abs() < 1e-5 && (n - tilt.y).abs() < 1e-5,
+            "{e} {n}"
+        );
+        // Applying it as a correction levels the INS: q <- Exp(-d_att) q.
+        let fixed = UnitQuaternion::from_scaled_axis(-Vector3::new(e, n, 0.0)) * q_ins;
+        assert!(fixed.angle() < 1e-5, "{}", fixed.angle());
+    }
+
+    fn paper_with(loose: LooseConfig) -> PaperEstimator {
+        let mut cfg = FusionConfig::default();
+        cfg.model.bias_random_walk = Some(insuwb_filter::model::BiasRandomWalk {
+            accel_var_m2_per_s4: 1e-4,
+            gyro_var_rad2_per_s2: 1e-9,
+        });
+        let model = insuwb_filter::PaperModel::new(cfg.model.clone()).unwrap();
+        let f = insuwb_filter::build(FilterKind::Kf, model, &cfg.filter, &cfg.setup).unwrap();
+        PaperEstimator::new(f, loose, cfg.setup.p0()).with_gravity(G)
+    }
+
+    fn ins_at(pos_m: [f64; 3]) -> InsAt {
+        InsAt {
+            t_ns: 0,
+            pos_m,
+            vel_mps: [0.0; 3],
+            quat: [1.0, 0.0, 0.0, 0.0],
+        }
+    }
+
+    fn fix(t_ns: u64, pos_m: [f64; 3], flags: u32) -> UwbFix {
+        let mut header = Header::new(0, t_ns);
+        header.flags = flags;
+        UwbFix {
+            header,
+            pos_m,
+            ..UwbFix::default()
+        }
+    }
+
+    /// The random-walk acceleration states go back as a tilt (`tilt`) or as a
+    /// body accelerometer bias (`bias`, default), never both.
+    #[test]
+    fn accel_feedback_modes() {
+        for mode in [AccelFeedback::Tilt, AccelFeedback::Bias] {
+            let mut e = paper_with(LooseConfig {
+                accel_feedback: mode,
+                use_velocity: false,
+                ..LooseConfig::default()
+            });
+            let nav = NavState {
+                quat: [1.0, 0.0, 0.0, 0.0],
+                ..NavState::default()
+            };
+            for _ in 0..100 {
+                e.predict(0.01, &nav);
+            }
+            e.update_fix(
+                &ins_at([0.3, -0.2, 0.0]),
+                &fix(0, [0.0; 3], UwbFix::FLAG_2D),
+            )
+            .unwrap();
+            let x = *e.filter().state();
+            assert!(x[5].abs() > 1e-6 && x[8].abs() > 1e-6, "{x:?}");
+            let d = e.take_correction();
+            let [te, tn] = tilt_from_accel_error(x[5], x[8], G);
+            match mode {
+                AccelFeedback::Tilt => {
+                    assert_eq!(d.d_att_rad, [te, tn, x[4]]);
+                    assert_eq!(d.d_accel_bias_mps2, [0.0; 3]);
+                }
+                AccelFeedback::Bias => {
+                    assert_eq!(d.d_att_rad, [0.0, 0.0, x[4]]);
+                    // Level and facing east: body = ENU, bias moves by -d a.
+                    assert!((d.d_accel_bias_mps2[0] + x[5]).abs() < 1e-15);
+                    assert!((d.d_accel_bias_mps2[1] + x[8]).abs() < 1e-15);
+                }
+            }
+        }
+    }
+
+    /// `d_pos_z = 2 w T dz`, `d_vel_z = w^2 T dz`, T the time since the last fix.
+    #[test]
+    fn vertical_loop_known_answer() {
+        let mut e = paper_with(LooseConfig {
+            vertical_bandwidth_rps: 1.0,
+            ..LooseConfig::default()
+        });
+        // First fix: T defaults to 0.1 s; INS 0.5 m above the fix.
+        e.update_fix(
+            &ins_at([0.0, 0.0, 1.5]),
+            &fix(1_000_000_000, [0.0, 0.0, 1.0], 0),
+        );
+        let d = e.take_correction();
+        assert!((d.d_pos_m[2] - 0.1).abs() < 1e-12 && (d.d_vel_mps[2] - 0.05).abs() < 1e-12);
+        // 0.2 s later, 0.2 m above.
+        e.update_fix(
+            &ins_at([0.0, 0.0, 1.2]),
+            &fix(1_200_000_000, [0.0, 0.0, 1.0], 0),
+        );
+        let d = e.take_correction();
+        assert!((d.d_pos_m[2] - 0.08).abs() < 1e-12 && (d.d_vel_mps[2] - 0.04).abs() < 1e-12);
+        // Taken once; 2D fixes carry no height.
+        assert_eq!(e.take_correction().d_pos_m[2], 0.0);
+        e.update_fix(
+            &ins_at([0.0, 0.0, 3.0]),
+            &fix(1_300_000_000, [0.0; 3], UwbFix::FLAG_2D),
+        );
+        assert_eq!(e.take_correction().d_pos_m[2], 0.0);
+        // Off by default.
+        let mut off = paper_with(LooseConfig::default());
+        off.update_fix(&ins_at([0.0, 0.0, 1.5]), &fix(0, [0.0, 0.0, 1.0], 0));
+        assert_eq!(off.take_correction().d_pos_m[2], 0.0);
+    }
+
+    #[test]
+    fn loose_config_validation_names_the_key() {
+        let bad = LooseConfig {
+            vertical_bandwidth_rps: -1.0,
+            ..LooseConfig::default()
+        };
+        let e = bad.validate().unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "loose.vertical_bandwidth_rps must be in [0, 10] rad/s, got -1"
+        );
+        let cfg = FusionConfig {
+            loose: bad,
+            ..FusionConfig::default()
+        };
+        assert!(build_estimator(FilterKind::Iakf, &cfg).is_err());
+        let c: LooseConfig = toml::from_str("accel_feedback = \"tilt\"").unwrap();
+        assert_eq!(c.accel_feedback, AccelFeedback::Tilt);
+        assert!(c.use_velocity);
     }
 }

@@ -10,7 +10,9 @@
 //! to initialise the INS and to re-initialise it after a divergence
 //! ([`Estimator::needs_reset`]).
 
-use insuwb_eskf::{Eskf, EskfConfig, EskfConfigError, TdoaOutcome, TdoaUpdateReport};
+use insuwb_eskf::{
+    Covariance, Eskf, EskfConfig, EskfConfigError, TdoaOutcome, TdoaUpdateReport, N_STATES,
+};
 use insuwb_msg::{FilterKind, NavState, UwbFix, UwbTdoa};
 use serde::{Deserialize, Serialize};
 
@@ -21,30 +23,13 @@ use crate::estimator::{Delta, Estimator, InsAt, UpdateInfo};
 const MAX_PREDICT_SPLIT: u32 = 100;
 
 /// Settings of the tight coupling that are not the ESKF's own.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TightConfig {
     /// Position of the UWB antenna in the body frame (FLU), m. Default
     /// `[0, 0, 0]` (antenna at the IMU); the UTIL Crazyflie's is
     /// `[-0.01245, 0.00127, 0.0908]` (dataset README).
     pub lever_arm_m: [f64; 3],
-    /// Time constant of the first-order low-pass applied to the specific
-    /// force used in the covariance propagation, s. Default 0 (off). The
-    /// ESKF's `F` couples the attitude error to the velocity error through
-    /// the specific force; on a vibrating airframe the raw 1 kHz specific
-    /// force (0.4-0.8 m/s^2 RMS of vibration on the UTIL Crazyflie, dataset
-    /// README) lends the yaw a spurious observability, which a smoothed one
-    /// avoids. The INS itself always integrates the raw samples.
-    pub specific_force_tau_s: f64,
-}
-
-impl Default for TightConfig {
-    fn default() -> Self {
-        Self {
-            lever_arm_m: [0.0; 3],
-            specific_force_tau_s: 0.0,
-        }
-    }
 }
 
 /// A [`TightConfig`] value out of range.
@@ -58,9 +43,6 @@ pub enum TightConfigError {
         /// Its value.
         value: f64,
     },
-    /// The smoothing time constant is negative, not finite or above 10 s.
-    #[error("tight.specific_force_tau_s must be in [0, 10] s, got {0}")]
-    SmoothingTau(f64),
     /// The gravity handed over from the INS configuration is not usable.
     #[error("ins.ins.gravity_mps2 must be finite and in [9, 10.6] m/s^2, got {0}")]
     Gravity(f64),
@@ -76,10 +58,6 @@ impl TightConfig {
             if !(value.is_finite() && value.abs() <= 10.0) {
                 return Err(TightConfigError::LeverArm { index, value });
             }
-        }
-        let tau = self.specific_force_tau_s;
-        if !(tau.is_finite() && (0.0..=10.0).contains(&tau)) {
-            return Err(TightConfigError::SmoothingTau(tau));
         }
         Ok(())
     }
@@ -98,8 +76,8 @@ pub enum TightBuildError {
 
 /// The tightly coupled ESKF as an [`Estimator`] ([`FilterKind::IakfTdoa`]).
 ///
-/// Prediction runs on every INS interval with the interval's attitude and
-/// specific force (`accel_nav + [0, 0, g]`, optionally low-passed); intervals
+/// Prediction runs on every INS interval with the attitude and specific
+/// force (`accel_nav + [0, 0, g]`) of the INS state ending it; intervals
 /// longer than the ESKF's `max_dt_s` are split into equal sub-steps.
 /// Each TDOA difference is one robust scalar update; [`Estimator::update_fix`]
 /// returns `None` (fixes serve the engine's initialisation and resets only).
@@ -108,8 +86,6 @@ pub struct TightEstimator {
     eskf: Eskf,
     cfg: TightConfig,
     gravity_mps2: f64,
-    /// Low-passed specific force (ENU, m/s^2); `None` before the first interval.
-    f_smooth: Option<[f64; 3]>,
     predict_errors: u64,
     update_errors: u64,
 }
@@ -134,7 +110,6 @@ impl TightEstimator {
             eskf: Eskf::new(eskf)?,
             cfg,
             gravity_mps2,
-            f_smooth: None,
             predict_errors: 0,
             update_errors: 0,
         })
@@ -163,29 +138,6 @@ impl TightEstimator {
     #[must_use]
     pub fn update_errors(&self) -> u64 {
         self.update_errors
-    }
-
-    /// The specific force for the interval ending at `nav`, low-passed when configured.
-    fn specific_force(&mut self, dt_s: f64, nav: &NavState) -> [f64; 3] {
-        let a = nav.accel_nav_mps2;
-        let f = [a[0], a[1], a[2] + self.gravity_mps2];
-        let tau = self.cfg.specific_force_tau_s;
-        if tau <= 0.0 {
-            return f;
-        }
-        let s = match self.f_smooth {
-            None => f,
-            Some(prev) => {
-                let w = dt_s / (tau + dt_s);
-                [
-                    prev[0] + w * (f[0] - prev[0]),
-                    prev[1] + w * (f[1] - prev[1]),
-                    prev[2] + w * (f[2] - prev[2]),
-                ]
-            }
-        };
-        self.f_smooth = Some(s);
-        s
     }
 }
 
@@ -224,7 +176,8 @@ impl Estimator for TightEstimator {
         if !(dt_s > 0.0 && dt_s.is_finite()) {
             return;
         }
-        let f = self.specific_force(dt_s, nav);
+        let a = nav.accel_nav_mps2;
+        let f = [a[0], a[1], a[2] + self.gravity_mps2];
         let max_dt = self.eskf.config().max_dt_s;
         // Split a long interval (an IMU gap) into equal steps the ESKF accepts.
         let n = (dt_s / max_dt).ceil().max(1.0);
@@ -294,5 +247,316 @@ impl Estimator for TightEstimator {
 
     fn is_tight(&self) -> bool {
         true
+    }
+
+    fn covariance_snapshot(&self) -> Vec<f64> {
+        let p = self.eskf.covariance();
+        (0..N_STATES)
+            .flat_map(|i| (0..N_STATES).map(move |j| p[(i, j)]))
+            .collect()
+    }
+
+    fn restore_covariance(&mut self, p: &[f64]) -> bool {
+        if p.len() != N_STATES * N_STATES {
+            return false;
+        }
+        let m = Covariance::from_fn(|i, j| p.get(i * N_STATES + j).copied().unwrap_or(f64::NAN));
+        let _ = self.eskf.take_correction();
+        self.eskf.reset_with_covariance(&m).is_ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+    use insuwb_msg::{Header, ImuSample, LAYOUT_VERSION};
+
+    use super::*;
+    use crate::offline::{self, FusionConfig};
+
+    const G: f64 = 9.80665;
+
+    fn level_nav(t_ns: u64) -> NavState {
+        NavState {
+            header: Header::new(0, t_ns),
+            quat: [1.0, 0.0, 0.0, 0.0],
+            // At rest: kinematic acceleration zero (the INS removed gravity).
+            accel_nav_mps2: [0.0; 3],
+            ..NavState::default()
+        }
+    }
+
+    fn ins_at(pos_m: [f64; 3]) -> InsAt {
+        InsAt {
+            t_ns: 0,
+            pos_m,
+            vel_mps: [0.0; 3],
+            quat: [1.0, 0.0, 0.0, 0.0],
+        }
+    }
+
+    fn tdoa(t_ns: u64, a: [f64; 3], b: [f64; 3], diff_m: f64) -> UwbTdoa {
+        UwbTdoa {
+            header: Header::new(0, t_ns),
+            anchor_a: 0,
+            anchor_b: 1,
+            diff_m,
+            anchor_a_pos_m: a,
+            anchor_b_pos_m: b,
+        }
+    }
+
+    fn estimator(lever_arm_m: [f64; 3]) -> TightEstimator {
+        TightEstimator::new(EskfConfig::default(), TightConfig { lever_arm_m }, G).unwrap()
+    }
+
+    /// One TDOA update, hand-computed: anchors on the east axis, the antenna
+    /// 0.1 m above the IMU, the INS 0.1 m west of the truth.
+    #[test]
+    fn tdoa_update_known_answer() {
+        let c = EskfConfig::default();
+        let mut e = estimator([0.0, 0.0, 0.1]);
+        let (a, b) = ([-4.0, 0.0, 1.1], [4.0, 0.0, 1.1]);
+        // True antenna at (0.1, 0, 1.1): |p - b| - |p - a| = 3.9 - 4.1.
+        let m = tdoa(0, a, b, 3.9 - 4.1);
+        // The INS puts the IMU at (0, 0, 1), the antenna at (0, 0, 1.1):
+        // predicted 0, innovation -0.2. u = (p-b)/|p-b| - (p-a)/|p-a| =
+        // (-2, 0, 0); H = [-u, 0, u x (C l), 0, 0] = [2,0,0, 0,0,0, 0,0.2,0, ...].
+        let info = e.update_tdoa(&ins_at([0.0, 0.0, 1.0]), &m).unwrap();
+        let (sp2, sr2) = (
+            c.init_pos_sigma_m.powi(2),
+            c.init_roll_pitch_sigma_rad.powi(2),
+        );
+        let hph = 4.0 * sp2 + 0.04 * sr2;
+        let r = c.tdoa_sigma_m.powi(2); // first measurement of the pair: no inflation
+        assert_eq!(info.dim, 1);
+        assert!((info.innovation[0] + 0.2).abs() < 1e-12, "{info:?}");
+        assert!((info.innovation_var[0] - (hph + r)).abs() < 1e-12);
+        assert!((info.lambda[0] - 1.0).abs() < 1e-12 && !info.outlier && !info.rejected);
+        let d = e.take_correction();
+        // K v: INS minus truth is -0.1 m east; one update of a P0 of 0.5 m gets most of it.
+        let dx = 2.0 * sp2 / (hph + r) * -0.2;
+        assert!((d.d_pos_m[0] - dx).abs() < 1e-12, "{d:?}");
+        assert!((d.d_att_rad[1] - 0.2 * sr2 / (hph + r) * -0.2).abs() < 1e-12);
+        for v in [d.d_pos_m[1], d.d_pos_m[2], d.d_att_rad[0], d.d_att_rad[2]] {
+            assert!(v.abs() < 1e-15);
+        }
+        assert!(d
+            .d_vel_mps
+            .iter()
+            .chain(&d.d_accel_bias_mps2)
+            .all(|v| v.abs() < 1e-15));
+        // Closed loop: the error state is zero again.
+        assert!(e.take_correction().is_zero());
+    }
+
+    /// `P_pp = s_p^2 + dt^2 s_v^2`, `P_pv = dt s_v^2`,
+    /// `P_vv,east = s_v^2 + dt^2 (g^2 s_rp^2 + s_ba^2) + s_a^2 dt`: the
+    /// specific force holds gravity again (the tilt term), from the INS's gravity.
+    #[test]
+    fn predict_uses_gravity_and_attitude() {
+        let c = EskfConfig::default();
+        let mut e = estimator([0.0; 3]);
+        let dt = 0.01;
+        e.predict(dt, &level_nav(10_000_000));
+        let p = e.pos_vel_cov();
+        let (sp2, sv2) = (c.init_pos_sigma_m.powi(2), c.init_vel_sigma_mps.powi(2));
+        let (sr2, sba2) = (
+            c.init_roll_pitch_sigma_rad.powi(2),
+            c.init_accel_bias_sigma_mps2.powi(2),
+        );
+        assert!((p[0][0] - (sp2 + dt * dt * sv2)).abs() < 1e-15);
+        assert!((p[0][3] - dt * sv2).abs() < 1e-15);
+        let vv = sv2 + dt * dt * (G * G * sr2 + sba2) + c.accel_noise_mps2_per_rthz.powi(2) * dt;
+        assert!((p[3][3] - vv).abs() < 1e-12, "{} vs {vv}", p[3][3]);
+        // Vertical velocity: no tilt coupling (the force is along z).
+        let vz = sv2 + dt * dt * sba2 + c.accel_noise_mps2_per_rthz.powi(2) * dt;
+        assert!((p[5][5] - vz).abs() < 1e-12);
+        assert_eq!(e.predict_errors(), 0);
+    }
+
+    #[test]
+    fn long_intervals_are_split_and_absurd_ones_refused() {
+        let mut one = estimator([0.0; 3]);
+        let mut split = estimator([0.0; 3]);
+        // 0.25 s with max_dt_s = 0.1: three steps of 1/12 s.
+        split.predict(0.25, &level_nav(0));
+        for _ in 0..3 {
+            one.predict(0.25 / 3.0, &level_nav(0));
+        }
+        assert_eq!(split.pos_vel_cov(), one.pos_vel_cov());
+        assert_eq!(split.predict_errors(), 0);
+        let before = split.pos_vel_cov();
+        split.predict(100.0, &level_nav(0));
+        split.predict(f64::NAN, &level_nav(0));
+        assert_eq!(split.predict_errors(), 1);
+        assert_eq!(split.pos_vel_cov(), before);
+    }
+
+    #[test]
+    fn outliers_are_rejected_and_reset_restores_p0() {
+        let mut e = estimator([0.0; 3]);
+        let p0 = e.pos_vel_cov();
+        let (a, b) = ([-4.0, 0.0, 1.0], [4.0, 0.0, 1.0]);
+        let info = e
+            .update_tdoa(&ins_at([0.0, 0.0, 1.0]), &tdoa(0, a, b, 50.0))
+            .unwrap();
+        assert!(info.rejected && info.outlier && info.lambda[0] == 0.0);
+        assert!(e.take_correction().is_zero());
+        // A refused input (antenna on an anchor) is reported, not applied.
+        let info = e.update_tdoa(&ins_at(a), &tdoa(0, a, b, 0.0)).unwrap();
+        assert!(info.rejected);
+        assert_eq!(e.update_errors(), 1);
+        e.update_tdoa(&ins_at([0.0, 0.0, 1.0]), &tdoa(0, a, b, 0.1))
+            .unwrap();
+        assert_ne!(e.pos_vel_cov(), p0);
+        e.reset();
+        assert_eq!(e.pos_vel_cov(), p0);
+        assert!(e.take_correction().is_zero());
+        assert!(e
+            .update_fix(&ins_at([0.0; 3]), &UwbFix::default())
+            .is_none());
+    }
+
+    #[test]
+    fn covariance_snapshot_round_trip() {
+        let mut e = estimator([0.0; 3]);
+        e.predict(0.05, &level_nav(0));
+        let snap = e.covariance_snapshot();
+        assert_eq!(snap.len(), N_STATES * N_STATES);
+        let mut f = estimator([0.0; 3]);
+        assert!(f.restore_covariance(&snap));
+        assert_eq!(f.pos_vel_cov(), e.pos_vel_cov());
+        assert!(!f.restore_covariance(&snap[1..]));
+        let mut bad = snap.clone();
+        bad[0] = -1.0;
+        assert!(!f.restore_covariance(&bad));
+    }
+
+    #[test]
+    fn config_errors_name_the_key() {
+        let e = TightEstimator::new(
+            EskfConfig::default(),
+            TightConfig {
+                lever_arm_m: [0.0, f64::NAN, 0.0],
+            },
+            G,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("tight.lever_arm_m[1] must be finite"),
+            "{e}"
+        );
+        let e =
+            TightEstimator::new(EskfConfig::default(), TightConfig::default(), 1.0).unwrap_err();
+        assert!(e.to_string().contains("gravity_mps2"), "{e}");
+        let bad = EskfConfig {
+            kappa: -1.0,
+            ..EskfConfig::default()
+        };
+        let e = TightEstimator::new(bad, TightConfig::default(), G).unwrap_err();
+        assert!(e.to_string().contains("eskf.kappa"), "{e}");
+        let t: TightConfig = toml::from_str("lever_arm_m = [0.0, 0.0, 0.1]").unwrap();
+        assert_eq!(t.lever_arm_m, [0.0, 0.0, 0.1]);
+        assert!(toml::from_str::<TightConfig>("lever_arm = [0.0, 0.0, 0.1]").is_err());
+    }
+
+    /// A static, level vehicle whose IMU reads gravity only, 1 kHz, and
+    /// noise-free TDOA differences of all pairs of six anchors at 10 Hz;
+    /// the INS starts 0.3 m off and the tight filter runs through the whole
+    /// offline chain (fix builder, engine, INS).
+    fn static_scene(start_s: f64, end_s: f64) -> (Vec<ImuSample>, Vec<UwbTdoa>, [f64; 3]) {
+        let anchors = [
+            [-4.0, -4.0, 0.2],
+            [4.0, -4.0, 3.0],
+            [4.0, 4.0, 0.2],
+            [-4.0, 4.0, 3.0],
+            [0.0, -4.5, 1.5],
+            [0.0, 4.5, 2.5],
+        ];
+        let p = [0.7, -0.4, 1.2];
+        let dist = |a: [f64; 3]| {
+            ((p[0] - a[0]).powi(2) + (p[1] - a[1]).powi(2) + (p[2] - a[2]).powi(2)).sqrt()
+        };
+        let imu: Vec<ImuSample> = (0..=((end_s * 1000.0) as u64))
+            .map(|k| ImuSample {
+                header: Header::new(k, k * 1_000_000),
+                accel_mps2: [0.0, 0.0, G],
+                gyro_rps: [0.0; 3],
+            })
+            .collect();
+        let mut tdoa = Vec::new();
+        let mut seq = 0;
+        let mut t_ns = (start_s * 1e9) as u64;
+        while t_ns as f64 * 1e-9 < end_s {
+            for i in 0..anchors.len() {
+                for j in (i + 1)..anchors.len() {
+                    tdoa.push(UwbTdoa {
+                        header: Header::new(seq, t_ns),
+                        anchor_a: i as u32,
+                        anchor_b: j as u32,
+                        diff_m: dist(anchors[j]) - dist(anchors[i]),
+                        anchor_a_pos_m: anchors[i],
+                        anchor_b_pos_m: anchors[j],
+                    });
+                    seq += 1;
+                    t_ns += 1_000_000;
+                }
+            }
+            t_ns += 100_000_000 - 15 * 1_000_000;
+        }
+        (imu, tdoa, p)
+    }
+
+    #[test]
+    fn tight_filter_initialises_and_converges_in_the_offline_chain() {
+        let (imu, tdoa, p) = static_scene(0.0205, 3.0);
+        let mut cfg = FusionConfig::default();
+        cfg.fix.mode = insuwb_uwb::fix::FixMode::Mode3d;
+        cfg.engine.init_from_first_fix = true;
+        let out = offline::run(&imu, &tdoa, &cfg, FilterKind::IakfTdoa).unwrap();
+        // Initialised from the first fix, then one fused state per 0.1 s epoch.
+        assert_eq!(out.fusion.resets, 1, "{:?}", out.fusion);
+        assert!(out.fused.len() >= 25, "{}", out.fused.len());
+        // Every TDOA difference after the initialisation is an update (15 per epoch).
+        assert!(out.fusion.updates >= 15 * 25, "{:?}", out.fusion);
+        assert!(out
+            .fused
+            .iter()
+            .all(|f| f.filter_kind == FilterKind::IakfTdoa as u32));
+        let last = out.fused.last().unwrap();
+        for k in 0..3 {
+            assert!(
+                (last.pos_m[k] - p[k]).abs() < 1e-3,
+                "{:?} vs {p:?}",
+                last.pos_m
+            );
+            assert!(last.vel_mps[k].abs() < 1e-3, "{:?}", last.vel_mps);
+        }
+        // Each fused state sits at a fix epoch (the last TDOA of its epoch).
+        let fix_times: Vec<u64> = out.fixes.iter().map(|f| f.header.meas_time_ns).collect();
+        assert!(out
+            .fused
+            .iter()
+            .all(|f| fix_times.contains(&f.header.meas_time_ns)));
+        assert!(out
+            .diag
+            .iter()
+            .all(|d| d.header.layout_version == LAYOUT_VERSION));
+    }
+
+    #[test]
+    fn build_estimator_gives_the_tight_filter() {
+        let mut cfg = FusionConfig::default();
+        let e = offline::build_estimator(FilterKind::IakfTdoa, &cfg).unwrap();
+        assert!(e.is_tight() && e.kind() == FilterKind::IakfTdoa);
+        cfg.eskf.tdoa_sigma_m = 0.0;
+        let err = offline::build_estimator(FilterKind::IakfTdoa, &cfg).unwrap_err();
+        assert!(err.to_string().contains("eskf.tdoa_sigma_m"), "{err}");
+        cfg.eskf = EskfConfig::default();
+        cfg.tight.lever_arm_m = [20.0, 0.0, 0.0];
+        assert!(offline::build_estimator(FilterKind::IakfTdoa, &cfg).is_err());
     }
 }
