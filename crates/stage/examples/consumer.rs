@@ -25,7 +25,9 @@ use insuwb_runtime::{monotonic_ns, Stage, Wake};
 use insuwb_stage::group::RobotConfig;
 
 fn main() -> anyhow::Result<()> {
-    let path = std::env::args().nth(1).unwrap_or_else(|| "config/robot.toml".into());
+    let path = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "config/robot.toml".into());
     let cfg = RobotConfig::load(std::path::Path::new(&path))?;
     let stage = Stage::new(cfg.runtime("controller"))?;
     let fused = stage.subscriber::<FusedState>(topics::FUSED)?;

@@ -103,7 +103,8 @@ pub fn run(
     } else {
         None
     };
-    let ahead_limit = (insuwb_msg::qos::for_topic(topics::UWB_FIX).subscriber_max_buffer_size / 4) as u64;
+    let ahead_limit =
+        (insuwb_msg::qos::for_topic(topics::UWB_FIX).subscriber_max_buffer_size / 4) as u64;
     let mut fixes_published = 0u64;
     let mut counters = HealthCounters::default();
     let mut drops = Drops::default();
@@ -118,9 +119,11 @@ pub fn run(
         if lockstep {
             match want {
                 Want::Imu => {
-                    fixes_seen.drain(|f| fix_time_seen = fix_time_seen.max(f.header.meas_time_ns))?;
+                    fixes_seen
+                        .drain(|f| fix_time_seen = fix_time_seen.max(f.header.meas_time_ns))?;
                     fused_sub.drain(|f| {
-                        fused_time_seen = Some(fused_time_seen.unwrap_or(0).max(f.header.meas_time_ns));
+                        fused_time_seen =
+                            Some(fused_time_seen.unwrap_or(0).max(f.header.meas_time_ns));
                     })?
                 }
                 Want::Uwb => fused_sub.drain(|f| {
@@ -139,7 +142,10 @@ pub fn run(
                 let held = match want {
                     // Before the first fused state, follow the fixes (the INS may
                     // still be aligning); then follow fusion itself.
-                    Want::Imu => epoch_ns + item.time_ns() > fused_time_seen.unwrap_or(fix_time_seen) + LEAD_NS,
+                    Want::Imu => {
+                        epoch_ns + item.time_ns()
+                            > fused_time_seen.unwrap_or(fix_time_seen) + LEAD_NS
+                    }
                     Want::Uwb => fixes_published >= consumed + ahead_limit,
                 };
                 if held {
