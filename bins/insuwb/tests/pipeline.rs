@@ -272,3 +272,22 @@ fn replay_at_10x_through_the_processes_equals_eval() {
     assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
     let _ = std::fs::remove_dir_all(&tmp);
 }
+
+#[test]
+fn chaos_for_60_s_loses_nothing_and_leaves_nothing() {
+    let _lock = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let out = Command::new(insuwb())
+        .args(["chaos", "--duration", "60", "--seed", "11", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "chaos failed:\n{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    eprintln!("chaos 60 s: {v}");
+    assert_eq!(f(&v, "deadlocks"), 0.0, "{v}");
+    assert_eq!(f(&v, "records_lost"), 0.0, "{v}");
+    assert_eq!(f(&v, "leftover_files"), 0.0, "{v}");
+    assert!(f(&v, "max_gap_ms") <= 1000.0, "{v}");
+    assert!(f(&v, "faults") >= 12.0, "{v}");
+    assert!(f(&v, "restarts") >= 1.0, "{v}");
+}
