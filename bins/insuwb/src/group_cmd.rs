@@ -548,6 +548,13 @@ pub fn inspect(a: &InspectArgs) -> Result<()> {
         probe::<Health>(&stage, topics::HEALTH)?,
         probe::<GroundTruth>(&stage, topics::TRUTH)?,
     ];
+    // The first samples are the publishers' history: let it arrive, then count.
+    for _ in 0..3 {
+        subs.iter().for_each(|(_, f)| {
+            f();
+        });
+        let _ = stage.sleep(Duration::from_millis(150));
+    }
     let start: Vec<u64> = subs.iter().map(|(_, f)| f().0).collect();
     let _ = stage.sleep(Duration::from_secs_f64(a.duration.clamp(0.1, 60.0)));
     let now = monotonic_ns();

@@ -75,10 +75,21 @@ pub fn run(
         }
     }
     let fcfg = cfg.fusion_config()?;
-    let mut imu_pub = stage.publisher::<ImuSample>(topics::IMU)?;
-    let mut truth_pub = stage.publisher::<GroundTruth>(topics::TRUTH)?;
-    let mut tdoa_pub = stage.publisher::<UwbTdoa>(topics::UWB_TDOA)?;
-    let mut fix_pub = stage.publisher::<UwbFix>(topics::UWB_FIX)?;
+    // Each driver opens only the topics it publishes.
+    let (mut imu_pub, mut truth_pub, mut tdoa_pub, mut fix_pub) = match want {
+        Want::Imu => (
+            Some(stage.publisher::<ImuSample>(topics::IMU)?),
+            Some(stage.publisher::<GroundTruth>(topics::TRUTH)?),
+            None,
+            None,
+        ),
+        Want::Uwb => (
+            None,
+            None,
+            Some(stage.publisher::<UwbTdoa>(topics::UWB_TDOA)?),
+            Some(stage.publisher::<UwbFix>(topics::UWB_FIX)?),
+        ),
+    };
     let mut fixes = insuwb_uwb::fix::FixBuilder::new(fcfg.fix.clone())?;
     let mut health = stage.health_reporter()?;
     // `--speed max`: publish as fast as the consumers keep up, never further
@@ -159,7 +170,9 @@ pub fn run(
                     s.header.meas_time_ns = t;
                     s.header.generation = gen;
                     s.header.source_id = source_id;
-                    truth_pub.publish_raw(s)?;
+                    if let Some(p) = truth_pub.as_mut() {
+                        p.publish_raw(s)?;
+                    }
                 }
                 Item::Imu(mut s) => {
                     if !imu_ok(&s) {
@@ -174,7 +187,9 @@ pub fn run(
                     s.header.meas_time_ns = t;
                     s.header.generation = gen;
                     s.header.source_id = source_id;
-                    imu_pub.publish_raw(s)?;
+                    if let Some(p) = imu_pub.as_mut() {
+                        p.publish_raw(s)?;
+                    }
                     counters.published += 1;
                 }
                 Item::Tdoa(mut s) => {
@@ -192,11 +207,13 @@ pub fn run(
                     s.header.source_id = source_id;
                     // The fixes this measurement completes go out before it (the
                     // fusion stage relies on that order).
-                    if let Ok(Some(f)) = fixes.push(&s) {
-                        fix_pub.publish(f)?;
+                    if let (Ok(Some(f)), Some(p)) = (fixes.push(&s), fix_pub.as_mut()) {
+                        p.publish(f)?;
                         fixes_published += 1;
                     }
-                    tdoa_pub.publish_raw(s)?;
+                    if let Some(p) = tdoa_pub.as_mut() {
+                        p.publish_raw(s)?;
+                    }
                     counters.published += 1;
                 }
             }
@@ -222,8 +239,12 @@ pub fn run(
                 };
                 health.report(&counters, state)?;
                 // Late subscribers get history only when the publisher acts.
-                imu_pub.update_connections()?;
-                tdoa_pub.update_connections()?;
+                for p in imu_pub.iter() {
+                    p.update_connections()?;
+                }
+                for p in tdoa_pub.iter() {
+                    p.update_connections()?;
+                }
             }
             _ => {}
         }
