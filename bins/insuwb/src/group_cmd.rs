@@ -82,6 +82,9 @@ pub struct RunOptions {
     /// Chaos: every 1-5 s a random stage gets SIGKILL, or SIGSTOP for 2 s
     /// then SIGCONT, drawn from this seed.
     pub chaos_seed: Option<u64>,
+    /// Extra environment variables of every stage process (e.g. the logger's
+    /// fused receive trace for `insuwb bench latency`).
+    pub env: Vec<(String, String)>,
 }
 
 /// A fault to inject into a running group (tests, chaos).
@@ -170,6 +173,7 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
         let mut spec = StageSpec::new(s, stage_program(s)?, &["--config", &cfg_arg]);
         spec.env
             .push((START_EPOCH_ENV.to_owned(), epoch.to_string()));
+        spec.env.extend(opts.env.iter().cloned());
         specs.push(spec);
     }
     let monitor_stage = Stage::new(rt.clone())?;
@@ -423,6 +427,7 @@ pub fn launch(a: &LaunchArgs) -> Result<()> {
             live: true,
             faults: a.fault.clone(),
             chaos_seed: None,
+            env: Vec::new(),
         },
     )?;
     if a.json {
@@ -484,6 +489,7 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
             live: true,
             faults: Vec::new(),
             chaos_seed: None,
+            env: Vec::new(),
         },
     );
     let _ = std::fs::remove_dir_all(&run_dir);
@@ -641,13 +647,25 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
     let run_dir = std::env::temp_dir().join(format!("insuwb-chaos-{id}"));
     std::fs::create_dir_all(&run_dir)?;
     let prefix = format!("insuwb_chaos{id}_");
-    // A 60 s scenario repeated is not needed: the drivers idle at its end; use
-    // the long scenario and the default restart policy.
+    // The long NLOS scenario, stretched to outlast the run (its loops and
+    // random NLOS continue); the restart budget is sized so the fault rate
+    // (at most one fault per second across the group) can never exhaust it.
+    let scenario = insuwb_config::builtin("scenario", "nlos-long")?
+        .text
+        .replacen(
+            "duration_s = 60.0",
+            &format!("duration_s = {:.1}", a.duration + 15.0),
+            1,
+        );
+    let scenario_path = run_dir.join("chaos-scenario.toml");
+    std::fs::write(&scenario_path, scenario)?;
     let text = format!(
         "[group]\nname = \"chaos\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
-         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\n\
-         [fusion]\nfilter = \"iakf\"\n[logger.segments.flush]\nevery_ms = 200\n",
-        run_dir.display()
+         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{}\"\nseed = 1\n\
+         [fusion]\nfilter = \"iakf\"\n[logger.segments.flush]\nevery_ms = 200\n\
+         [launch]\nbudget_restarts = 60\nbudget_window_s = 60.0\n",
+        run_dir.display(),
+        scenario_path.display()
     );
     let cfg_path = run_dir.join("chaos.toml");
     std::fs::write(&cfg_path, &text)?;
@@ -660,6 +678,7 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
             live: !a.json,
             faults: Vec::new(),
             chaos_seed: Some(a.seed),
+            env: Vec::new(),
         },
     );
     let leftover = leftover_files(&prefix, &cfg.iox_root());

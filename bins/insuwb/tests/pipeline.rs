@@ -275,7 +275,9 @@ fn replay_at_10x_through_the_processes_equals_eval() {
 
 #[test]
 fn chaos_for_60_s_loses_nothing_and_leaves_nothing() {
-    let _lock = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _lock = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let out = Command::new(insuwb())
         .args(["chaos", "--duration", "60", "--seed", "11", "--json"])
         .output()
