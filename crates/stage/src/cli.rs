@@ -81,7 +81,7 @@ fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
     let cfg = RobotConfig::load(&args.config)?;
     let epoch = args.start_epoch_ns.unwrap_or_else(start_epoch_ns);
     let speed = args.speed.unwrap_or(cfg.sources.speed);
-    if !(speed > 0.0) {
+    if speed.is_nan() || speed <= 0.0 {
         anyhow::bail!("--speed must be > 0, got {speed}");
     }
     let result = match kind {
