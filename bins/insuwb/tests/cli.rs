@@ -2,6 +2,9 @@
 //! simulation, the consistency check, the output contract of `--json`, and
 //! bad input refused with a clear message and a non-zero exit.
 
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use std::path::PathBuf;
 use std::process::{Command, Output};
 

@@ -6,6 +6,9 @@
 //! and checks that no /dev/shm file of that prefix is left. The tests start
 //! processes and measure time, so they run one at a time (a lock).
 
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Mutex;

@@ -1,4 +1,7 @@
 //! The fusion stage binary starts, documents its flags and refuses a missing config.
+
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use std::process::Command;
 
 #[test]
