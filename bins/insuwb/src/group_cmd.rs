@@ -212,7 +212,7 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     let mut injected = 0u32;
     let mut chaos = opts
         .chaos_seed
-        .map(|seed| insuwb_sim::rng::Rng::stream(seed, 0xC4A0_5));
+        .map(|seed| insuwb_sim::rng::Rng::stream(seed, 0x000C_4A05));
     let mut next_chaos = chaos
         .as_mut()
         .map(|r| Duration::from_secs_f64(r.uniform_in(1.0, 5.0)));
@@ -543,7 +543,7 @@ pub fn inspect(a: &InspectArgs) -> Result<()> {
     }
     let services = cleanup::list_services(&rt)?;
     let stage = Stage::new(rt)?;
-    let subs: Vec<(String, Box<dyn Fn() -> (u64, Option<u64>)>)> = vec![
+    let subs: Vec<Probe> = vec![
         probe::<ImuSample>(&stage, topics::IMU)?,
         probe::<insuwb_msg::UwbTdoa>(&stage, topics::UWB_TDOA)?,
         probe::<UwbFix>(&stage, topics::UWB_FIX)?,
