@@ -4,6 +4,7 @@
 //! Logs go to standard error (`RUST_LOG` sets the level); with `--json` a
 //! command prints exactly one JSON object on standard output.
 
+mod bench_cmd;
 mod dataset;
 mod eval_cmd;
 mod group_cmd;
@@ -41,6 +42,9 @@ enum Cmd {
     Demo(group_cmd::DemoArgs),
     /// Run the group on simulated sensors under random SIGKILL/SIGSTOP faults and check recovery.
     Chaos(group_cmd::ChaosArgs),
+    /// Benchmarks of the process pipeline (latency against bare iceoryx2).
+    #[command(subcommand)]
+    Bench(bench_cmd::BenchCmd),
     /// Live per-topic rates, last-sample ages, publishers and subscribers of a running group.
     Inspect(group_cmd::InspectArgs),
 }
@@ -81,5 +85,6 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Demo(a) => group_cmd::demo(&a),
         Cmd::Inspect(a) => group_cmd::inspect(&a),
         Cmd::Chaos(a) => group_cmd::chaos(&a),
+        Cmd::Bench(c) => bench_cmd::run(&c),
     }
 }

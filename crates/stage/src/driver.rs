@@ -48,6 +48,13 @@ fn tdoa_ok(s: &UwbTdoa) -> bool {
         && s.anchor_a != s.anchor_b
 }
 
+/// Granularity of the WaitSet's timeout (epoll, milliseconds rounded up), ns.
+const EPOLL_STEP_NS: u64 = 1_000_000;
+/// Closer than this to a sample's due time, a driver sleeps with nanosleep
+/// instead of the WaitSet, ns (the WaitSet, woken up to 1 ms early by a
+/// timeout of `left - EPOLL_STEP_NS`, always hands over inside this margin).
+const PRECISE_NS: u64 = 1_500_000;
+
 /// Runs a driver stage until SIGINT/SIGTERM.
 pub fn run(
     want: Want,
@@ -98,21 +105,26 @@ pub fn run(
     // IMU: stay a quarter second of data ahead of fusion (enough to cover the
     // next fixes, little to re-propagate after a correction); UWB: stay a
     // bounded number of fixes ahead of fusion.
-    let fixes_seen = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
-    let fused_sub = stage.subscriber::<FusedState>(topics::FUSED)?;
+    // Only lockstep follows the consumers: in real time these subscribers
+    // would just add a listener that every fix and fused publish notifies.
+    let fixes_seen = match (lockstep, want) {
+        (true, Want::Imu) => Some(stage.subscriber::<UwbFix>(topics::UWB_FIX)?),
+        _ => None,
+    };
+    let fused_sub = if lockstep {
+        Some(stage.subscriber::<FusedState>(topics::FUSED)?)
+    } else {
+        None
+    };
     let mut consumed = 0u64;
     let mut fix_time_seen = epoch_ns;
     let mut fused_time_seen: Option<u64> = None;
     const LEAD_NS: u64 = 250_000_000;
     let waiter = stage.waiter()?;
     let hb = waiter.attach_interval(health.period())?;
-    let _progress = if lockstep {
-        Some(match want {
-            Want::Imu => waiter.attach(&fused_sub)?,
-            Want::Uwb => waiter.attach(&fused_sub)?,
-        })
-    } else {
-        None
+    let _progress = match &fused_sub {
+        Some(s) => Some(waiter.attach(s)?),
+        None => None,
     };
     let ahead_limit =
         (insuwb_msg::qos::for_topic(topics::UWB_FIX).subscriber_max_buffer_size / 4) as u64;
@@ -127,16 +139,14 @@ pub fn run(
     );
     loop {
         let now = monotonic_ns();
-        if lockstep {
+        if let Some(fixes_seen) = &fixes_seen {
+            fixes_seen.drain(|f| fix_time_seen = fix_time_seen.max(f.header.meas_time_ns))?;
+        }
+        if let Some(fused_sub) = &fused_sub {
             match want {
-                Want::Imu => {
-                    fixes_seen
-                        .drain(|f| fix_time_seen = fix_time_seen.max(f.header.meas_time_ns))?;
-                    fused_sub.drain(|f| {
-                        fused_time_seen =
-                            Some(fused_time_seen.unwrap_or(0).max(f.header.meas_time_ns));
-                    })?
-                }
+                Want::Imu => fused_sub.drain(|f| {
+                    fused_time_seen = Some(fused_time_seen.unwrap_or(0).max(f.header.meas_time_ns));
+                })?,
                 Want::Uwb => fused_sub.drain(|f| {
                     if f.header.flags & FusedState::FLAG_DEGRADED == 0 {
                         consumed = consumed.max(f.uwb_seq + 1);
@@ -218,14 +228,29 @@ pub fn run(
                 }
             }
         }
-        let timeout = pending.map_or(Duration::from_millis(200), |item| {
+        // The WaitSet's timeout has a granularity of 1 ms (epoll rounds it
+        // up): sleeping in it until the due time would publish each sample up
+        // to 1 ms late, differently in each driver. Wait in the WaitSet until
+        // less than PRECISE_NS before the due time; then only poll it (the
+        // heartbeat, a shutdown) and sleep the rest with nanosleep (late by
+        // the timer slack, about 50 us).
+        let mut timeout = Duration::from_millis(200);
+        let mut precise_due = None;
+        if let Some(item) = pending {
             if lockstep {
                 // Woken by the consumers' progress; the timeout only bounds a stall.
-                return Duration::from_millis(20);
+                timeout = Duration::from_millis(20);
+            } else {
+                let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
+                let left = due.saturating_sub(monotonic_ns());
+                if left < PRECISE_NS {
+                    precise_due = Some(due);
+                    timeout = Duration::ZERO;
+                } else {
+                    timeout = Duration::from_nanos((left - EPOLL_STEP_NS).min(200_000_000));
+                }
             }
-            let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
-            Duration::from_nanos(due.saturating_sub(monotonic_ns()).min(200_000_000))
-        });
+        }
         match waiter.wait_timeout(timeout)? {
             Wake::Shutdown => break,
             Wake::Fired(f) if f.contains(&hb) => {
@@ -247,6 +272,12 @@ pub fn run(
                 }
             }
             _ => {}
+        }
+        if let Some(due) = precise_due {
+            let left = due.saturating_sub(monotonic_ns());
+            if stage.sleep(Duration::from_nanos(left)).is_err() {
+                break;
+            }
         }
     }
     health.report(&counters, Health::STATE_STOPPING)?;

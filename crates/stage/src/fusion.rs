@@ -110,6 +110,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             }
             continue;
         };
+        let mut updated = false;
         if f.contains(&nav_a) || f.contains(&fix_a) || f.contains(&tdoa_a) {
             // Fixes before the TDOA measurements that completed them, then INS states.
             let fresh = |pub_ns: u64| pub_ns >= started_ns;
@@ -132,9 +133,10 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                     engine.on_nav(&n, &mut out);
                 }
             })?;
-            for c in &out.corrections {
-                corr_pub.publish(*c)?;
-            }
+            // The fused state first, straight after the compute: publishing
+            // the correction first wakes the INS, which would delay it. The correction protocol does not depend on when a
+            // correction arrives, so the order changes no result.
+            updated = !out.fused.is_empty();
             for s in &out.fused {
                 let mut s = *s;
                 if stale {
@@ -143,6 +145,9 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                 }
                 fused_pub.publish(s)?;
                 last_update_pub = monotonic_ns();
+            }
+            for c in &out.corrections {
+                corr_pub.publish(*c)?;
             }
             for d in &out.diag {
                 diag_pub.publish(*d)?;
@@ -165,22 +170,27 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                     last_coast_pub = now;
                 }
             }
-            if now.saturating_sub(last_ckpt) >= ckpt_ns {
-                if let Some(fs) = engine.last_fused() {
-                    let c = Checkpoint {
-                        correction_id: engine.correction_id(),
-                        written_ns: now,
-                        cov: {
-                            let _ = fs;
-                            engine.estimator().covariance_snapshot()
-                        },
-                    };
-                    if let Err(e) = write_checkpoint(&ckpt_path, &c) {
-                        tracing::warn!("checkpoint: {e:#}");
-                    }
+        }
+        // Checkpoint right after an update (the next fix is a period away)
+        // or, while coasting, on the tick: the file write never delays a
+        // fused state.
+        let coasting = now.saturating_sub(last_update_pub) > coast_ns;
+        if (updated || (coasting && f.contains(&tick))) && now.saturating_sub(last_ckpt) >= ckpt_ns
+        {
+            if let Some(fs) = engine.last_fused() {
+                let c = Checkpoint {
+                    correction_id: engine.correction_id(),
+                    written_ns: now,
+                    cov: {
+                        let _ = fs;
+                        engine.estimator().covariance_snapshot()
+                    },
+                };
+                if let Err(e) = write_checkpoint(&ckpt_path, &c) {
+                    tracing::warn!("checkpoint: {e:#}");
                 }
-                last_ckpt = now;
             }
+            last_ckpt = now;
         }
         if f.contains(&hb) {
             let c = engine.counters();

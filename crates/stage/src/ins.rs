@@ -19,7 +19,6 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let mut ins = InsEngine::new(fcfg.ins.clone())?;
     let imu_sub = stage.subscriber::<ImuSample>(topics::IMU)?;
     let corr_sub = stage.subscriber::<InsCorrection>(topics::CORRECTION)?;
-    let fused_sub = stage.subscriber::<FusedState>(topics::FUSED)?;
     let mut nav_pub = stage.publisher::<NavState>(topics::NAV)?;
     let mut health = stage.health_reporter()?;
     let waiter = stage.waiter()?;
@@ -31,6 +30,9 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     // the fused topic) and skips the IMU samples before it.
     let mut min_imu_t: u64 = 0;
     if stage.generation() > 0 {
+        // Only a restart reads the fused topic (its history): a subscriber
+        // held for good would add a listener every fused publish notifies.
+        let fused_sub = stage.subscriber::<FusedState>(topics::FUSED)?;
         let mut last: Option<FusedState> = None;
         let mut max_id = 0u64;
         for _ in 0..20 {

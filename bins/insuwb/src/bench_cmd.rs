@@ -1,0 +1,260 @@
+//! `insuwb bench latency`: the latency of the 10 Hz loop against bare iceoryx2.
+//!
+//! In one run: first the floor (`insuwb-floor`, the same process graph with
+//! bare forwarding processes: same payloads, rates, WaitSet wake-ups and
+//! waiting rule at the fusion node, no maths, no logging), then the real
+//! group on simulated sensors (scenario nlos-long, real time), each for
+//! `--duration` seconds; then the per-hop analysis of both recordings
+//! (`insuwb_bench::analysis`), the CPU time of every process over the steady
+//! window, and the ratios of the group's end-to-end percentiles over the
+//! floor's. With `--json` standard output holds only the report object; the
+//! per-hop tables of both graphs go to standard error.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use insuwb_bench::analysis::{analyse, AnalysisConfig, Hops, Percentiles, RunLatency};
+use insuwb_bench::graph::{cpu_percent, cpu_snapshot, run_floor_graph, FloorGraphOptions};
+use insuwb_runtime::monotonic_ns;
+use insuwb_stage::group::RobotConfig;
+
+use crate::group_cmd::{run_group, RunOptions};
+
+/// `insuwb bench` subcommands.
+#[derive(Debug, clap::Subcommand)]
+pub enum BenchCmd {
+    /// Latency of the 10 Hz loop: the floor (bare iceoryx2 graph), then the
+    /// group on simulated sensors; per-hop percentiles, period jitter,
+    /// missed cycles, CPU per stage, ratios to the floor.
+    Latency(LatencyArgs),
+}
+
+/// Arguments of `insuwb bench latency`.
+#[derive(Debug, clap::Args)]
+pub struct LatencyArgs {
+    /// Seconds each graph runs (the floor, then the group), in [5, 55] (the
+    /// simulated scenario lasts 60 s).
+    #[arg(long, default_value_t = 30.0)]
+    pub duration: f64,
+    /// Print the report as one JSON object on standard output.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// CPU time of each stage over the steady window, percent of one core.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct CpuPercent {
+    /// IMU driver.
+    pub imu: f64,
+    /// UWB driver.
+    pub uwb: f64,
+    /// INS.
+    pub ins: f64,
+    /// Fusion.
+    pub fusion: f64,
+    /// Logger.
+    pub logger: f64,
+}
+
+impl CpuPercent {
+    fn from_named(v: &[(String, f64)]) -> Self {
+        let get = |n: &str| v.iter().find(|(m, _)| m == n).map_or(0.0, |(_, p)| *p);
+        Self {
+            imu: get("imu"),
+            uwb: get("uwb"),
+            ins: get("ins"),
+            fusion: get("fusion"),
+            logger: get("logger"),
+        }
+    }
+}
+
+/// The report of `insuwb bench latency` (the issue's keys, in its order).
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct LatencyReport {
+    /// Floor: UWB fix publish -> the floor fusion node's output, p50, us.
+    pub floor_p50_us: f64,
+    /// Floor: same, p99, us.
+    pub floor_p99_us: f64,
+    /// Group: UWB fix publish -> fused publish, p50, us.
+    pub e2e_uwb_fused_p50_us: f64,
+    /// Group: same, p99, us.
+    pub e2e_uwb_fused_p99_us: f64,
+    /// Group: same, p99.9, us.
+    pub e2e_uwb_fused_p999_us: f64,
+    /// Group: p99 of the deviation of the fused output period from 100 ms, us.
+    pub loop_jitter_p99_us: f64,
+    /// Floor: same, us.
+    pub floor_jitter_p99_us: f64,
+    /// Group: steady-state UWB fixes with no fused state.
+    pub missed_cycles: u64,
+    /// Group: per hop.
+    pub hops: Hops,
+    /// Group: CPU time per stage, percent of one core.
+    pub cpu_percent: CpuPercent,
+    /// `e2e_uwb_fused_p50_us / floor_p50_us`.
+    pub ratio_p50: f64,
+    /// `e2e_uwb_fused_p99_us / floor_p99_us`.
+    pub ratio_p99: f64,
+}
+
+/// Start of the CPU window after a graph starts (past process start-up and
+/// the INS alignment at rest).
+const CPU_FROM: Duration = Duration::from_secs(3);
+
+/// Runs an `insuwb bench` subcommand.
+pub fn run(cmd: &BenchCmd) -> Result<()> {
+    match cmd {
+        BenchCmd::Latency(a) => latency(a),
+    }
+}
+
+fn program_beside(name: &str) -> Result<PathBuf> {
+    let exe = std::env::current_exe().context("locating the insuwb executable")?;
+    let dir = exe
+        .parent()
+        .context("the insuwb executable has no folder")?;
+    Ok(dir.join(name))
+}
+
+fn latency(a: &LatencyArgs) -> Result<()> {
+    if !(a.duration.is_finite() && (5.0..=55.0).contains(&a.duration)) {
+        bail!("--duration must be in [5, 55] s, got {}", a.duration);
+    }
+    let duration = Duration::from_secs_f64(a.duration);
+    let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
+    let base = std::env::temp_dir().join(format!("insuwb-bench-{id}"));
+    std::fs::create_dir_all(&base).with_context(|| format!("{}: cannot create", base.display()))?;
+    let result = measure(a, duration, &id, &base);
+    let _ = std::fs::remove_dir_all(&base);
+    let report = result?;
+    if a.json {
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer(&mut out, &serde_json::to_value(report)?)?;
+        writeln!(out)?;
+    } else {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    }
+    Ok(())
+}
+
+fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result<LatencyReport> {
+    let acfg = AnalysisConfig::default();
+    // 1. The floor.
+    eprintln!(
+        "insuwb bench latency: floor graph for {} s, then the group for {} s",
+        a.duration, a.duration
+    );
+    let floor = run_floor_graph(&FloorGraphOptions {
+        program: program_beside("insuwb-floor")?,
+        run_dir: base.join("floor"),
+        prefix: format!("insuwb_bfl{id}_"),
+        duration,
+        cpu_from: CPU_FROM,
+    })?;
+    let fl = analyse(&floor.records, &floor.recv, &acfg).context("the floor run")?;
+    print_table("floor", &fl, &floor.cpu_percent);
+
+    // 2. The group on simulated sensors, its logger noting fused receive times.
+    let run_dir = base.join("group");
+    std::fs::create_dir_all(&run_dir)?;
+    let text = format!(
+        "[group]\nname = \"bench\"\nprefix = \"insuwb_bgr{id}_\"\nrun_dir = \"{}\"\n\
+         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\nspeed = 1.0\n\
+         [fusion]\nfilter = \"iakf\"\n",
+        run_dir.display()
+    );
+    let cfg_path = run_dir.join("bench.toml");
+    std::fs::write(&cfg_path, &text)?;
+    let cfg = RobotConfig::load(&cfg_path)?;
+    let trace_path = run_dir.join("fused_recv.txt");
+    let sampler = spawn_cpu_sampler(
+        CPU_FROM,
+        duration.saturating_sub(Duration::from_millis(200)),
+    );
+    let group = run_group(
+        &cfg_path,
+        &cfg,
+        &RunOptions {
+            duration: Some(duration),
+            live: false,
+            faults: Vec::new(),
+            chaos_seed: None,
+            env: vec![(
+                insuwb_stage::logger::FUSED_TRACE_ENV.to_owned(),
+                trace_path.display().to_string(),
+            )],
+        },
+    )?;
+    let group_cpu = sampler.join().unwrap_or_default();
+    if group.restarts > 0 {
+        eprintln!(
+            "warning: {} stage restart(s) during the group run",
+            group.restarts
+        );
+    }
+    let records = insuwb_log::read_segments(run_dir.join("log"))
+        .context("reading the group's recording")?
+        .records;
+    let recv = insuwb_bench::trace::read(&trace_path)?;
+    let gr = analyse(&records, &recv, &acfg).context("the group run")?;
+    print_table("group", &gr, &group_cpu);
+
+    let ratio = |g: f64, f: f64| if f > 0.0 { g / f } else { f64::INFINITY };
+    Ok(LatencyReport {
+        floor_p50_us: fl.e2e_uwb_fused.p50_us,
+        floor_p99_us: fl.e2e_uwb_fused.p99_us,
+        e2e_uwb_fused_p50_us: gr.e2e_uwb_fused.p50_us,
+        e2e_uwb_fused_p99_us: gr.e2e_uwb_fused.p99_us,
+        e2e_uwb_fused_p999_us: gr.e2e_uwb_fused.p999_us,
+        loop_jitter_p99_us: gr.jitter.p99_us,
+        floor_jitter_p99_us: fl.jitter.p99_us,
+        missed_cycles: gr.missed_cycles,
+        hops: gr.hops,
+        cpu_percent: CpuPercent::from_named(&group_cpu),
+        ratio_p50: ratio(gr.e2e_uwb_fused.p50_us, fl.e2e_uwb_fused.p50_us),
+        ratio_p99: ratio(gr.e2e_uwb_fused.p99_us, fl.e2e_uwb_fused.p99_us),
+    })
+}
+
+/// Samples the CPU time of this process's stage children (`insuwb-*`) at
+/// `from` and `to` after now; returns percent of one core per stage name.
+fn spawn_cpu_sampler(from: Duration, to: Duration) -> std::thread::JoinHandle<Vec<(String, f64)>> {
+    std::thread::spawn(move || {
+        let t0 = std::time::Instant::now();
+        let stages = || -> Vec<(String, u32)> {
+            insuwb_bench::cpu::children(std::process::id())
+                .into_iter()
+                .filter_map(|(pid, comm)| Some((comm.strip_prefix("insuwb-")?.to_owned(), pid)))
+                .collect()
+        };
+        std::thread::sleep(from);
+        let a_at = std::time::Instant::now();
+        let before = cpu_snapshot(&stages());
+        std::thread::sleep(to.saturating_sub(t0.elapsed()));
+        let wall = u64::try_from(a_at.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        cpu_percent(&before, &cpu_snapshot(&stages()), wall)
+    })
+}
+
+fn print_table(what: &str, r: &RunLatency, cpu: &[(String, f64)]) {
+    let row = |name: &str, p: &Percentiles| {
+        eprintln!(
+            "  {name:<22} p50 {:>8.1}  p99 {:>8.1}  p99.9 {:>8.1}  max {:>8.1} us  (n = {})",
+            p.p50_us, p.p99_us, p.p999_us, p.max_us, p.count
+        );
+    };
+    eprintln!(
+        "{what}: {} fixes in the steady state, {} missed cycles, {} fused states",
+        r.fixes, r.missed_cycles, r.fused
+    );
+    row("uwb publish -> fused", &r.e2e_uwb_fused);
+    row("imu publish -> ins", &r.hops.imu_ins);
+    row("ins publish -> fused", &r.hops.ins_fusion);
+    row("fused -> logger recv", &r.hops.fusion_logger);
+    row("period - 100 ms", &r.jitter);
+    let cpu: Vec<String> = cpu.iter().map(|(n, p)| format!("{n} {p:.2} %")).collect();
+    eprintln!("  cpu (one core): {}", cpu.join(", "));
+}

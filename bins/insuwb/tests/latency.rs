@@ -1,0 +1,172 @@
+//! Latency of the 10 Hz loop with real processes (CI-safe, generous bounds,
+//! percentiles only, never a maximum): the group on simulated sensors in
+//! real time for 10 s, measured from its own recording; and the
+//! `insuwb bench latency` report (floor graph, then the group).
+//!
+//! Both tests start process groups and measure time, so they run one at a
+//! time (a lock). They need the workspace's binaries next to `insuwb`
+//! (`cargo build --release`, or `cargo test --workspace`).
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::sync::Mutex;
+
+use insuwb_bench::analysis::{analyse, AnalysisConfig};
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn insuwb() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_insuwb"))
+}
+
+fn leftover_shm(prefix: &str) -> Vec<String> {
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.filter_map(Result::ok)
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with(prefix))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+#[test]
+fn every_fix_yields_a_fused_state_within_20_ms_at_p99_on_a_steady_100_ms_period() {
+    let _lock = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let id = std::process::id();
+    let dir = std::env::temp_dir().join(format!("insuwb-test-latency-{id}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let prefix = format!("iutest{id}_latency_");
+    let text = format!(
+        "[group]\nname = \"latency\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
+         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 2\nspeed = 1.0\n\
+         [fusion]\nfilter = \"iakf\"\n",
+        dir.join("run").display()
+    );
+    std::fs::write(dir.join("robot.toml"), text).unwrap();
+    let out = Command::new(insuwb())
+        .arg("launch")
+        .arg(dir.join("robot.toml"))
+        .args(["--duration", "10", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "launch failed:\n{stderr}");
+    assert_eq!(leftover_shm(&prefix), Vec::<String>::new());
+    let records = insuwb_log::read_segments(dir.join("run").join("log"))
+        .unwrap()
+        .records;
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let r = analyse(&records, &[], &AnalysisConfig::default()).unwrap();
+    eprintln!(
+        "10 s group: {} fixes, {} missed, UWB -> fused p50 {:.0} us p99 {:.0} us, period jitter p50 {:.0} us p99 {:.0} us",
+        r.fixes, r.missed_cycles, r.e2e_uwb_fused.p50_us, r.e2e_uwb_fused.p99_us, r.jitter.p50_us, r.jitter.p99_us
+    );
+    // About 8 s of data after the start epoch, less the INS alignment at rest.
+    assert!(
+        r.fixes >= 50,
+        "only {} fixes in the steady state: {r:?}",
+        r.fixes
+    );
+    assert_eq!(r.missed_cycles, 0, "UWB fixes without a fused state: {r:?}");
+    assert!(r.e2e_uwb_fused.count >= 40, "{r:?}");
+    assert!(
+        r.e2e_uwb_fused.p99_us < 20_000.0,
+        "UWB publish -> fused publish p99 {} us",
+        r.e2e_uwb_fused.p99_us
+    );
+    assert!(r.jitter.count >= 40, "{r:?}");
+    assert!(
+        r.jitter.p99_us < 5_000.0,
+        "fused period deviation from 100 ms, p99 {} us",
+        r.jitter.p99_us
+    );
+    // The fused state waits for the INS state covering the fix epoch: it is
+    // published after both inputs.
+    for rec in &records {
+        if let insuwb_log::Record::Fused(f) = rec {
+            if f.header.flags & insuwb_msg::FusedState::FLAG_DEGRADED == 0 {
+                assert!(f.ins_meas_time_ns >= f.uwb_meas_time_ns, "{f:?}");
+                assert!(f.header.pub_time_ns >= f.uwb_pub_time_ns.max(f.ins_pub_time_ns));
+            }
+        }
+    }
+}
+
+#[test]
+fn bench_latency_prints_one_json_object_with_the_issues_keys() {
+    let _lock = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let out = Command::new(insuwb())
+        .args(["bench", "latency", "--duration", "8", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "bench failed:\n{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("stdout is not one JSON object ({e}):\n{stderr}"));
+    let obj = v.as_object().unwrap();
+    let mut keys: Vec<&str> = obj.keys().map(String::as_str).collect();
+    keys.sort_unstable();
+    let mut want = vec![
+        "floor_p50_us",
+        "floor_p99_us",
+        "e2e_uwb_fused_p50_us",
+        "e2e_uwb_fused_p99_us",
+        "e2e_uwb_fused_p999_us",
+        "loop_jitter_p99_us",
+        "floor_jitter_p99_us",
+        "missed_cycles",
+        "hops",
+        "cpu_percent",
+        "ratio_p50",
+        "ratio_p99",
+    ];
+    want.sort_unstable();
+    assert_eq!(keys, want, "{v}");
+    let num = |x: &serde_json::Value| x.as_f64().unwrap_or_else(|| panic!("not a number: {x}"));
+    for hop in ["imu_ins", "ins_fusion", "uwb_fusion", "fusion_logger"] {
+        let h = v["hops"][hop]
+            .as_object()
+            .unwrap_or_else(|| panic!("hops.{hop}: {v}"));
+        let mut hk: Vec<&str> = h.keys().map(String::as_str).collect();
+        hk.sort_unstable();
+        assert_eq!(hk, ["max_us", "p50_us", "p999_us", "p99_us"], "{v}");
+        let (p50, p99, p999, max) = (
+            num(&h["p50_us"]),
+            num(&h["p99_us"]),
+            num(&h["p999_us"]),
+            num(&h["max_us"]),
+        );
+        assert!(
+            p50 > 0.0 && p50 <= p99 && p99 <= p999 && p999 <= max,
+            "{hop}: {v}"
+        );
+    }
+    let cpu = v["cpu_percent"].as_object().unwrap();
+    let mut ck: Vec<&str> = cpu.keys().map(String::as_str).collect();
+    ck.sort_unstable();
+    assert_eq!(ck, ["fusion", "imu", "ins", "logger", "uwb"], "{v}");
+    // Every stage runs (it used some CPU) and none spins (less than a core).
+    for (k, p) in cpu {
+        assert!(num(p) > 0.0 && num(p) < 100.0, "cpu_percent.{k}: {v}");
+    }
+    assert_eq!(num(&v["missed_cycles"]), 0.0, "{v}");
+    // The ratios are the group's percentiles over the floor's.
+    for (ratio, g, f) in [
+        ("ratio_p50", "e2e_uwb_fused_p50_us", "floor_p50_us"),
+        ("ratio_p99", "e2e_uwb_fused_p99_us", "floor_p99_us"),
+    ] {
+        let want = num(&v[g]) / num(&v[f]);
+        assert!((num(&v[ratio]) - want).abs() <= 1e-9 * want, "{ratio}: {v}");
+    }
+    assert_eq!(
+        num(&v["e2e_uwb_fused_p50_us"]),
+        num(&v["hops"]["uwb_fusion"]["p50_us"])
+    );
+}

@@ -1,0 +1,240 @@
+//! Running the floor graph: one `insuwb-floor` process per role under the
+//! launcher's supervisor (no restarts, no watchdog: a floor process that
+//! exits fails the run), for a fixed time, then an orderly SIGTERM shutdown
+//! in the pipeline's order; the floor logger's records and receive trace are
+//! read back, and the CPU time of each role over a steady window is taken
+//! from `/proc`.
+
+use core::time::Duration;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use insuwb_launch::{LaunchError, RestartPolicy, StageSpec, Supervisor, SupervisorState};
+use insuwb_log::Record;
+use insuwb_runtime::{cleanup, monotonic_ns};
+
+use crate::floor::{Role, FLOOR_LOG_FILE, FUSED_TRACE_FILE};
+use crate::trace::{self, RecvStamp, TraceError};
+
+/// Shutdown order: sources first, the logger last (as the pipeline).
+pub const SHUTDOWN_ORDER: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
+
+/// How to run the floor graph.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FloorGraphOptions {
+    /// The `insuwb-floor` program.
+    pub program: PathBuf,
+    /// Run folder (created): iceoryx2 root (`iox2`) and the logger's trace (`trace`).
+    pub run_dir: PathBuf,
+    /// iceoryx2 service prefix of this run (unique per run).
+    pub prefix: String,
+    /// How long the graph runs, from the start of its processes.
+    pub duration: Duration,
+    /// Start of the CPU window after the start (the window ends at `duration`).
+    pub cpu_from: Duration,
+}
+
+/// What a floor run produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FloorRun {
+    /// Everything the floor logger received.
+    pub records: Vec<Record>,
+    /// When the floor logger received each fused state.
+    pub recv: Vec<RecvStamp>,
+    /// CPU time of each role over the window, percent of one core, in role order.
+    pub cpu_percent: Vec<(String, f64)>,
+}
+
+/// Why the floor graph could not be run.
+#[derive(Debug, thiserror::Error)]
+pub enum GraphError {
+    /// The run folder could not be created.
+    #[error("cannot create the floor run folder {path}: {source}")]
+    RunDir {
+        /// The folder.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The floor program is missing.
+    #[error("floor program {0} not found (build the workspace: cargo build --release)")]
+    Program(String),
+    /// The supervisor could not start the graph.
+    #[error(transparent)]
+    Launch(#[from] LaunchError),
+    /// A floor process exited during the run.
+    #[error("floor process {0} exited during the run (see its log above)")]
+    Exited(String),
+    /// The floor log could not be read.
+    #[error("cannot read the floor log {path}: {reason}")]
+    Log {
+        /// The file.
+        path: String,
+        /// Why.
+        reason: String,
+    },
+    /// The receive trace could not be read.
+    #[error(transparent)]
+    Trace(#[from] TraceError),
+}
+
+/// CPU time (ns) of each `(name, pid)`; a process that cannot be read counts 0.
+#[must_use]
+pub fn cpu_snapshot(pids: &[(String, u32)]) -> Vec<(String, u64)> {
+    pids.iter()
+        .map(|(n, p)| (n.clone(), crate::cpu::cpu_time_ns(*p).unwrap_or(0)))
+        .collect()
+}
+
+/// Percent of one core per name between two snapshots `wall_ns` apart
+/// (names missing from `before` count from 0).
+#[must_use]
+pub fn cpu_percent(
+    before: &[(String, u64)],
+    after: &[(String, u64)],
+    wall_ns: u64,
+) -> Vec<(String, f64)> {
+    after
+        .iter()
+        .map(|(n, a)| {
+            let b = before.iter().find(|(m, _)| m == n).map_or(0, |(_, v)| *v);
+            (
+                n.clone(),
+                crate::cpu::percent_of_core(a.saturating_sub(b), wall_ns),
+            )
+        })
+        .collect()
+}
+
+/// Runs the floor graph (see the module documentation).
+pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError> {
+    if !opts.program.is_file() {
+        return Err(GraphError::Program(opts.program.display().to_string()));
+    }
+    let root = opts.run_dir.join("iox2");
+    let trace_dir = opts.run_dir.join("trace");
+    for d in [&root, &trace_dir] {
+        std::fs::create_dir_all(d).map_err(|source| GraphError::RunDir {
+            path: d.display().to_string(),
+            source,
+        })?;
+    }
+    // As the pipeline's launcher: the next whole second at least 1 s ahead.
+    let epoch = (monotonic_ns() + 1_000_000_000).div_ceil(1_000_000_000) * 1_000_000_000;
+    let (root_s, trace_s, epoch_s) = (
+        root.display().to_string(),
+        trace_dir.display().to_string(),
+        epoch.to_string(),
+    );
+    let specs: Vec<StageSpec> = Role::ALL
+        .iter()
+        .map(|r| {
+            StageSpec::new(
+                r.name(),
+                &opts.program,
+                &[
+                    "--role",
+                    r.name(),
+                    "--prefix",
+                    &opts.prefix,
+                    "--root-path",
+                    &root_s,
+                    "--start-epoch-ns",
+                    &epoch_s,
+                    "--trace-dir",
+                    &trace_s,
+                ],
+            )
+        })
+        .collect();
+    let policy = RestartPolicy {
+        heartbeat_timeout_ms: 0,
+        budget_restarts: 0,
+        ..RestartPolicy::default()
+    };
+    let mut sup = Supervisor::new(policy, specs)?;
+    let t0 = Instant::now();
+    let started = sup.start(t0);
+    let mut failed = started.err().map(GraphError::from);
+    let mut cpu0: Option<(Instant, Vec<(String, u64)>)> = None;
+    let mut cpu = Vec::new();
+    while failed.is_none() {
+        let now = Instant::now();
+        sup.poll(now);
+        if let SupervisorState::Failed { stage } = sup.state() {
+            failed = Some(GraphError::Exited(stage));
+            break;
+        }
+        let pids = live_pids(&sup);
+        let elapsed = now.duration_since(t0);
+        if cpu0.is_none() && elapsed >= opts.cpu_from {
+            cpu0 = Some((now, cpu_snapshot(&pids)));
+        }
+        if elapsed >= opts.duration {
+            if let Some((at, before)) = &cpu0 {
+                let wall = u64::try_from(now.duration_since(*at).as_nanos()).unwrap_or(u64::MAX);
+                cpu = cpu_percent(before, &cpu_snapshot(&pids), wall);
+            }
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    sup.shutdown(&SHUTDOWN_ORDER);
+    if let Err(e) = cleanup::remove_prefix_files(&opts.prefix, Some(&root)) {
+        tracing::warn!("removing the floor's shared-memory files: {e}");
+    }
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    let log = trace_dir.join(FLOOR_LOG_FILE);
+    let (records, _, _) = insuwb_log::read_all(&log).map_err(|e| GraphError::Log {
+        path: log.display().to_string(),
+        reason: e.to_string(),
+    })?;
+    let recv = trace::read(&trace_dir.join(FUSED_TRACE_FILE))?;
+    Ok(FloorRun {
+        records,
+        recv,
+        cpu_percent: cpu,
+    })
+}
+
+fn live_pids(sup: &Supervisor) -> Vec<(String, u32)> {
+    sup.pids()
+        .into_iter()
+        .filter_map(|(n, p)| Some((n, p?)))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cpu_percent_pairs_snapshots_by_name() {
+        let before = vec![("a".to_owned(), 1_000_000), ("b".to_owned(), 0)];
+        let after = vec![
+            ("a".to_owned(), 11_000_000),
+            ("b".to_owned(), 5_000_000),
+            ("c".to_owned(), 2_000_000),
+        ];
+        let p = cpu_percent(&before, &after, 1_000_000_000);
+        assert_eq!(
+            p,
+            vec![("a".into(), 1.0), ("b".into(), 0.5), ("c".into(), 0.2)]
+        );
+    }
+
+    #[test]
+    fn a_missing_program_is_refused_by_path() {
+        let e = run_floor_graph(&FloorGraphOptions {
+            program: "/nonexistent/insuwb-floor".into(),
+            run_dir: std::env::temp_dir().join("insuwb-bench-never"),
+            prefix: "x_".into(),
+            duration: Duration::from_secs(1),
+            cpu_from: Duration::ZERO,
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("/nonexistent/insuwb-floor"), "{e}");
+    }
+}
