@@ -1,0 +1,20 @@
+//! Real sensor devices. Frame codecs of the published protocols the drivers
+//! speak ([`witmotion`], [`mavlink`] for IMUs; [`nlink`], [`eliko`] for UWB
+//! positioning systems), each a streaming decoder that resynchronises after
+//! garbage plus an encoder used by the emulators; the device-clock to host
+//! CLOCK_MONOTONIC mapping ([`clock`]); byte links to the devices that
+//! survive unplugging ([`link`]); and device emulators over pseudo-terminals
+//! and loopback TCP for users and tests ([`emulator`]).
+//!
+//! Nothing here knows about iceoryx2: the driver stage turns readings into
+//! samples.
+#![warn(missing_docs)]
+
+pub mod clock;
+pub mod eliko;
+pub mod emulator;
+pub mod frame;
+pub mod link;
+pub mod mavlink;
+pub mod nlink;
+pub mod witmotion;
