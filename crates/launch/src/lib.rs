@@ -4,9 +4,10 @@
 //! them (each in its own process group, with `INSUWB_GENERATION` and
 //! `INSUWB_STAGE` set), reaping them (a zombie looks alive, so every exit is
 //! collected with `waitpid`), restarting them with a capped exponential
-//! backoff within a sliding-window budget, killing stages whose heartbeat
-//! went silent (liveness comes from heartbeats, not from iceoryx2 publisher
-//! counts), and stopping them in a chosen order. It has no iceoryx2
+//! backoff within a sliding-window budget (a stage that exhausts it fails
+//! the group, unless it is optional: then it alone is given up), killing
+//! stages whose heartbeat went silent (liveness comes from heartbeats, not
+//! from iceoryx2 publisher counts), and stopping them in a chosen order. It has no iceoryx2
 //! dependency: the caller forwards heartbeats ([`Supervisor::note_heartbeat`])
 //! and cleans a dead stage's resources in the before-restart hook
 //! ([`Supervisor::set_before_restart`]).

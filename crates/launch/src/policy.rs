@@ -72,6 +72,14 @@ pub struct RestartPolicy {
     /// and [`Supervisor::poll`](crate::Supervisor::poll) from a thread that
     /// lives as long as the launcher (the main thread). Default `true`.
     pub die_with_launcher: bool,
+    /// Stages the group can run without: when one of them exhausts its
+    /// restart budget it is given up alone ([`Event::GaveUp`](crate::Event::GaveUp):
+    /// left down, never restarted) and the supervisor keeps the rest running;
+    /// any other stage exhausting its budget makes the supervisor
+    /// [`Failed`](crate::SupervisorState::Failed). Names of stages that are not
+    /// in the stage list are ignored. Default `["logger"]` (deployment choice:
+    /// the robot needs its pose more than the recording of it).
+    pub optional: Vec<String>,
 }
 
 impl Default for RestartPolicy {
@@ -86,6 +94,7 @@ impl Default for RestartPolicy {
             startup_grace_ms: 2000,
             grace_ms: 2000,
             die_with_launcher: true,
+            optional: vec!["logger".to_owned()],
         }
     }
 }
@@ -113,6 +122,14 @@ pub enum RestartPolicyError {
     /// `launch.budget_window_s` is not in (0, [`MAX_WINDOW_S`]].
     #[error("launch.budget_window_s must be in (0, {MAX_WINDOW_S}], got {0}")]
     BudgetWindow(f64),
+    /// An entry of `launch.optional` is not a valid stage name.
+    #[error("launch.optional[{index}] must be 1..={MAX_STAGE_NAME_LEN} ASCII letters, digits, '_' or '-', got {value:?}")]
+    Optional {
+        /// Position in the list.
+        index: usize,
+        /// The rejected name.
+        value: String,
+    },
     /// A timeout (`launch.heartbeat_timeout_ms`, `launch.startup_grace_ms`,
     /// `launch.grace_ms`) is above [`MAX_TIMEOUT_MS`].
     #[error("launch.{key} must be at most {MAX_TIMEOUT_MS}, got {value}")]
@@ -158,7 +175,24 @@ impl RestartPolicy {
                 return Err(RestartPolicyError::Timeout { key, value });
             }
         }
+        if let Some((index, value)) = self
+            .optional
+            .iter()
+            .enumerate()
+            .find(|(_, n)| !is_plain_name(n, MAX_STAGE_NAME_LEN))
+        {
+            return Err(RestartPolicyError::Optional {
+                index,
+                value: value.clone(),
+            });
+        }
         Ok(())
+    }
+
+    /// Whether `stage` is in [`optional`](Self::optional).
+    #[must_use]
+    pub fn is_optional(&self, stage: &str) -> bool {
+        self.optional.iter().any(|n| n == stage)
     }
 
     /// `stable_after_s` as a duration (valid policies only; 0 otherwise).
@@ -328,6 +362,8 @@ mod tests {
         assert_eq!(p.startup_grace_ms, 2000);
         assert_eq!(p.grace_ms, 2000);
         assert!(p.die_with_launcher);
+        assert_eq!(p.optional, ["logger"]);
+        assert!(p.is_optional("logger") && !p.is_optional("fusion"));
         p.validate().unwrap();
         assert_eq!(p.stable_after(), Duration::from_secs(5));
         assert_eq!(p.budget_window(), Duration::from_secs(60));
@@ -348,7 +384,7 @@ mod tests {
 
     #[test]
     fn policy_errors_name_the_key_and_value() {
-        let cases: [(RestartPolicy, &str, &str); 7] = [
+        let cases: [(RestartPolicy, &str, &str); 8] = [
             (
                 RestartPolicy {
                     backoff_initial_ms: 0,
@@ -404,6 +440,14 @@ mod tests {
                 },
                 "launch.grace_ms",
                 "got 3600001",
+            ),
+            (
+                RestartPolicy {
+                    optional: vec!["logger".into(), "log ger".into()],
+                    ..Default::default()
+                },
+                "launch.optional[1]",
+                "\"log ger\"",
             ),
         ];
         for (p, key, val) in cases {

@@ -109,6 +109,13 @@ pub enum Event {
         /// Stage name.
         stage: String,
     },
+    /// An optional stage ([`RestartPolicy::optional`]) ended more often than
+    /// the restart budget allows: it is left down for good while the
+    /// supervisor keeps the other stages running.
+    GaveUp {
+        /// Stage name.
+        stage: String,
+    },
     /// A stage is stopped for good ([`Supervisor::shutdown`]).
     Stopped {
         /// Stage name.
@@ -157,6 +164,10 @@ impl fmt::Display for Event {
                     "stage {stage} exhausted its restart budget: supervisor failed"
                 )
             }
+            Self::GaveUp { stage } => write!(
+                f,
+                "optional stage {stage} exhausted its restart budget: left down, the rest keeps running"
+            ),
             Self::Stopped { stage } => write!(f, "stage {stage} stopped"),
         }
     }
@@ -167,7 +178,8 @@ impl fmt::Display for Event {
 pub enum SupervisorState {
     /// Started and keeping the stages running.
     Running,
-    /// A stage exhausted its restart budget: nothing is restarted any more
+    /// A stage that is not optional ([`RestartPolicy::optional`]) exhausted
+    /// its restart budget: nothing is restarted any more
     /// (exits are still reaped, frozen stages still killed); the caller
     /// should [`Supervisor::shutdown`].
     Failed {
@@ -255,6 +267,8 @@ struct Slot {
     restarts: u32,
     /// When a restart is due.
     restart_due: Option<Instant>,
+    /// Optional stage left down after exhausting its budget.
+    gave_up: bool,
     backoff: Backoff,
     budget: RestartBudget,
 }
@@ -326,6 +340,7 @@ impl Supervisor {
                 starts: 0,
                 restarts: 0,
                 restart_due: None,
+                gave_up: false,
                 backoff: Backoff::new(
                     policy.backoff_initial_ms,
                     policy.backoff_max_ms,
@@ -386,7 +401,8 @@ impl Supervisor {
     }
 
     /// One non-blocking supervision step at `now`: reaps every ended stage
-    /// and plans its restart (or enters `Failed` when its budget is spent),
+    /// and plans its restart (when its budget is spent: gives up an optional
+    /// stage alone, or enters `Failed`),
     /// SIGKILLs stages whose heartbeat is too old, and performs the restarts
     /// that are due (calling the before-restart hook first). Returns the
     /// events of this step. Does nothing unless started and not shut down.
@@ -407,7 +423,8 @@ impl Supervisor {
                     status,
                 });
                 let ran_for = now.saturating_duration_since(slot.started_at);
-                fault(&mut self.state, slot, ran_for, now, &mut events);
+                let optional = self.policy.is_optional(&slot.spec.name);
+                fault(&mut self.state, slot, optional, ran_for, now, &mut events);
             }
             // Watchdog: a live process whose heartbeat is too old.
             if self.policy.heartbeat_timeout_ms > 0 && !slot.killed && now >= slot.beat_deadline {
@@ -445,7 +462,15 @@ impl Supervisor {
                             stage: slot.spec.name.clone(),
                             error: e.to_string(),
                         });
-                        fault(&mut self.state, slot, Duration::ZERO, now, &mut events);
+                        let optional = self.policy.is_optional(&slot.spec.name);
+                        fault(
+                            &mut self.state,
+                            slot,
+                            optional,
+                            Duration::ZERO,
+                            now,
+                            &mut events,
+                        );
                     }
                 }
             }
@@ -590,6 +615,17 @@ impl Supervisor {
             .map_or(0, |s| s.restarts)
     }
 
+    /// The optional stages given up so far ([`Event::GaveUp`]), in
+    /// configuration order.
+    #[must_use]
+    pub fn given_up(&self) -> Vec<String> {
+        self.slots
+            .iter()
+            .filter(|s| s.gave_up)
+            .map(|s| s.spec.name.clone())
+            .collect()
+    }
+
     /// Successful restarts of all stages.
     #[must_use]
     pub fn total_restarts(&self) -> u32 {
@@ -630,7 +666,7 @@ impl Supervisor {
                 Event::Exited { .. } | Event::HeartbeatLost { .. } | Event::SpawnFailed { .. } => {
                     tracing::warn!("{ev}");
                 }
-                Event::BudgetExhausted { .. } => tracing::error!("{ev}"),
+                Event::BudgetExhausted { .. } | Event::GaveUp { .. } => tracing::error!("{ev}"),
             }
             if self.history.len() >= MAX_EVENT_HISTORY {
                 self.history.drain(..MAX_EVENT_HISTORY / 2);
@@ -687,10 +723,12 @@ fn spawn(policy: &RestartPolicy, slot: &mut Slot, now: Instant) -> std::io::Resu
 }
 
 /// A stage went down (exit, or failed spawn) at `now` after running
-/// `ran_for`: plan its restart, or fail the supervisor when the budget is spent.
+/// `ran_for`: plan its restart; when its budget is spent, give it up alone
+/// (an `optional` stage) or fail the supervisor.
 fn fault(
     state: &mut SupervisorState,
     slot: &mut Slot,
+    optional: bool,
     ran_for: Duration,
     now: Instant,
     events: &mut Vec<Event>,
@@ -699,6 +737,13 @@ fn fault(
         return;
     }
     if !slot.budget.try_take(now) {
+        if optional {
+            slot.gave_up = true;
+            events.push(Event::GaveUp {
+                stage: slot.spec.name.clone(),
+            });
+            return;
+        }
         events.push(Event::BudgetExhausted {
             stage: slot.spec.name.clone(),
         });

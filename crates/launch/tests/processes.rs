@@ -2,6 +2,9 @@
 //! The tests measure time, so they run one at a time (SERIAL); every time
 //! bound is a lower bound or a generous "within" limit.
 
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -192,20 +195,39 @@ fn crashing_stage_restarts_with_growing_capped_backoff_and_counts_generations() 
     let _ = std::fs::remove_file(&file);
 }
 
-#[test]
-fn a_stage_that_keeps_crashing_exhausts_its_budget() {
-    let _g = serial();
+/// Polls for `span` and fails on any event.
+fn assert_quiet(sup: &mut Supervisor, span: Duration) {
+    let t0 = Instant::now();
+    while t0.elapsed() < span {
+        let evs = sup.poll(Instant::now());
+        assert!(evs.is_empty(), "{evs:?}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Starts a stage `crasher` that exits at once (budget `budget` restarts in
+/// 10 s, fast backoff, `optional` stages) beside a healthy sleeper; returns
+/// the supervisor and the sleeper's pid.
+fn start_crasher(crasher: &str, budget: u32, optional: &[&str]) -> (Supervisor, u32) {
     let policy = RestartPolicy {
         backoff_initial_ms: 10,
         backoff_max_ms: 20,
-        budget_restarts: 3,
+        budget_restarts: budget,
         budget_window_s: 10.0,
+        optional: optional.iter().map(|s| (*s).to_owned()).collect(),
         ..quiet_policy()
     };
-    let stages = vec![StageSpec::new("crasher", "false", &[]), sleeper("healthy")];
+    let stages = vec![StageSpec::new(crasher, "false", &[]), sleeper("healthy")];
     let mut sup = Supervisor::new(policy, stages).unwrap();
     sup.start(Instant::now()).unwrap();
     let healthy_pid = pid_of(&sup, "healthy").unwrap();
+    (sup, healthy_pid)
+}
+
+#[test]
+fn a_stage_that_keeps_crashing_exhausts_its_budget() {
+    let _g = serial();
+    let (mut sup, healthy_pid) = start_crasher("crasher", 3, &[]);
     let seen = run_until(&mut sup, Duration::from_secs(5), no_hook, |e| {
         matches!(e, Event::BudgetExhausted { .. })
     });
@@ -235,12 +257,7 @@ fn a_stage_that_keeps_crashing_exhausts_its_budget() {
     assert_eq!(sup.restarts("crasher"), 3);
 
     // Failed: nothing is restarted any more; the healthy stage is untouched.
-    let t0 = Instant::now();
-    while t0.elapsed() < Duration::from_millis(200) {
-        let evs = sup.poll(Instant::now());
-        assert!(evs.is_empty(), "{evs:?}");
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    assert_quiet(&mut sup, Duration::from_millis(200));
     assert_eq!(pid_of(&sup, "crasher"), None);
     assert_eq!(pid_of(&sup, "healthy"), Some(healthy_pid));
     assert_eq!(sup.restarts("healthy"), 0);
@@ -262,6 +279,39 @@ fn a_stage_that_keeps_crashing_exhausts_its_budget() {
             },
         ]
     );
+    assert_eq!(sup.state(), SupervisorState::Stopped);
+}
+
+#[test]
+fn an_optional_stage_that_keeps_crashing_is_given_up_alone() {
+    let _g = serial();
+    let (mut sup, healthy_pid) = start_crasher("recorder", 2, &["recorder"]);
+    let seen = run_until(&mut sup, Duration::from_secs(5), no_hook, |e| {
+        matches!(e, Event::GaveUp { .. })
+    });
+    assert!(
+        !seen
+            .iter()
+            .any(|(_, e)| matches!(e, Event::BudgetExhausted { .. })),
+        "{seen:?}"
+    );
+    assert_eq!(sup.restarts("recorder"), 2);
+    assert_eq!(sup.given_up(), ["recorder"]);
+    // Still running: the other stage is supervised as before, the optional
+    // one is never restarted again.
+    assert_eq!(sup.state(), SupervisorState::Running);
+    assert_quiet(&mut sup, Duration::from_millis(200));
+    assert_eq!(pid_of(&sup, "recorder"), None);
+    // A crash of the healthy stage is still restarted.
+    sup.kill_stage("healthy", libc::SIGKILL).unwrap();
+    run_until(
+        &mut sup,
+        Duration::from_secs(5),
+        no_hook,
+        |e| matches!(e, Event::Restarted { stage, .. } if stage == "healthy"),
+    );
+    assert_ne!(pid_of(&sup, "healthy"), Some(healthy_pid));
+    sup.shutdown(&[]);
     assert_eq!(sup.state(), SupervisorState::Stopped);
 }
 
