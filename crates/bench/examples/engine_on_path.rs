@@ -5,7 +5,9 @@
 //! processes of the group do on a shared core) and after a 9 ms sleep before
 //! each INS state (as the fusion stage, woken for each one).
 //!
-//! `cargo run --release -p insuwb-bench --example engine_on_path`
+//! `cargo run --release -p insuwb-bench --example engine_on_path [EAGER_LAG_S]`
+//! (with a lag, the engine predicts through INS states as they arrive, as
+//! the fusion stage does in real time).
 
 use std::time::Instant;
 
@@ -15,7 +17,8 @@ use insuwb_msg::FilterKind;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sc = insuwb_eval::scenario::ScenarioFile::load("nlos-long")?;
-    let cfg = sc.fusion_for_seed(1)?;
+    let mut cfg = sc.fusion_for_seed(1)?;
+    cfg.engine.eager_lag_s = std::env::args().nth(1).and_then(|a| a.parse().ok());
     let sim = insuwb_sim::simulate(&sc.sim, 1)?;
     let fixes = insuwb_fusion::offline::run_fixes(&sim.tdoa, &cfg)?;
     let mut junk = vec![0u8; 8 << 20];

@@ -61,6 +61,25 @@ pub struct FusionEngineConfig {
     /// for `reset_min_fixes`, m (the motion over one fix period included).
     /// Default 0.3.
     pub reset_gate_m: f64,
+    /// Predict through INS states as they arrive, keeping only the newest
+    /// `eager_lag_s` of them buffered for measurements still on their way
+    /// (None: predict only when a measurement needs it). The result is the
+    /// same either way as long as no measurement arrives later than this
+    /// behind the INS stream (one that does is dropped as late, counted);
+    /// it takes the prediction off the measurement's path and lets the
+    /// coasting covariance grow while UWB is silent. Default None; the
+    /// fusion stage sets it in real time.
+    pub eager_lag_s: Option<f64>,
+    /// Divergence monitor over a window of updates: when at least
+    /// `nis_window_fraction` of the last `nis_window` updates have a NIS per
+    /// measured component above `nis_gate_per_dim`, the filter is deemed
+    /// diverged and reset from UWB (`reset_on_divergence`). 0 disables.
+    /// Default 30 updates (3 s at 10 Hz: longer than an NLOS burst).
+    pub nis_window: usize,
+    /// NIS per component above which an update counts as inconsistent. Default 16 (4 sigma).
+    pub nis_gate_per_dim: f64,
+    /// Fraction of the window that must be inconsistent. Default 0.9.
+    pub nis_window_fraction: f64,
 }
 
 /// Largest [`FusionEngineConfig::reset_min_fixes`].
@@ -77,6 +96,10 @@ impl Default for FusionEngineConfig {
             reset_on_divergence: true,
             reset_min_fixes: 1,
             reset_gate_m: 0.3,
+            eager_lag_s: None,
+            nis_window: 30,
+            nis_gate_per_dim: 16.0,
+            nis_window_fraction: 0.9,
         }
     }
 }
@@ -108,6 +131,8 @@ pub struct FusionCounters {
     pub corrections: u64,
     /// INS states that followed missing IMU samples.
     pub ins_gaps: u64,
+    /// Divergences found by the windowed NIS monitor.
+    pub nis_divergences: u64,
 }
 
 /// A UWB measurement for the engine.
@@ -176,6 +201,10 @@ pub struct FusionEngine {
     /// While waiting to (re-)initialise: the last fix position and how many
     /// consecutive fixes up to it agreed.
     reset_run: Option<([f64; 3], usize)>,
+    /// Divergence monitor: whether each of the last `nis_window` updates was
+    /// inconsistent, and how many of them were.
+    nis_hist: VecDeque<bool>,
+    nis_bad: usize,
 }
 
 impl FusionEngine {
@@ -183,6 +212,7 @@ impl FusionEngine {
     #[must_use]
     pub fn new(cfg: FusionEngineConfig, est: Box<dyn Estimator>) -> Self {
         let initialised = !cfg.init_from_first_fix;
+        let cfg_nis_capacity = cfg.nis_window.min(4096);
         Self {
             nav_buf: VecDeque::with_capacity(cfg.max_nav_buffer.min(65_536)),
             pending: VecDeque::with_capacity(cfg.max_pending.min(65_536)),
@@ -198,6 +228,55 @@ impl FusionEngine {
             counters: FusionCounters::default(),
             last_fused: None,
             reset_run: None,
+            nis_hist: VecDeque::with_capacity(cfg_nis_capacity),
+            nis_bad: 0,
+        }
+    }
+
+    /// Records one update's NIS in the divergence monitor; true when the
+    /// window says the filter diverged (the window then starts afresh).
+    fn nis_diverged(&mut self, info: &UpdateInfo) -> bool {
+        let w = self.cfg.nis_window;
+        if w == 0 || info.dim == 0 || info.rejected || !info.nis.is_finite() {
+            return false;
+        }
+        let bad = info.nis / f64::from(info.dim) > self.cfg.nis_gate_per_dim;
+        if self.nis_hist.len() >= w && self.nis_hist.pop_front() == Some(true) {
+            self.nis_bad = self.nis_bad.saturating_sub(1);
+        }
+        self.nis_hist.push_back(bad);
+        self.nis_bad += usize::from(bad);
+        if self.nis_hist.len() >= w
+            && self.nis_bad as f64 >= self.cfg.nis_window_fraction * w as f64
+        {
+            self.nis_hist.clear();
+            self.nis_bad = 0;
+            return true;
+        }
+        false
+    }
+
+    /// Predicts through the buffered INS states older than the newest by
+    /// more than `eager_lag_s` (see [`FusionEngineConfig::eager_lag_s`]);
+    /// only while no measurement waits and no tight epoch is open, so the
+    /// sequence of predictions and updates is the one of the lazy path.
+    fn advance_eagerly(&mut self) {
+        let Some(lag) = self.cfg.eager_lag_s else {
+            return;
+        };
+        if !self.pending.is_empty() || self.dirty.is_some() {
+            return;
+        }
+        let lag_ns = (lag.max(0.0) * 1e9) as u64;
+        let Some(newest) = self.nav_buf.back().map(|n| n.header.meas_time_ns) else {
+            return;
+        };
+        while let Some(front) = self.nav_buf.front().copied() {
+            if front.header.meas_time_ns.saturating_add(lag_ns) > newest {
+                break;
+            }
+            self.nav_buf.pop_front();
+            self.advance_to(&front);
         }
     }
 
@@ -317,6 +396,7 @@ impl FusionEngine {
         self.nav_buf.push_back(*n);
         self.counters.nav_used += 1;
         self.process(out);
+        self.advance_eagerly();
     }
 
     /// Handles one UWB measurement (a fix or a TDOA difference).
@@ -505,7 +585,15 @@ impl FusionEngine {
         if info.divergence && self.est.needs_reset() {
             self.reset_requested = true;
         }
-        out.diag.push(self.diag_from(&info, &m));
+        let mut diag = self.diag_from(&info, &m);
+        if self.nis_diverged(&info) {
+            self.counters.nis_divergences += 1;
+            diag.header.flags |= FilterDiag::FLAG_DIVERGENCE;
+            if self.cfg.reset_on_divergence {
+                self.reset_requested = true;
+            }
+        }
+        out.diag.push(diag);
         if self.est.is_tight() {
             let epoch = self.epoch_of(m.time());
             self.dirty = Some((epoch, m, ins));

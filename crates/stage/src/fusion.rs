@@ -52,7 +52,12 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let kind = cfg.filter_kind();
     let est = insuwb_fusion::offline::build_estimator(kind, &fcfg)?;
     let tight = est.is_tight();
-    let mut engine = FusionEngine::new(fcfg.engine.clone(), est);
+    let mut ecfg = fcfg.engine.clone();
+    // In real time the drivers publish each sample at its time, so a fix is
+    // never far behind the INS stream; replaying at "max" they run ahead.
+    ecfg.eager_lag_s = (cfg.fusion.eager_lag_s >= 0.0 && cfg.sources.speed.is_finite())
+        .then_some(cfg.fusion.eager_lag_s);
+    let mut engine = FusionEngine::new(ecfg, est);
     std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
         format!(
             "{}: cannot create the run directory",

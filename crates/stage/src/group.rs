@@ -113,6 +113,13 @@ pub struct FusionStageConfig {
     pub stale_ins_timeout_s: f64,
     /// Checkpoint period, s (a restarted fusion stage resumes from it).
     pub checkpoint_period_s: f64,
+    /// Predict through INS states as they arrive, keeping the newest this
+    /// many seconds buffered for UWB samples still on their way, s (see
+    /// `FusionEngineConfig::eager_lag_s`): takes the prediction off the
+    /// fix-to-fused path and lets the coasting covariance grow. A UWB sample
+    /// later than this behind the INS stream is dropped (counted). Negative:
+    /// off. Ignored at `speed = "max"` (the drivers run ahead there).
+    pub eager_lag_s: f64,
 }
 
 impl Default for FusionStageConfig {
@@ -124,6 +131,7 @@ impl Default for FusionStageConfig {
             coast_rate_hz: 10.0,
             stale_ins_timeout_s: 0.25,
             checkpoint_period_s: 0.5,
+            eager_lag_s: 0.02,
         }
     }
 }

@@ -56,10 +56,12 @@ pub struct Recorded {
 }
 
 impl Recorded {
-    /// Items sorted by time (stable: the given order at equal times).
+    /// Items sorted by time; at equal times sensor samples go before ground
+    /// truth (truth is for evaluation: it must not delay a sensor sample),
+    /// otherwise in the given order.
     #[must_use]
     pub fn new(mut items: Vec<Item>) -> Self {
-        items.sort_by_key(Item::time_ns);
+        items.sort_by_key(|i| (i.time_ns(), matches!(i, Item::Truth(_))));
         Self { items, next: 0 }
     }
 
