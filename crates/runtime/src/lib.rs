@@ -6,8 +6,9 @@
 //! QoS of [`insuwb_msg::qos`] ([`Pub`] stamps headers, [`Sub`] checks layout
 //! versions and tracks sequence gaps and restarts), the wait loop ([`Waiter`]
 //! over a WaitSet, or busy polling), the heartbeat ([`HealthReporter`]), the
-//! process-comparable clock ([`monotonic_ns`]), logging ([`init_tracing`]) and
-//! inspection/cleanup of a deployment's resources ([`cleanup`]).
+//! process-comparable clock ([`monotonic_ns`]), logging ([`init_tracing`]),
+//! owner-only files ([`perm`]) and inspection/cleanup of a deployment's
+//! resources ([`cleanup`]).
 //!
 //! # The loop of a stage
 //!
@@ -67,6 +68,7 @@
 pub mod cleanup;
 mod config;
 mod health;
+pub mod perm;
 mod port;
 mod stage;
 mod waiter;

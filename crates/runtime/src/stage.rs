@@ -134,17 +134,28 @@ fn resolve_generation(cfg: &RuntimeConfig) -> Result<u32, StageError> {
 }
 
 impl Stage {
-    /// Validates `cfg`, builds the iceoryx2 configuration, removes the
-    /// resources of dead nodes of that configuration, creates the node named
-    /// after the stage and installs the SIGINT/SIGTERM handler.
+    /// Validates `cfg`, builds the iceoryx2 configuration, sets the process
+    /// umask to 0o077 (a root folder it creates is 0700, [`crate::perm`]),
+    /// removes the resources of dead nodes of that configuration, creates the
+    /// node named after the stage (then narrows iceoryx2's world-writable
+    /// global management segment to 0600) and installs the SIGINT/SIGTERM
+    /// handler.
     pub fn new(cfg: RuntimeConfig) -> Result<Self, StageError> {
         let iox = iceoryx_config(&cfg)?;
         let generation = resolve_generation(&cfg)?;
+        crate::perm::restrict_umask();
         if let Some(root) = &cfg.root_path {
+            // Created now under the umask: 0700. An existing folder is left as
+            // it is (it may be shared on purpose), with a warning when others
+            // can reach into it.
+            let existed = root.is_dir();
             std::fs::create_dir_all(root).map_err(|source| StageError::RootPath {
                 path: root.to_string_lossy().into_owned(),
                 source,
             })?;
+            if existed && crate::perm::is_shared(root) {
+                tracing::warn!(stage = %cfg.stage_name, "the iceoryx2 root {} has group or other permission bits", root.display());
+            }
         }
         match cleanup_dead_nodes_of(&iox) {
             Ok(0) => {}
@@ -168,6 +179,11 @@ impl Stage {
                 name: cfg.stage_name.clone(),
                 source,
             })?;
+        // iceoryx2 makes its global management segment world-writable.
+        let suffix = String::from_utf8_lossy(iox.global.node.global_mgmt_suffix.as_bytes());
+        if let Err(e) = crate::perm::restrict_global_segment(&cfg.prefix, &suffix) {
+            tracing::warn!(stage = %cfg.stage_name, "{e}");
+        }
         // The first termination check installs iceoryx2's signal handler.
         if node.wait(Duration::ZERO).is_err() {
             return Err(StageError::ShutdownRequested(cfg.stage_name.clone()));
