@@ -8,6 +8,22 @@
 //! At speed 1 the measurement times are real monotonic times, so ages and
 //! latencies are meaningful. A restarted driver resumes at the sample the
 //! recording has reached, so its consumers see a sequence gap.
+//!
+//! # What the heartbeat reports
+//!
+//! Both drivers drop and count (`Health::dropped_invalid`) samples with a
+//! NaN, infinite or out-of-range value (accelerometer >= 400 m/s^2, gyro >=
+//! 70 rad/s, TDOA |difference| >= 1000 m, equal anchor ids) and
+//! (`Health::dropped_time`) samples whose time goes backwards; an IMU sample
+//! at the time of the previous one, or a TDOA of the same anchor pair at the
+//! time of an earlier one, is a duplicate and counted there too (several
+//! pairs of one epoch share a time). The UWB driver's `Health::extra` holds
+//! the fix builder's figures ([`UWB_EXTRA`]): `[0]` fixes published, `[1]`
+//! epochs skipped for too few pairs, `[2]` epochs skipped for their
+//! geometry (too few distinct anchors or independent pairs, collinear or
+//! coincident anchors), `[3]` epochs the solver failed on (no convergence,
+//! a solution run away from the anchors, another solver error). Skips are
+//! also logged with their last reason, at most every [`SKIP_LOG_PERIOD_NS`].
 
 use std::time::Duration;
 
@@ -24,6 +40,31 @@ struct Drops {
     invalid: u64,
     time: u64,
 }
+
+/// Meaning of the UWB driver's `Health::extra` counters, in order.
+pub const UWB_EXTRA: [&str; 4] = [
+    "fixes",
+    "skipped_too_few_pairs",
+    "skipped_geometry",
+    "skipped_solver",
+];
+
+/// Shortest interval between two log lines about skipped epochs, ns.
+pub const SKIP_LOG_PERIOD_NS: u64 = 5_000_000_000;
+
+/// The UWB driver's `Health::extra` (see [`UWB_EXTRA`]).
+fn uwb_extra(s: &insuwb_uwb::fix::FixStats) -> [u64; 4] {
+    [
+        s.fixes,
+        s.skipped_too_few_pairs,
+        s.skipped_too_few_anchors + s.skipped_degenerate,
+        s.skipped_no_convergence + s.skipped_runaway + s.skipped_other,
+    ]
+}
+
+/// Anchor pairs seen at the time of the latest TDOA (duplicate detection);
+/// beyond this many, further pairs of that time are not checked.
+const MAX_PAIRS_PER_TIME: usize = 64;
 
 /// Largest plausible accelerometer (m/s^2) and gyro (rad/s) magnitudes.
 const MAX_ACCEL_MPS2: f64 = 400.0;
@@ -132,6 +173,9 @@ pub fn run(
     let mut counters = HealthCounters::default();
     let mut drops = Drops::default();
     let mut last_t: Option<u64> = None;
+    let mut pairs_at_last_t: Vec<(u32, u32)> = Vec::with_capacity(MAX_PAIRS_PER_TIME);
+    let mut skips_logged = 0u64;
+    let mut skip_logged_at = 0u64;
     let mut pending = src.next_item();
     let source_id = stage.source_id();
     tracing::info!(
@@ -211,6 +255,16 @@ pub fn run(
                         drops.time += 1;
                         continue;
                     }
+                    let pair = (s.anchor_a.min(s.anchor_b), s.anchor_a.max(s.anchor_b));
+                    if last_t != Some(t) {
+                        pairs_at_last_t.clear();
+                    } else if pairs_at_last_t.contains(&pair) {
+                        drops.time += 1;
+                        continue;
+                    }
+                    if pairs_at_last_t.len() < MAX_PAIRS_PER_TIME {
+                        pairs_at_last_t.push(pair);
+                    }
                     last_t = Some(t);
                     s.header.meas_time_ns = t;
                     s.header.generation = gen;
@@ -256,7 +310,26 @@ pub fn run(
             Wake::Fired(f) if f.contains(&hb) => {
                 counters.dropped_invalid = drops.invalid;
                 counters.dropped_time = drops.time;
-                counters.extra[0] = fixes.stats().fixes;
+                let extra = uwb_extra(fixes.stats());
+                let skips = extra[1..].iter().sum::<u64>();
+                let t = monotonic_ns();
+                if skips > skips_logged && t >= skip_logged_at + SKIP_LOG_PERIOD_NS {
+                    tracing::warn!(
+                        "{name} driver: {} epochs skipped without a fix (too few pairs {}, geometry {}, solver {}); last: {}",
+                        skips - skips_logged,
+                        extra[1],
+                        extra[2],
+                        extra[3],
+                        fixes
+                            .last_skip()
+                            .map_or_else(|| "-".to_owned(), ToString::to_string)
+                    );
+                    skips_logged = skips;
+                    skip_logged_at = t;
+                }
+                if want == Want::Uwb {
+                    counters.extra = extra;
+                }
                 let state = if pending.is_none() {
                     Health::STATE_DEGRADED
                 } else {

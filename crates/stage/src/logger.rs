@@ -4,8 +4,11 @@
 //! disk I/O every 50 ms, so a slow disk never stalls a receive (and never back-pressures
 //! a producer: iceoryx2's safe overflow drops the oldest sample of a full
 //! subscriber buffer instead of blocking the publisher). A write error (disk
-//! full, unwritable directory) ends the logger with a non-zero exit; the rest
-//! of the group keeps running.
+//! full, file size limit, unwritable directory) ends the logger with an
+//! error line naming the path and the operating system's error, and a
+//! non-zero exit; the rest of the group keeps running (the launcher restarts
+//! the logger, and gives it up alone when its restart budget is spent: it is
+//! an optional stage by default, `[launch] optional`).
 //!
 //! For the latency benchmark, [`FUSED_TRACE_ENV`] makes the logger note when
 //! each fused state arrived (in a buffer allocated at start) and write the
@@ -96,7 +99,17 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         })?,
     );
     let writer = SegmentWriter::open(&dir, meta, cfg.logger.segments.clone(), monotonic_ns())
-        .with_context(|| format!("{}: cannot open a log segment", dir.display()))?;
+        .map_err(|e| {
+            let full = if e.io_kind() == Some(std::io::ErrorKind::StorageFull) {
+                " (the disk is full)"
+            } else {
+                ""
+            };
+            anyhow::anyhow!(
+                "{}: cannot open a log segment{full}: {e}; nothing is recorded",
+                dir.display()
+            )
+        })?;
     tracing::info!("recording into {}", dir.display());
     let (tx, rx) = bounded::<Record>(65_536);
     let thread = std::thread::Builder::new()
@@ -208,7 +221,15 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     drop(tx);
     match thread.join() {
         Ok(Ok(n)) => tracing::info!("logger: {n} records written, {dropped} dropped"),
-        Ok(Err(e)) => bail!("logger: writing failed: {e:#}"),
+        Ok(Err(e)) => {
+            let full = e
+                .downcast_ref::<insuwb_log::WriteError>()
+                .is_some_and(insuwb_log::WriteError::is_storage_full);
+            bail!(
+                "logger: writing the recording failed{}: {e:#}",
+                if full { " (the disk is full)" } else { "" }
+            )
+        }
         Err(_) => bail!("logger: the writer thread panicked"),
     }
     result
