@@ -68,6 +68,33 @@ pub struct GroupReport {
     pub faults: u32,
     /// Stretches of more than 5 s without a valid fused state after the first one.
     pub deadlocks: u32,
+    /// Optional stages the launcher gave up after they exhausted their
+    /// restart budget (the rest kept running).
+    pub gave_up: Vec<String>,
+    /// Each stage's last heartbeat figures, by stage name.
+    pub stages: std::collections::BTreeMap<String, StageFigures>,
+}
+
+/// A stage's counters from its last heartbeat (`Health`). Drivers: `extra`
+/// of `uwb` is `[fixes, skipped too few pairs, skipped geometry, skipped
+/// solver]` (see `insuwb_stage::driver`); of `fusion` `[_, outliers, ..]`; of
+/// `logger` `[records sent, records dropped, ..]`.
+#[derive(Debug, Default, serde::Serialize)]
+pub struct StageFigures {
+    /// Samples published.
+    pub published: u64,
+    /// Samples received.
+    pub received: u64,
+    /// Dropped for a NaN, infinite or out-of-range value.
+    pub dropped_invalid: u64,
+    /// Dropped for a timestamp going backwards or repeated.
+    pub dropped_time: u64,
+    /// Dropped for another layout version.
+    pub dropped_version: u64,
+    /// Samples missing on inputs.
+    pub seq_gaps: u64,
+    /// Stage-specific counters.
+    pub extra: [u64; 4],
 }
 
 /// Options of a group run.
@@ -157,6 +184,14 @@ fn rate(t: (u64, u64, u64)) -> f64 {
 /// Starts the group of `cfg` (from the file `cfg_path`), supervises it and
 /// returns what it measured once it stops.
 pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Result<GroupReport> {
+    // Owner-only files (0600/0700) for the launcher and, inherited, every stage.
+    insuwb_runtime::perm::restrict_umask();
+    if insuwb_runtime::perm::is_shared(&cfg.group.run_dir) {
+        tracing::warn!(
+            "the run directory {} has group or other permission bits",
+            cfg.group.run_dir.display()
+        );
+    }
     std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
         format!(
             "{}: cannot create the run directory",
@@ -311,6 +346,7 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     let restarts = sup.total_restarts();
     let mut report = summarise(&mon, restarts, elapsed);
     report.faults = injected;
+    report.gave_up = sup.given_up();
     drop(tick);
     drop(waiter);
     drop((fused_sub, truth_sub, imu_sub, fix_sub, health_sub));
@@ -397,6 +433,23 @@ fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         duration_s: elapsed,
         faults: 0,
         deadlocks,
+        gave_up: Vec::new(),
+        stages: mon
+            .health
+            .iter()
+            .map(|(name, h)| {
+                let f = StageFigures {
+                    published: h.published,
+                    received: h.received,
+                    dropped_invalid: h.dropped_invalid,
+                    dropped_time: h.dropped_time,
+                    dropped_version: h.dropped_version,
+                    seq_gaps: h.seq_gaps,
+                    extra: h.extra,
+                };
+                (name.clone(), f)
+            })
+            .collect(),
     }
 }
 
