@@ -9,117 +9,18 @@
 // Test helpers outside `#[test]` functions may unwrap and panic too.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::Mutex;
 
 use insuwb_log::Record;
 
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
-
-fn insuwb() -> PathBuf {
-    PathBuf::from(env!("CARGO_BIN_EXE_insuwb"))
-}
-
-struct Group {
-    name: String,
-    dir: PathBuf,
-    prefix: String,
-}
-
-impl Group {
-    fn new(name: &str, sources: &str, filter: &str) -> Self {
-        let id = format!("{}_{name}", std::process::id());
-        let dir = std::env::temp_dir().join(format!("insuwb-test-{id}"));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        let prefix = format!("iutest{}_{name}_", std::process::id());
-        let text = format!(
-            "[group]\nname = \"{name}\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
-             [sources]\n{sources}\n[fusion]\nfilter = \"{filter}\"\n\
-             [logger.segments.flush]\nevery_ms = 100\n",
-            dir.join("run").display()
-        );
-        std::fs::write(dir.join("robot.toml"), text).unwrap();
-        Self {
-            name: name.to_owned(),
-            dir,
-            prefix,
-        }
-    }
-
-    /// Runs `insuwb launch` for `secs` with `faults`; returns the JSON report.
-    fn launch(&self, secs: f64, faults: &[&str]) -> serde_json::Value {
-        let mut cmd = Command::new(insuwb());
-        cmd.arg("launch").arg(self.dir.join("robot.toml")).args([
-            "--duration",
-            &secs.to_string(),
-            "--json",
-        ]);
-        for f in faults {
-            cmd.args(["--fault", f]);
-        }
-        let out = cmd.output().unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(
-            out.status.success(),
-            "{}: launch failed:\n{stderr}",
-            self.name
-        );
-        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-            panic!(
-                "{}: stdout is not one JSON object ({e}):\n{stderr}",
-                self.name
-            )
-        });
-        assert_eq!(
-            self.leftover_shm(),
-            Vec::<String>::new(),
-            "{}: /dev/shm files left",
-            self.name
-        );
-        v
-    }
-
-    fn leftover_shm(&self) -> Vec<String> {
-        std::fs::read_dir("/dev/shm")
-            .map(|d| {
-                d.filter_map(Result::ok)
-                    .map(|e| e.file_name().to_string_lossy().into_owned())
-                    .filter(|n| n.starts_with(&self.prefix))
-                    .collect()
-            })
-            .unwrap_or_default()
-    }
-
-    fn log_dir(&self) -> PathBuf {
-        self.dir.join("run").join("log")
-    }
-}
-
-impl Drop for Group {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-fn f(v: &serde_json::Value, key: &str) -> f64 {
-    v[key]
-        .as_f64()
-        .unwrap_or_else(|| panic!("no number '{key}' in {v}"))
-}
+mod common;
+use common::{f, insuwb, one_at_a_time as lock, records, Group};
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 3";
 
-fn records(dir: &Path) -> Vec<Record> {
-    insuwb_log::read_segments(dir).unwrap().records
-}
-
 #[test]
 fn group_runs_at_10hz_and_survives_a_sigkill_of_every_stage() {
-    let _lock = ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _lock = lock();
     let base = Group::new("base", SIM, "iakf").launch(10.0, &[]);
     let rate = f(&base, "fused_rate_hz");
     assert!((9.8..=10.2).contains(&rate), "fused rate {rate} Hz: {base}");
@@ -149,9 +50,7 @@ fn group_runs_at_10hz_and_survives_a_sigkill_of_every_stage() {
 
 #[test]
 fn a_restarted_logger_records_the_imu_topic_without_a_gap() {
-    let _lock = ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _lock = lock();
     let g = Group::new("logger", SIM, "iakf");
     let r = g.launch(8.0, &["logger@3"]);
     assert!(f(&r, "restarts") >= 1.0, "{r}");
@@ -184,9 +83,7 @@ fn a_restarted_logger_records_the_imu_topic_without_a_gap() {
 
 #[test]
 fn replay_at_10x_through_the_processes_equals_eval() {
-    let _lock = ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _lock = lock();
     let tmp = std::env::temp_dir().join(format!("insuwb-test-replay-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp).unwrap();
@@ -278,9 +175,7 @@ fn replay_at_10x_through_the_processes_equals_eval() {
 
 #[test]
 fn chaos_for_60_s_loses_nothing_and_leaves_nothing() {
-    let _lock = ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _lock = lock();
     let out = Command::new(insuwb())
         .args(["chaos", "--duration", "60", "--seed", "11", "--json"])
         .output()

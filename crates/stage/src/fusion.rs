@@ -90,6 +90,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let tdoa_a = waiter.attach(&tdoa_sub)?;
     let tick_period = Duration::from_secs_f64((0.5 / cfg.fusion.coast_rate_hz).min(0.05));
     let tick = waiter.attach_interval(tick_period)?;
+    let tick_ns = u64::try_from(tick_period.as_nanos()).unwrap_or(u64::MAX);
     let hb = waiter.attach_interval(health.period())?;
     // Samples published before this process started (iceoryx2 history) were
     // already handled by the previous generation: never fold them in again.
@@ -163,8 +164,10 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         if f.contains(&tick) {
             // Stale INS: the newest INS state is too old to build a pose on.
             stale = nav_sub.age_ns(now).is_none_or(|a| a > stale_ns);
+            // Ticks come every `tick_period` (at most half the coasting
+            // period): half a tick of slack keeps the coasting rate.
             if now.saturating_sub(last_update_pub) > coast_ns
-                && now.saturating_sub(last_coast_pub) >= coast_period_ns
+                && now.saturating_sub(last_coast_pub) + tick_ns / 2 >= coast_period_ns
             {
                 if let Some(mut s) = engine.coasting_state() {
                     if stale {

@@ -1,0 +1,131 @@
+//! What the integration tests that run a group share: a group under its own
+//! service prefix and run directory (removed afterwards, with a check that
+//! no /dev/shm file of the prefix is left), `insuwb launch` with faults, the
+//! recording, and the lock that runs such tests one at a time.
+//!
+//! Each test file uses only part of it.
+#![allow(dead_code, clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::{Mutex, MutexGuard};
+
+use insuwb_log::Record;
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+/// Tests that start processes and measure time run one at a time (2 cores).
+pub fn one_at_a_time() -> MutexGuard<'static, ()> {
+    ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The `insuwb` binary under test.
+pub fn insuwb() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_insuwb"))
+}
+
+/// A robot group of its own: config file, run directory, service prefix.
+pub struct Group {
+    pub name: String,
+    pub dir: PathBuf,
+    pub prefix: String,
+}
+
+impl Group {
+    /// A group with `sources` (the body of `[sources]`) and `filter`.
+    pub fn new(name: &str, sources: &str, filter: &str) -> Self {
+        Self::with_config(name, sources, &format!("filter = \"{filter}\"\n"), "")
+    }
+
+    /// A group with `sources` (the body of `[sources]`), `fusion` (the body
+    /// of `[fusion]`) and `extra` TOML tables appended.
+    pub fn with_config(name: &str, sources: &str, fusion: &str, extra: &str) -> Self {
+        let id = format!("{}_{name}", std::process::id());
+        let dir = std::env::temp_dir().join(format!("insuwb-test-{id}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let prefix = format!("iutest{}_{name}_", std::process::id());
+        let text = format!(
+            "[group]\nname = \"{name}\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
+             [sources]\n{sources}\n[fusion]\n{fusion}\n\
+             [logger.segments.flush]\nevery_ms = 100\n{extra}",
+            dir.join("run").display()
+        );
+        std::fs::write(dir.join("robot.toml"), text).unwrap();
+        Self {
+            name: name.to_owned(),
+            dir,
+            prefix,
+        }
+    }
+
+    /// Runs `insuwb launch` for `secs` with `faults`; returns the JSON report.
+    pub fn launch(&self, secs: f64, faults: &[&str]) -> serde_json::Value {
+        let mut cmd = Command::new(insuwb());
+        cmd.arg("launch").arg(self.dir.join("robot.toml")).args([
+            "--duration",
+            &secs.to_string(),
+            "--json",
+        ]);
+        for f in faults {
+            cmd.args(["--fault", f]);
+        }
+        let out = cmd.output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success(),
+            "{}: launch failed:\n{stderr}",
+            self.name
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+            panic!(
+                "{}: stdout is not one JSON object ({e}):\n{stderr}",
+                self.name
+            )
+        });
+        assert_eq!(
+            self.leftover_shm(),
+            Vec::<String>::new(),
+            "{}: /dev/shm files left",
+            self.name
+        );
+        v
+    }
+
+    /// Files of this group's prefix in /dev/shm.
+    pub fn leftover_shm(&self) -> Vec<String> {
+        std::fs::read_dir("/dev/shm")
+            .map(|d| {
+                d.filter_map(Result::ok)
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .filter(|n| n.starts_with(&self.prefix))
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// The logger's recording.
+    pub fn log_dir(&self) -> PathBuf {
+        self.dir.join("run").join("log")
+    }
+}
+
+impl Drop for Group {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// A number of the JSON report.
+pub fn f(v: &serde_json::Value, key: &str) -> f64 {
+    v[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no number '{key}' in {v}"))
+}
+
+/// Every record of a recording (all segments).
+pub fn records(dir: &Path) -> Vec<Record> {
+    insuwb_log::read_segments(dir).unwrap().records
+}
