@@ -21,8 +21,10 @@ pub struct GroupConfig {
     pub name: String,
     /// iceoryx2 service prefix: several robots (or test runs) on one PC never collide.
     pub prefix: String,
-    /// Run directory: checkpoints, recorded logs, iceoryx2 root. Relative
-    /// paths are taken from the config file's folder.
+    /// Run directory: checkpoints, recorded logs, iceoryx2 root; non-empty,
+    /// no NUL. Relative paths are taken from the config file's folder. The
+    /// launcher creates it 0700 (an existing one is left as it is, with a
+    /// warning when others can reach into it).
     pub run_dir: PathBuf,
 }
 
@@ -142,7 +144,9 @@ impl Default for FusionStageConfig {
 pub struct LoggerConfig {
     /// Segment files (rotation, flush policy).
     pub segments: insuwb_log::SegmentConfig,
-    /// Directory of the recording, relative to the run directory (default `log`).
+    /// Directory of the recording (default `log`): relative to the run
+    /// directory and then without `..` (it stays inside), or absolute (a
+    /// disk of its own).
     pub dir: Option<PathBuf>,
 }
 
@@ -195,8 +199,22 @@ impl RobotConfig {
                 );
             }
         }
+        check_path(origin, "group.run_dir", &self.group.run_dir)?;
         if self.group.run_dir.is_relative() {
             self.group.run_dir = base.join(&self.group.run_dir);
+        }
+        if let Some(dir) = &self.logger.dir {
+            check_path(origin, "logger.dir", dir)?;
+            if dir.is_relative()
+                && dir
+                    .components()
+                    .any(|c| matches!(c, std::path::Component::ParentDir))
+            {
+                bail!(
+                    "{origin}: key 'logger.dir': a relative path must stay inside the run directory (no '..'), got {}",
+                    dir.display()
+                );
+            }
         }
         for (key, src) in [
             ("sources.imu", &mut self.sources.imu),
@@ -266,6 +284,17 @@ impl RobotConfig {
         self.launch
             .validate()
             .map_err(|e| anyhow::anyhow!("{origin}: key 'launch': {e}"))?;
+        if let Some(s) = self
+            .launch
+            .optional
+            .iter()
+            .find(|s| !STAGES.contains(&s.as_str()))
+        {
+            bail!(
+                "{origin}: key 'launch.optional': unknown stage '{s}' (known: {})",
+                STAGES.join(", ")
+            );
+        }
         self.logger
             .segments
             .validate()
@@ -339,6 +368,15 @@ impl RobotConfig {
         let sc = insuwb_eval::scenario::ScenarioFile::load(&self.sources.scenario)?;
         Ok(sc.fusion_for_seed(self.sources.seed)?)
     }
+}
+
+/// A configured path must be non-empty and free of NUL bytes.
+fn check_path(origin: &str, key: &str, p: &Path) -> Result<()> {
+    let bytes = p.as_os_str().as_encoded_bytes();
+    if bytes.is_empty() || bytes.contains(&0) {
+        bail!("{origin}: key '{key}': must be a non-empty path without NUL bytes, got {p:?}");
+    }
+    Ok(())
 }
 
 /// The start epoch from the environment, or one chosen now: the next whole

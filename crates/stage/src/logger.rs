@@ -105,10 +105,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             } else {
                 ""
             };
-            anyhow::anyhow!(
-                "{}: cannot open a log segment{full}: {e}; nothing is recorded",
-                dir.display()
-            )
+            anyhow::anyhow!("logger: cannot open a log segment{full}: {e}; nothing is recorded")
         })?;
     tracing::info!("recording into {}", dir.display());
     let (tx, rx) = bounded::<Record>(65_536);
