@@ -35,7 +35,7 @@
 
 use std::io::Write;
 
-use crate::frame::{DecoderStats, DeviceTime, Reading};
+use crate::frame::{DecoderStats, DeviceTime, Reading, SkipCounter};
 
 /// The server's default TCP port.
 pub const DEFAULT_PORT: u16 = 25025;
@@ -57,7 +57,7 @@ pub struct Decoder {
     len: usize,
     /// Dropping the rest of an over-long line, up to its `\n`.
     discarding: bool,
-    in_sync: bool,
+    sync: SkipCounter,
     since_valid: u64,
     stats: DecoderStats,
     /// Tags to report; empty: all.
@@ -96,7 +96,7 @@ impl Decoder {
             buf: [0; MAX_LINE_LEN],
             len: 0,
             discarding: false,
-            in_sync: true,
+            sync: SkipCounter::new(),
             since_valid: 0,
             stats: DecoderStats::default(),
             tags: tags.into_iter().collect(),
@@ -130,7 +130,7 @@ impl Decoder {
             };
             *slot = byte;
             self.len += 1;
-            self.in_sync = true;
+            self.sync.kept();
             if byte == b'\n' {
                 self.line(out);
             } else if self.len == MAX_LINE_LEN {
@@ -148,14 +148,7 @@ impl Decoder {
     }
 
     fn count_skipped(&mut self, n: u64) {
-        if n == 0 {
-            return;
-        }
-        if self.in_sync {
-            self.stats.resyncs = self.stats.resyncs.saturating_add(1);
-            self.in_sync = false;
-        }
-        self.stats.bytes_skipped = self.stats.bytes_skipped.saturating_add(n);
+        self.sync.skipped(&mut self.stats, n);
     }
 
     /// Handles the complete line in the buffer.
@@ -225,7 +218,7 @@ impl Decoder {
         self.count_skipped(self.len as u64);
         self.len = 0;
         self.discarding = false;
-        self.in_sync = true;
+        self.sync.kept();
     }
 }
 

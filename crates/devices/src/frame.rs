@@ -355,6 +355,53 @@ pub(crate) fn saturate_i16(x: f64, scale: f64) -> i16 {
     (x / scale).round() as i16
 }
 
+/// Counts skipped bytes, and a resync each time skipping starts after
+/// bytes that were kept.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SkipCounter {
+    /// False while skipping.
+    in_sync: bool,
+}
+
+impl SkipCounter {
+    pub(crate) fn new() -> Self {
+        SkipCounter { in_sync: true }
+    }
+
+    /// A byte was kept: the next skip starts a new resync.
+    pub(crate) fn kept(&mut self) {
+        self.in_sync = true;
+    }
+
+    /// `n` bytes were dropped.
+    pub(crate) fn skipped(&mut self, stats: &mut DecoderStats, n: u64) {
+        if n == 0 {
+            return;
+        }
+        if self.in_sync {
+            stats.resyncs = stats.resyncs.saturating_add(1);
+            self.in_sync = false;
+        }
+        stats.bytes_skipped = stats.bytes_skipped.saturating_add(n);
+    }
+}
+
+/// The accessors every [`Framer`]-based decoder forwards.
+macro_rules! framer_accessors {
+    () => {
+        /// Bytes received since the end of the last checksum-valid frame.
+        pub fn bytes_since_last_valid_frame(&self) -> u64 {
+            self.framer.bytes_since_last_valid_frame()
+        }
+
+        /// Bytes held waiting for the rest of a frame.
+        pub fn buffered(&self) -> usize {
+            self.framer.buffered()
+        }
+    };
+}
+pub(crate) use framer_accessors;
+
 /// What [`FrameFormat::scan`] learned from the start of the buffer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Scan {
@@ -406,8 +453,7 @@ pub(crate) enum Outcome {
 pub(crate) struct Framer<const N: usize> {
     buf: [u8; N],
     len: usize,
-    /// False while searching for a start byte after losing the boundary.
-    in_sync: bool,
+    sync: SkipCounter,
     since_valid: u64,
     gap: Gap,
     pub(crate) stats: DecoderStats,
@@ -418,7 +464,7 @@ impl<const N: usize> Framer<N> {
         Framer {
             buf: [0; N],
             len: 0,
-            in_sync: true,
+            sync: SkipCounter::new(),
             since_valid: 0,
             gap: Gap::default(),
             stats: DecoderStats::default(),
@@ -436,7 +482,7 @@ impl<const N: usize> Framer<N> {
     /// Drops a partial frame; what it held counts as skipped.
     pub(crate) fn clear(&mut self) {
         self.skip(self.len);
-        self.in_sync = true;
+        self.sync.kept();
     }
 
     /// Feeds `bytes`; calls `on_frame` with each checksum-valid frame and
@@ -463,7 +509,7 @@ impl<const N: usize> Framer<N> {
                 self.count_skipped(1);
                 continue;
             }
-            self.in_sync = true;
+            self.sync.kept();
             self.drain(format, on_frame);
         }
     }
@@ -540,14 +586,7 @@ impl<const N: usize> Framer<N> {
     }
 
     fn count_skipped(&mut self, n: u64) {
-        if n == 0 {
-            return;
-        }
-        if self.in_sync {
-            self.stats.resyncs = self.stats.resyncs.saturating_add(1);
-            self.in_sync = false;
-        }
-        self.stats.bytes_skipped = self.stats.bytes_skipped.saturating_add(n);
+        self.sync.skipped(&mut self.stats, n);
         self.gap.skipped = self.gap.skipped.saturating_add(n);
     }
 }

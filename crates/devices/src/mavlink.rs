@@ -261,15 +261,7 @@ impl Decoder {
         self.framer.stats
     }
 
-    /// Bytes received since the end of the last checksum-valid frame.
-    pub fn bytes_since_last_valid_frame(&self) -> u64 {
-        self.framer.bytes_since_last_valid_frame()
-    }
-
-    /// Bytes held waiting for the rest of a frame.
-    pub fn buffered(&self) -> usize {
-        self.framer.buffered()
-    }
+    crate::frame::framer_accessors!();
 
     /// Forgets a partial frame (after a reconnect); keeps counts.
     pub fn clear(&mut self) {
