@@ -18,3 +18,6 @@ pub mod link;
 pub mod mavlink;
 pub mod nlink;
 pub mod witmotion;
+
+pub use clock::{ClockConfig, ClockFilter};
+pub use frame::{wire_time_ns, AnyDecoder, DecoderStats, DeviceTime, Protocol, Reading};
