@@ -112,9 +112,11 @@ pub trait Estimator: std::fmt::Debug + Send {
     fn is_tight(&self) -> bool {
         false
     }
-    /// The full error covariance, row-major (for checkpoints; empty when not supported).
-    fn covariance_snapshot(&self) -> Vec<f64> {
-        Vec::new()
+    /// Writes the full error covariance, row-major, into `out` (for
+    /// checkpoints; left empty when not supported). Reuses `out`'s capacity:
+    /// no allocation once it holds a snapshot.
+    fn covariance_snapshot(&self, out: &mut Vec<f64>) {
+        out.clear();
     }
     /// Restores a covariance from [`Estimator::covariance_snapshot`] (state zero);
     /// false when the snapshot does not fit or is not a covariance.
@@ -433,11 +435,10 @@ impl Estimator for PaperEstimator {
         c
     }
 
-    fn covariance_snapshot(&self) -> Vec<f64> {
+    fn covariance_snapshot(&self, out: &mut Vec<f64>) {
         let p = self.filter.covariance();
-        (0..14)
-            .flat_map(|i| (0..14).map(move |j| p[(i, j)]))
-            .collect()
+        out.clear();
+        out.extend((0..14).flat_map(|i| (0..14).map(move |j| p[(i, j)])));
     }
 
     fn restore_covariance(&mut self, p: &[f64]) -> bool {

@@ -249,11 +249,10 @@ impl Estimator for TightEstimator {
         true
     }
 
-    fn covariance_snapshot(&self) -> Vec<f64> {
+    fn covariance_snapshot(&self, out: &mut Vec<f64>) {
         let p = self.eskf.covariance();
-        (0..N_STATES)
-            .flat_map(|i| (0..N_STATES).map(move |j| p[(i, j)]))
-            .collect()
+        out.clear();
+        out.extend((0..N_STATES).flat_map(|i| (0..N_STATES).map(move |j| p[(i, j)])));
     }
 
     fn restore_covariance(&mut self, p: &[f64]) -> bool {
@@ -423,7 +422,8 @@ mod tests {
     fn covariance_snapshot_round_trip() {
         let mut e = estimator([0.0; 3]);
         e.predict(0.05, &level_nav(0));
-        let snap = e.covariance_snapshot();
+        let mut snap = Vec::new();
+        e.covariance_snapshot(&mut snap);
         assert_eq!(snap.len(), N_STATES * N_STATES);
         let mut f = estimator([0.0; 3]);
         assert!(f.restore_covariance(&snap));

@@ -1,23 +1,28 @@
-//! The stage's wait loop: a WaitSet over the listeners of chosen subscribers
-//! and interval timers, reporting which fired, or SIGINT/SIGTERM.
+//! The stage's wait loop: an epoll set over the listeners of chosen
+//! subscribers plus interval timers, reporting which fired, or SIGINT/SIGTERM.
 //!
 //! The stage owns its loop (`ipc::Service` ports are not `Send`, so callbacks
 //! borrowing them are awkward): attach, then call [`Waiter::wait`] in a loop
 //! and test the returned [`Fired`] set against each [`Attachment`]. See the
 //! crate documentation for a complete example.
 //!
-//! No allocation happens in this layer per wake-up ([`Fired`] is a bit set);
-//! iceoryx2 0.10's WaitSet itself allocates a small vector per wake-up with
-//! triggered listeners.
+//! This is iceoryx2's WaitSet reduced to what a stage needs, written so that
+//! a wake-up allocates nothing (iceoryx2 0.10's WaitSet allocates two vectors
+//! per wake-up): the listeners' file descriptors sit in an epoll set whose
+//! events land in an array on the stack, interval deadlines are kept per
+//! slot, and [`Fired`] is a bit set. Termination follows iceoryx2's
+//! convention: its signal handler (installed by the stage's first
+//! termination check) records SIGINT/SIGTERM, `epoll_wait` returns EINTR, and
+//! [`Wake::Shutdown`] is returned, as it is when the request came in while
+//! the stage was busy.
 
 use core::cell::RefCell;
 use core::fmt::Debug;
+use core::marker::PhantomData;
 use core::time::Duration;
 
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::{
-    WaitSetAttachmentError, WaitSetCreateError, WaitSetRunError, WaitSetRunResult,
-};
+use iceoryx2_bb_posix::signal::SignalHandler;
 use insuwb_msg::HasHeader;
 
 use crate::monotonic_ns;
@@ -29,16 +34,16 @@ pub const MAX_ATTACHMENTS: usize = 32;
 /// Why creating, attaching to or waiting on a [`Waiter`] failed.
 #[derive(Debug, thiserror::Error)]
 pub enum WaitError {
-    /// The WaitSet could not be created.
-    #[error("cannot create WaitSet: {0}")]
-    Create(#[source] WaitSetCreateError),
-    /// iceoryx2 refused the attachment.
-    #[error("cannot attach {what} to the WaitSet: {source}")]
+    /// The epoll set could not be created.
+    #[error("cannot create the epoll set: {0}")]
+    Create(#[source] std::io::Error),
+    /// The listener could not be added to the epoll set.
+    #[error("cannot attach {what}: {source}")]
     Attach {
         /// What was attached (topic or interval).
         what: String,
-        /// iceoryx2's reason.
-        source: WaitSetAttachmentError,
+        /// The OS's reason.
+        source: std::io::Error,
     },
     /// More than [`MAX_ATTACHMENTS`] attachments.
     #[error("cannot attach {what}: the waiter already holds {max} attachments")]
@@ -54,9 +59,12 @@ pub enum WaitError {
     /// `wait` was called from inside itself (impossible through this API).
     #[error("Waiter::wait re-entered")]
     Reentrant,
-    /// Waiting failed (no attachments, or an OS error).
-    #[error("WaitSet wait failed: {0}")]
-    Run(#[source] WaitSetRunError),
+    /// Nothing attached: waiting would never end.
+    #[error("Waiter::wait with nothing attached and no timeout")]
+    NoAttachments,
+    /// `epoll_wait` failed.
+    #[error("epoll_wait failed: {0}")]
+    Run(#[source] std::io::Error),
 }
 
 /// What a [`Waiter::wait`] returned.
@@ -98,13 +106,27 @@ impl Fired {
     }
 }
 
+/// What a slot holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Slot {
+    Free,
+    /// A listener's file descriptor in the epoll set.
+    Listener(i32),
+    /// An interval timer: its period and next deadline (CLOCK_MONOTONIC ns).
+    Interval {
+        period_ns: u64,
+        due_ns: u64,
+    },
+}
+
 /// One attachment of a [`Waiter`]: a subscriber's listener or an interval
-/// timer. Dropping it detaches it.
+/// timer. Dropping it detaches it. `'a` is the subscriber's borrow: the
+/// listener outlives its place in the epoll set.
 pub struct Attachment<'w, 'a> {
-    _guard: WaitSetGuard<'w, 'a, ipc::Service>,
     waiter: &'w Waiter,
     slot: u32,
     what: String,
+    _attached: PhantomData<&'a ()>,
 }
 
 impl Debug for Attachment<'_, '_> {
@@ -120,20 +142,52 @@ impl Drop for Attachment<'_, '_> {
     fn drop(&mut self) {
         if let Ok(mut slots) = self.waiter.slots.try_borrow_mut() {
             if let Some(s) = slots.get_mut(self.slot as usize) {
-                *s = None;
+                if let Slot::Listener(fd) = *s {
+                    // Failure leaves a closed descriptor's entry, which the
+                    // kernel drops itself when the listener closes it.
+                    let _ = epoll_ctl(self.waiter.epfd.0, libc::EPOLL_CTL_DEL, fd, 0);
+                }
+                *s = Slot::Free;
             }
         }
     }
 }
 
-type Slots = [Option<WaitSetAttachmentId<ipc::Service>>; MAX_ATTACHMENTS];
+/// An owned epoll file descriptor.
+#[derive(Debug)]
+struct EpollFd(i32);
+
+impl Drop for EpollFd {
+    fn drop(&mut self) {
+        // SAFETY: the descriptor is owned by this value and closed once.
+        #[allow(unsafe_code)]
+        unsafe {
+            libc::close(self.0);
+        }
+    }
+}
+
+fn epoll_ctl(epfd: i32, op: i32, fd: i32, slot: u64) -> std::io::Result<()> {
+    let mut ev = libc::epoll_event {
+        events: libc::EPOLLIN as u32,
+        u64: slot,
+    };
+    // SAFETY: `ev` is a valid epoll_event for the call's duration; bad
+    // descriptors are reported through the return value.
+    #[allow(unsafe_code)]
+    let rc = unsafe { libc::epoll_ctl(epfd, op, fd, &mut ev) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
 
 /// The wait loop of a stage (see the module documentation).
 #[derive(Debug)]
 pub struct Waiter {
-    ws: WaitSet<ipc::Service>,
-    /// Attachment id of each slot (the bit of [`Fired`]).
-    slots: RefCell<Slots>,
+    epfd: EpollFd,
+    slots: RefCell<[Slot; MAX_ATTACHMENTS]>,
     busy_poll: bool,
 }
 
@@ -141,12 +195,15 @@ impl Waiter {
     /// A waiter; with `busy_poll` it spins (non-blocking polls) instead of
     /// sleeping in the kernel: lower latency, one core at 100 %.
     pub fn new(busy_poll: bool) -> Result<Self, WaitError> {
-        let ws = WaitSetBuilder::new()
-            .create::<ipc::Service>()
-            .map_err(WaitError::Create)?;
+        // SAFETY: plain system call without pointers.
+        #[allow(unsafe_code)]
+        let fd = unsafe { libc::epoll_create1(libc::EPOLL_CLOEXEC) };
+        if fd < 0 {
+            return Err(WaitError::Create(std::io::Error::last_os_error()));
+        }
         Ok(Self {
-            ws,
-            slots: RefCell::new([const { None }; MAX_ATTACHMENTS]),
+            epfd: EpollFd(fd),
+            slots: RefCell::new([Slot::Free; MAX_ATTACHMENTS]),
             busy_poll,
         })
     }
@@ -161,34 +218,34 @@ impl Waiter {
         core::ptr::from_ref(self) as usize
     }
 
-    fn free_slot(&self, what: &str) -> Result<u32, WaitError> {
-        let full = || WaitError::TooManyAttachments {
-            what: what.to_owned(),
+    fn claim<'a>(&self, what: String, slot: Slot) -> Result<Attachment<'_, 'a>, WaitError> {
+        let full = |what: String| WaitError::TooManyAttachments {
+            what,
             max: MAX_ATTACHMENTS,
         };
-        let slots = self.slots.try_borrow().map_err(|_| full())?;
-        let i = slots.iter().position(Option::is_none).ok_or_else(full)?;
-        u32::try_from(i).map_err(|_| full())
-    }
-
-    fn register<'w, 'a>(
-        &'w self,
-        guard: WaitSetGuard<'w, 'a, ipc::Service>,
-        slot: u32,
-        what: String,
-    ) -> Attachment<'w, 'a> {
-        let id = WaitSetAttachmentId::from_guard(&guard);
-        if let Ok(mut slots) = self.slots.try_borrow_mut() {
-            if let Some(s) = slots.get_mut(slot as usize) {
-                *s = Some(id);
+        let Ok(mut slots) = self.slots.try_borrow_mut() else {
+            return Err(full(what));
+        };
+        let Some(i) = slots.iter().position(|s| *s == Slot::Free) else {
+            return Err(full(what));
+        };
+        let Ok(index) = u32::try_from(i) else {
+            return Err(full(what));
+        };
+        if let Slot::Listener(fd) = slot {
+            if let Err(source) = epoll_ctl(self.epfd.0, libc::EPOLL_CTL_ADD, fd, u64::from(index)) {
+                return Err(WaitError::Attach { what, source });
             }
         }
-        Attachment {
-            _guard: guard,
-            waiter: self,
-            slot,
-            what,
+        if let Some(s) = slots.get_mut(i) {
+            *s = slot;
         }
+        Ok(Attachment {
+            waiter: self,
+            slot: index,
+            what,
+            _attached: PhantomData,
+        })
     }
 
     /// Wakes the waiter when `sub`'s topic is published.
@@ -196,33 +253,27 @@ impl Waiter {
     where
         T: ZeroCopySend + Copy + Debug + HasHeader + 'static,
     {
-        let what = format!("subscriber {:?}", sub.topic());
-        let slot = self.free_slot(&what)?;
-        let guard = self
-            .ws
-            .attach_notification(&sub.listener)
-            .map_err(|source| WaitError::Attach {
-                what: what.clone(),
-                source,
-            })?;
-        Ok(self.register(guard, slot, what))
+        // SAFETY: `native_handle` only reads the descriptor number; the
+        // listener it belongs to outlives the attachment (`'a`).
+        #[allow(unsafe_code)]
+        let fd = unsafe { sub.listener.file_descriptor().native_handle() };
+        self.claim(format!("subscriber {:?}", sub.topic()), Slot::Listener(fd))
     }
 
-    /// Wakes the waiter every `period` (heartbeat, coasting tick).
+    /// Wakes the waiter every `period` (heartbeat, coasting tick), the first
+    /// time one period from now.
     pub fn attach_interval(&self, period: Duration) -> Result<Attachment<'_, 'static>, WaitError> {
         if period.is_zero() {
             return Err(WaitError::ZeroInterval(period));
         }
-        let what = format!("interval {period:?}");
-        let slot = self.free_slot(&what)?;
-        let guard = self
-            .ws
-            .attach_interval(period)
-            .map_err(|source| WaitError::Attach {
-                what: what.clone(),
-                source,
-            })?;
-        Ok(self.register(guard, slot, what))
+        let period_ns = u64::try_from(period.as_nanos()).unwrap_or(u64::MAX);
+        self.claim(
+            format!("interval {period:?}"),
+            Slot::Interval {
+                period_ns,
+                due_ns: monotonic_ns().saturating_add(period_ns),
+            },
+        )
     }
 
     /// Blocks until an attachment fires or SIGINT/SIGTERM arrives.
@@ -236,38 +287,94 @@ impl Waiter {
         self.wait_until(Some(monotonic_ns().saturating_add(ns)))
     }
 
+    /// Marks the intervals due at `now` and moves their deadlines on; the
+    /// earliest deadline left.
+    fn due_intervals(&self, now: u64, mask: &mut u32) -> Result<Option<u64>, WaitError> {
+        let mut slots = self
+            .slots
+            .try_borrow_mut()
+            .map_err(|_| WaitError::Reentrant)?;
+        let mut next: Option<u64> = None;
+        for (i, s) in slots.iter_mut().enumerate() {
+            if let Slot::Interval { period_ns, due_ns } = s {
+                if *due_ns <= now {
+                    *mask |= 1u32 << i;
+                    // Keep the phase; after a long stall start afresh
+                    // rather than fire a burst.
+                    *due_ns = due_ns.saturating_add(*period_ns);
+                    if *due_ns <= now {
+                        *due_ns = now.saturating_add(*period_ns);
+                    }
+                }
+                next = Some(next.map_or(*due_ns, |n| n.min(*due_ns)));
+            }
+        }
+        Ok(next)
+    }
+
     fn wait_until(&self, deadline_ns: Option<u64>) -> Result<Wake, WaitError> {
-        let mut mask = 0u32;
+        let mut events = [libc::epoll_event { events: 0, u64: 0 }; MAX_ATTACHMENTS];
         loop {
-            let slice = if self.busy_poll {
-                Duration::ZERO
+            if SignalHandler::termination_requested() {
+                return Ok(Wake::Shutdown);
+            }
+            let now = monotonic_ns();
+            let mut mask = 0u32;
+            let next_interval = self.due_intervals(now, &mut mask)?;
+            let until = match (deadline_ns, next_interval) {
+                (Some(d), Some(i)) => Some(d.min(i)),
+                (d, i) => d.or(i),
+            };
+            let timeout_ms: i32 = if self.busy_poll || mask != 0 {
+                0
             } else {
-                match deadline_ns {
-                    None => Duration::MAX,
-                    Some(d) => Duration::from_nanos(d.saturating_sub(monotonic_ns())),
+                match until {
+                    None => {
+                        let any = self
+                            .slots
+                            .try_borrow()
+                            .map_err(|_| WaitError::Reentrant)?
+                            .iter()
+                            .any(|s| *s != Slot::Free);
+                        if !any {
+                            return Err(WaitError::NoAttachments);
+                        }
+                        -1
+                    }
+                    // epoll counts milliseconds: round up, never wake early.
+                    Some(u) => {
+                        i32::try_from(u.saturating_sub(now).div_ceil(1_000_000)).unwrap_or(i32::MAX)
+                    }
                 }
             };
-            let r = {
-                let slots = self.slots.try_borrow().map_err(|_| WaitError::Reentrant)?;
-                self.ws
-                    .wait_and_process_once_with_timeout(
-                        |id| {
-                            if let Some(i) = slots.iter().position(|s| s.as_ref() == Some(&id)) {
-                                mask |= 1u32 << i;
-                            }
-                            CallbackProgression::Continue
-                        },
-                        slice,
-                    )
-                    .map_err(WaitError::Run)?
+            // SAFETY: `events` is a valid array of MAX_ATTACHMENTS entries
+            // that the kernel fills; the epoll descriptor is owned.
+            #[allow(unsafe_code)]
+            let n = unsafe {
+                libc::epoll_wait(
+                    self.epfd.0,
+                    events.as_mut_ptr(),
+                    MAX_ATTACHMENTS as i32,
+                    timeout_ms,
+                )
             };
-            match r {
-                WaitSetRunResult::TerminationRequest => return Ok(Wake::Shutdown),
-                // EINTR from any signal iceoryx2 captures (SIGCONT, SIGUSR1, ...
-                // as well as SIGINT/SIGTERM): the next call's termination check
-                // tells SIGINT/SIGTERM from the others.
-                WaitSetRunResult::Interrupt => continue,
-                WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
+            if n < 0 {
+                let e = std::io::Error::last_os_error();
+                if e.kind() == std::io::ErrorKind::Interrupted {
+                    // A signal: SIGINT/SIGTERM are caught at the top of the loop.
+                    continue;
+                }
+                return Err(WaitError::Run(e));
+            }
+            for ev in events.iter().take(usize::try_from(n).unwrap_or(0)) {
+                let slot = ev.u64;
+                if slot < MAX_ATTACHMENTS as u64 {
+                    mask |= 1u32 << slot;
+                }
+            }
+            if n > 0 || timeout_ms > 0 {
+                // Intervals that came due while waiting fire with the rest.
+                self.due_intervals(monotonic_ns(), &mut mask)?;
             }
             if mask != 0 {
                 return Ok(Wake::Fired(Fired {

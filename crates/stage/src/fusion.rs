@@ -27,6 +27,19 @@ pub struct Checkpoint {
     pub cov: Vec<f64>,
 }
 
+/// Largest covariance a checkpoint carries (15 x 15: the tight filter's).
+const MAX_COV: usize = 15 * 15;
+
+/// A checkpoint on its way to the writer thread (fixed size: sending it
+/// allocates nothing).
+#[derive(Debug, Clone, Copy)]
+struct CkptMsg {
+    correction_id: u64,
+    written_ns: u64,
+    cov: [f64; MAX_COV],
+    len: usize,
+}
+
 /// Path of the fusion checkpoint in the run directory.
 #[must_use]
 pub fn checkpoint_path(run_dir: &Path) -> PathBuf {
@@ -108,6 +121,26 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let mut last_ckpt = 0u64;
     let mut counters = HealthCounters::default();
     let mut stale = false;
+    let mut cov_buf: Vec<f64> = Vec::with_capacity(MAX_COV);
+    let (ckpt_tx, ckpt_rx) = crossbeam_channel::bounded::<CkptMsg>(1);
+    let writer = {
+        let path = ckpt_path.clone();
+        std::thread::Builder::new()
+            .name("checkpoint".into())
+            .spawn(move || {
+                for m in ckpt_rx {
+                    let c = Checkpoint {
+                        correction_id: m.correction_id,
+                        written_ns: m.written_ns,
+                        cov: m.cov.get(..m.len).unwrap_or_default().to_vec(),
+                    };
+                    if let Err(e) = write_checkpoint(&path, &c) {
+                        tracing::warn!("checkpoint: {e:#}");
+                    }
+                }
+            })
+            .context("starting the checkpoint writer thread")?
+    };
     loop {
         let wake = waiter.wait_timeout(Duration::from_millis(500))?;
         let Wake::Fired(f) = wake else {
@@ -180,23 +213,24 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             }
         }
         // Checkpoint right after an update (the next fix is a period away)
-        // or, while coasting, on the tick: the file write never delays a
-        // fused state.
+        // or, while coasting, on the tick. The writer thread serialises and
+        // writes it: no file I/O and no allocation on this loop.
         let coasting = now.saturating_sub(last_update_pub) > coast_ns;
         if (updated || (coasting && f.contains(&tick))) && now.saturating_sub(last_ckpt) >= ckpt_ns
         {
-            if let Some(fs) = engine.last_fused() {
-                let c = Checkpoint {
+            if engine.last_fused().is_some() {
+                engine.estimator().covariance_snapshot(&mut cov_buf);
+                let mut msg = CkptMsg {
                     correction_id: engine.correction_id(),
                     written_ns: now,
-                    cov: {
-                        let _ = fs;
-                        engine.estimator().covariance_snapshot()
-                    },
+                    cov: [0.0; MAX_COV],
+                    len: cov_buf.len().min(MAX_COV),
                 };
-                if let Err(e) = write_checkpoint(&ckpt_path, &c) {
-                    tracing::warn!("checkpoint: {e:#}");
+                for (d, s) in msg.cov.iter_mut().zip(&cov_buf) {
+                    *d = *s;
                 }
+                // Full: the previous checkpoint is still being written; skip this one.
+                let _ = ckpt_tx.try_send(msg);
             }
             last_ckpt = now;
         }
@@ -217,6 +251,10 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             health.report(&counters, state)?;
             fused_pub.update_connections()?;
         }
+    }
+    drop(ckpt_tx);
+    if writer.join().is_err() {
+        tracing::warn!("the checkpoint writer thread panicked");
     }
     health.report(&counters, Health::STATE_STOPPING)?;
     Ok(())
