@@ -9,8 +9,9 @@
 //! use insuwb_devices::link::{Link, LinkSpec, Read, ReconnectPolicy};
 //!
 //! # fn clock() -> u64 { 0 }
-//! let spec: LinkSpec = "tcp:127.0.0.1:8089".parse()?;
-//! let mut link = Link::new(spec, 0, ReconnectPolicy::default(), b"$PEKIO,ON\r\n".to_vec(), clock)?;
+//! let spec: LinkSpec = "tcp:192.168.1.10:25025".parse()?;
+//! let eliko_start = b"$PEKIO,EULA,ACCEPT\r\n$PEKIO,SET_REPORT_LIST,COORD\r\n".to_vec();
+//! let mut link = Link::new(spec, 0, ReconnectPolicy::default(), eliko_start, clock)?;
 //! let mut buf = [0_u8; 1024];
 //! match link.read(&mut buf, Duration::from_millis(100))? {
 //!     Read::Data { n, host_time_ns } => { /* hand buf[..n] to the decoder */ }
@@ -24,9 +25,9 @@
 //! wrong protocol) is for the decoder to say: the driver stage compares the
 //! frames decoded with [`LinkStats::bytes_read`].
 //!
-//! A read that returns data allocates nothing. Errors (going down, a failed
-//! connect) record their text in [`LinkStats::last_error`], which allocates;
-//! a serial read that times out allocates serialport's error value.
+//! A read that returns data or times out allocates nothing. Errors (going
+//! down, a failed connect) record their text in [`LinkStats::last_error`],
+//! which allocates.
 //!
 //! Serial latency: FTDI USB adapters hold received bytes for up to their
 //! latency timer (16 ms by default) before sending a USB packet; set it to
@@ -36,11 +37,15 @@
 use std::fmt;
 use std::io::{self, Read as _, Write as _};
 use std::net::{IpAddr, SocketAddr, TcpStream, ToSocketAddrs};
+use std::os::fd::{AsRawFd, RawFd};
+use std::os::raw::c_int;
 use std::path::PathBuf;
 use std::str::FromStr;
 use std::time::Duration;
 
-use serialport::{DataBits, FlowControl, Parity, SerialPort, StopBits, TTYPort};
+use nix::errno::Errno;
+use nix::poll::{poll, PollFd, PollFlags};
+use serialport::{DataBits, FlowControl, Parity, StopBits, TTYPort};
 
 /// Where a device is: a serial port path or a TCP server.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -470,10 +475,7 @@ impl Link {
             return Read::Timeout;
         }
         let result = match conn {
-            Conn::Serial(port) => match port.set_timeout(left) {
-                Ok(()) => port.read(buf),
-                Err(e) => Err(io::Error::from(e)),
-            },
+            Conn::Serial(port) => serial_read(port.as_raw_fd(), buf, left),
             Conn::Tcp {
                 stream,
                 read_timeout,
@@ -650,6 +652,31 @@ impl Link {
             }
         }
     }
+}
+
+/// One read of a serial port: poll, then read. Not serialport's own read,
+/// whose timeout builds an error with text (six allocations) and which
+/// drops the bytes still buffered when the device hangs up.
+fn serial_read(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+    let ms = timeout.as_nanos().div_ceil(1_000_000);
+    let ms = c_int::try_from(ms).unwrap_or(c_int::MAX);
+    let mut fds = [PollFd::new(fd, PollFlags::POLLIN)];
+    match poll(&mut fds, ms) {
+        Ok(0) | Err(Errno::EINTR) => return Err(io::ErrorKind::TimedOut.into()),
+        Ok(_) => {}
+        Err(e) => return Err(e.into()),
+    }
+    let revents = fds
+        .first()
+        .and_then(|f| f.revents())
+        .unwrap_or(PollFlags::empty());
+    if revents.contains(PollFlags::POLLIN) {
+        return nix::unistd::read(fd, buf).map_err(io::Error::from);
+    }
+    if revents.intersects(PollFlags::POLLHUP | PollFlags::POLLERR | PollFlags::POLLNVAL) {
+        return Err(io::ErrorKind::BrokenPipe.into());
+    }
+    Err(io::ErrorKind::TimedOut.into())
 }
 
 fn write_conn(conn: &mut Conn, bytes: &[u8]) -> io::Result<()> {

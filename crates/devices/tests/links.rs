@@ -1,9 +1,12 @@
 //! Links and emulators over real pseudo-terminals and loopback sockets:
 //! bytes arrive intact and in order, the TCP link sends its commands before
 //! the stream starts, unplugging is noticed and the link comes back within
-//! 1 s of the device, backoff is capped, and a read keeps to its timeout.
+//! 1 s of the device, backoff is capped, a read keeps to its timeout, and
+//! reads in the steady state do not allocate.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::path::PathBuf;
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
@@ -20,6 +23,53 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 fn serialise() -> MutexGuard<'static, ()> {
     ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+thread_local! {
+    /// Allocations made by this thread while `COUNTING` is set.
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+}
+
+/// The system allocator, counting the allocations of threads that ask.
+struct Counting;
+
+fn count_one() {
+    if COUNTING.try_with(Cell::get).unwrap_or(false) {
+        let _ = ALLOCATIONS.try_with(|a| a.set(a.get() + 1));
+    }
+}
+
+// SAFETY: every call is forwarded unchanged to the system allocator; the
+// counting touches only const-initialised thread locals.
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count_one();
+        // SAFETY: the caller's contract is passed through.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: the caller's contract is passed through.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count_one();
+        // SAFETY: the caller's contract is passed through.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// One read, with the allocations this thread made during it.
+fn counted_read(link: &mut Link, buf: &mut [u8], timeout: Duration) -> (Read, u64) {
+    let before = ALLOCATIONS.with(Cell::get);
+    COUNTING.with(|c| c.set(true));
+    let r = link.read(buf, timeout).unwrap();
+    COUNTING.with(|c| c.set(false));
+    (r, ALLOCATIONS.with(Cell::get) - before)
 }
 
 const ELIKO_HANDSHAKE: [&str; 2] = ["$PEKIO,EULA,ACCEPT\r\n", "$PEKIO,SET_REPORT_LIST,COORD\r\n"];
@@ -495,4 +545,59 @@ fn player_faults_are_seeded_and_counted() {
             b.bytes_offered
         )
     );
+}
+
+#[test]
+fn reads_that_bring_data_do_not_allocate() {
+    let _one = serialise();
+    let mut buf = [0_u8; 256];
+
+    // Serial: 8 KB waiting in the pty, read 256 bytes at a time.
+    let mut pty = PtyEmulator::open().unwrap();
+    let mut serial = serial_link(pty.driver_path().unwrap(), ReconnectPolicy::default());
+    connect(&mut serial);
+    let data = pattern(8192, 3);
+    assert_eq!(pty.write(&data), data.len());
+    let (mut got, mut data_reads, mut allocations) = (0, 0, 0);
+    while got < data.len() {
+        let (r, a) = counted_read(&mut serial, &mut buf, Duration::from_secs(1));
+        let Read::Data { n, .. } = r else {
+            panic!("{r:?} with bytes waiting");
+        };
+        got += n;
+        data_reads += 1;
+        allocations += a;
+    }
+    for _ in 0..5 {
+        let (r, a) = counted_read(&mut serial, &mut buf, Duration::from_millis(5));
+        assert_eq!(r, Read::Timeout);
+        allocations += a;
+    }
+    println!("serial: {data_reads} reads with data and 5 timed out, {allocations} allocations");
+    assert_eq!(allocations, 0);
+
+    // TCP: 64 KB in the socket buffers, and reads that time out.
+    let emulator = TcpEmulator::start(TcpEmulatorConfig::default()).unwrap();
+    let mut tcp = tcp_link(emulator.port(), b"", ReconnectPolicy::default());
+    connect(&mut tcp);
+    assert!(emulator.wait_for_client(Duration::from_secs(5)));
+    let data = pattern(65_536, 4);
+    assert_eq!(emulator.write(&data), data.len());
+    let (mut got, mut reads, mut allocations) = (0, 0, 0);
+    while got < data.len() {
+        let (r, a) = counted_read(&mut tcp, &mut buf, Duration::from_secs(1));
+        if let Read::Data { n, .. } = r {
+            got += n;
+        }
+        reads += 1;
+        allocations += a;
+    }
+    for _ in 0..5 {
+        let (r, a) = counted_read(&mut tcp, &mut buf, Duration::from_secs(1) / 100);
+        assert_eq!(r, Read::Timeout);
+        reads += 1;
+        allocations += a;
+    }
+    println!("tcp: {reads} reads (5 timed out), {allocations} allocations");
+    assert_eq!(allocations, 0);
 }
