@@ -408,7 +408,7 @@ impl Link {
     /// sleeps until the next attempt if that comes within `timeout`, tries to
     /// connect, and reads with the time left; otherwise it sleeps the whole
     /// `timeout` and returns [`Read::Down`], so a loop over `read` never
-    /// spins.
+    /// spins. A zero `timeout` returns [`Read::Timeout`] without reading.
     ///
     /// # Errors
     /// [`LinkReadError::EmptyBuffer`] for an empty `buf`.
