@@ -150,6 +150,63 @@ pub struct LoggerConfig {
     pub dir: Option<PathBuf>,
 }
 
+/// A real sensor behind a serial port or a TCP connection (`[devices.imu]`,
+/// `[devices.uwb]`), read by a driver whose source is `device`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DeviceConfig {
+    /// Where: `serial:/dev/ttyUSB0` (a tty, pseudo-terminal or udev symlink)
+    /// or `tcp:HOST:PORT`.
+    pub source: String,
+    /// Protocol: `witmotion` or `mavlink` (IMU); `nlink` or `eliko` (UWB).
+    pub protocol: String,
+    /// Serial baud rate (ignored for TCP).
+    pub baud: u32,
+    /// UWB: the tag to follow (Eliko tag id, NLink tag id); 0 takes every tag.
+    pub tag_id: u32,
+    /// IMU: mounting rotation from the sensor frame to the body frame,
+    /// roll, pitch, yaw in degrees (applied to accelerations and rates).
+    pub rotation_deg: [f64; 3],
+    /// UWB: the antenna's position in the body frame, m (lever arm).
+    pub lever_arm_m: [f64; 3],
+    /// UWB: standard deviation of a position fix the device reports, m.
+    pub position_sigma_m: f64,
+    /// No valid frame within this many bytes read: the baud rate (or the
+    /// protocol) is wrong, and the error says so.
+    pub wrong_baud_bytes: u64,
+    /// Reconnection: first retry, ms.
+    pub reconnect_initial_ms: u64,
+    /// Reconnection: cap of the backoff, ms.
+    pub reconnect_max_ms: u64,
+}
+
+impl Default for DeviceConfig {
+    fn default() -> Self {
+        Self {
+            source: String::new(),
+            protocol: String::new(),
+            baud: 115_200,
+            tag_id: 0,
+            rotation_deg: [0.0; 3],
+            lever_arm_m: [0.0; 3],
+            position_sigma_m: 0.1,
+            wrong_baud_bytes: 4096,
+            reconnect_initial_ms: 50,
+            reconnect_max_ms: 500,
+        }
+    }
+}
+
+/// The device sources (`[devices]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct DevicesConfig {
+    /// The IMU (when `sources.imu = "device"`).
+    pub imu: Option<DeviceConfig>,
+    /// The UWB positioning system (when `sources.uwb = "device"`).
+    pub uwb: Option<DeviceConfig>,
+}
+
 /// The whole file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
@@ -166,6 +223,8 @@ pub struct RobotConfig {
     pub stages: Vec<String>,
     /// Restart policy of the launcher.
     pub launch: insuwb_launch::RestartPolicy,
+    /// Real sensors (drivers whose source is `device`).
+    pub devices: DevicesConfig,
 }
 
 /// Stage names the launcher knows.
@@ -222,6 +281,7 @@ impl RobotConfig {
         ] {
             match src.split_once(':') {
                 None if src == "sim" => {}
+                None if src == "device" => {}
                 Some(("replay", file)) => {
                     let p = Path::new(file);
                     let p = if p.is_relative() {
@@ -237,7 +297,62 @@ impl RobotConfig {
                     }
                     *src = format!("replay:{}", p.display());
                 }
-                _ => bail!("{origin}: key '{key}': unknown source '{src}' (sim or replay:FILE)"),
+                _ => bail!(
+                    "{origin}: key '{key}': unknown source '{src}' (sim, replay:FILE or device)"
+                ),
+            }
+        }
+        for (key, want, dev, protocols) in [
+            (
+                "imu",
+                self.sources.imu == "device",
+                &self.devices.imu,
+                ["witmotion", "mavlink"],
+            ),
+            (
+                "uwb",
+                self.sources.uwb == "device",
+                &self.devices.uwb,
+                ["nlink", "eliko"],
+            ),
+        ] {
+            match (want, dev) {
+                (true, None) => {
+                    bail!("{origin}: key 'sources.{key}': \"device\" needs a [devices.{key}] table")
+                }
+                (_, Some(d)) => {
+                    if !protocols.contains(&d.protocol.as_str()) {
+                        bail!(
+                            "{origin}: key 'devices.{key}.protocol': unknown protocol '{}' (known: {})",
+                            d.protocol,
+                            protocols.join(", ")
+                        );
+                    }
+                    if let Err(e) = d.source.parse::<insuwb_devices::link::LinkSpec>() {
+                        bail!("{origin}: key 'devices.{key}.source': {e}");
+                    }
+                    if d.baud == 0 || d.wrong_baud_bytes == 0 {
+                        bail!(
+                            "{origin}: key 'devices.{key}': baud and wrong_baud_bytes must be > 0"
+                        );
+                    }
+                    if !(d.position_sigma_m.is_finite() && d.position_sigma_m > 0.0) {
+                        bail!("{origin}: key 'devices.{key}.position_sigma_m': must be > 0");
+                    }
+                    if d.reconnect_initial_ms == 0 || d.reconnect_max_ms < d.reconnect_initial_ms {
+                        bail!(
+                            "{origin}: key 'devices.{key}': need 0 < reconnect_initial_ms <= reconnect_max_ms"
+                        );
+                    }
+                    if d.rotation_deg
+                        .iter()
+                        .chain(&d.lever_arm_m)
+                        .any(|v| !v.is_finite())
+                    {
+                        bail!("{origin}: key 'devices.{key}': rotation_deg and lever_arm_m must be finite");
+                    }
+                }
+                (false, None) => {}
             }
         }
         let sp = self.sources.speed;
