@@ -59,6 +59,8 @@ pub struct RuntimeConfig {
     /// Heartbeat ([`insuwb_msg::Health`]) period, seconds, in [0.01, 60].
     /// Default 0.2 (5 Hz, the project's heartbeat rate).
     pub heartbeat_period_s: f64,
+    /// CPU affinity and SCHED_FIFO, applied when the stage starts (default: none).
+    pub realtime: crate::realtime::RealtimeConfig,
 }
 
 impl Default for RuntimeConfig {
@@ -71,6 +73,7 @@ impl Default for RuntimeConfig {
             source_id: None,
             busy_poll: false,
             heartbeat_period_s: 0.2,
+            realtime: crate::realtime::RealtimeConfig::default(),
         }
     }
 }

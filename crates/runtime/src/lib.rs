@@ -70,6 +70,7 @@ mod config;
 mod health;
 pub mod perm;
 mod port;
+pub mod realtime;
 mod stage;
 mod waiter;
 

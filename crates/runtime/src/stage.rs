@@ -54,6 +54,14 @@ pub enum StageError {
     /// should exit cleanly (status 0).
     #[error("shutdown requested (SIGINT/SIGTERM) while starting stage {0:?}")]
     ShutdownRequested(String),
+    /// The configured CPU affinity or SCHED_FIFO priority was refused.
+    #[error("stage {stage:?}: real-time setting refused: {source}")]
+    Realtime {
+        /// The stage.
+        stage: String,
+        /// What was refused.
+        source: crate::realtime::RealtimeError,
+    },
 }
 
 /// SIGINT or SIGTERM was received: the stage should stop and exit 0.
@@ -144,6 +152,12 @@ impl Stage {
         let iox = iceoryx_config(&cfg)?;
         let generation = resolve_generation(&cfg)?;
         crate::perm::restrict_umask();
+        cfg.realtime
+            .apply()
+            .map_err(|source| StageError::Realtime {
+                stage: cfg.stage_name.clone(),
+                source,
+            })?;
         if let Some(root) = &cfg.root_path {
             // Created now under the umask: 0700. An existing folder is left as
             // it is (it may be shared on purpose), with a warning when others

@@ -225,6 +225,9 @@ pub struct RobotConfig {
     pub launch: insuwb_launch::RestartPolicy,
     /// Real sensors (drivers whose source is `device`).
     pub devices: DevicesConfig,
+    /// Optional CPU pinning and SCHED_FIFO per stage (`[realtime.fusion]`
+    /// `cpus = [1]`, `fifo_priority = 50`); none by default.
+    pub realtime: std::collections::BTreeMap<String, insuwb_runtime::realtime::RealtimeConfig>,
 }
 
 /// Stage names the launcher knows.
@@ -355,6 +358,17 @@ impl RobotConfig {
                 (false, None) => {}
             }
         }
+        for (stage, rt) in &self.realtime {
+            if !STAGES.contains(&stage.as_str()) {
+                bail!(
+                    "{origin}: key 'realtime.{stage}': unknown stage (known: {})",
+                    STAGES.join(", ")
+                );
+            }
+            if let Err(e) = rt.validate() {
+                bail!("{origin}: key 'realtime.{stage}': {e}");
+            }
+        }
         let sp = self.sources.speed;
         if !(sp > 0.0 && (sp <= 1000.0 || sp.is_infinite())) {
             bail!("{origin}: key 'sources.speed': must be in (0, 1000] or \"max\", got {sp}");
@@ -441,6 +455,7 @@ impl RobotConfig {
             prefix: self.group.prefix.clone(),
             root_path: Some(self.iox_root()),
             stage_name: name.to_owned(),
+            realtime: self.realtime.get(name).cloned().unwrap_or_default(),
             ..insuwb_runtime::RuntimeConfig::default()
         }
     }
