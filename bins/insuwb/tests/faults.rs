@@ -240,7 +240,7 @@ struct Injected {
 /// A simulated flight (`paper-4.4-dynamic`) with bad samples written in:
 /// NaN, infinite and out-of-range IMU and TDOA values, TDOA of one anchor
 /// against itself, duplicated samples (one arriving late, after newer
-/// ones), a stretch of epochs whose anchors are collinear and a stretch
+/// ones), a sample stamped before its predecessor, a stretch of epochs whose anchors are collinear and a stretch
 /// with only two pairs per epoch.
 fn bad_log(dir: &Path) -> (PathBuf, Injected) {
     let base = dir.join("base.iulog");
@@ -276,11 +276,14 @@ fn bad_log(dir: &Path) -> (PathBuf, Injected) {
                     530 => out.push(r),
                     540 => late.push(r),
                     1540 => out.append(&mut late),
+                    // Stamped 5 ms before the sample written before it
+                    // (not a duplicate: a clock that stepped back).
+                    600 => out.push(bad(|b| b.header.meas_time_ns -= 5_000_000)),
                     _ => continue,
                 }
                 if matches!(t, 500..=520) {
                     inj.imu_invalid += 1;
-                } else if matches!(t, 530 | 540) {
+                } else if matches!(t, 530 | 540 | 600) {
                     inj.imu_time += 1;
                 }
             }

@@ -56,13 +56,47 @@ pub struct Recorded {
 }
 
 impl Recorded {
-    /// Items sorted by time; at equal times sensor samples go before ground
-    /// truth (truth is for evaluation: it must not delay a sensor sample),
-    /// otherwise in the given order.
+    /// The streams of `items` (IMU, TDOA, truth) merged by time, each kept
+    /// in its given order: a sample recorded with a time before its
+    /// predecessor's stays behind it, so the driver drops and counts it as
+    /// it would from a live sensor. At equal times sensor samples go before
+    /// ground truth (truth is for evaluation: it must not delay a sensor
+    /// sample).
     #[must_use]
-    pub fn new(mut items: Vec<Item>) -> Self {
-        items.sort_by_key(|i| (i.time_ns(), matches!(i, Item::Truth(_))));
-        Self { items, next: 0 }
+    pub fn new(items: Vec<Item>) -> Self {
+        let kind = |i: &Item| match i {
+            Item::Imu(_) => 0usize,
+            Item::Tdoa(_) => 1,
+            Item::Truth(_) => 2,
+        };
+        let mut streams: [Vec<Item>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+        for i in items {
+            if let Some(s) = streams.get_mut(kind(&i)) {
+                s.push(i);
+            }
+        }
+        let total = streams.iter().map(Vec::len).sum();
+        let mut merged = Vec::with_capacity(total);
+        let mut heads = [0usize; 3];
+        loop {
+            let next = (0..3)
+                .filter_map(|k| {
+                    let item = streams.get(k)?.get(*heads.get(k)?)?;
+                    Some((item.time_ns(), k))
+                })
+                .min();
+            let Some((_, k)) = next else { break };
+            if let (Some(s), Some(h)) = (streams.get(k), heads.get_mut(k)) {
+                if let Some(item) = s.get(*h) {
+                    merged.push(*item);
+                }
+                *h += 1;
+            }
+        }
+        Self {
+            items: merged,
+            next: 0,
+        }
     }
 
     /// Skips every sample before `t_ns` (a restarted driver resumes where the recording is now).
