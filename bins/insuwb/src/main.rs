@@ -1,11 +1,13 @@
 //! The `insuwb` command line: evaluation, simulation, AR fitting, import of
-//! real flights, log tools, and the process group (launch, demo, inspect).
+//! real flights, log tools, the process group (launch, demo, inspect), and
+//! device emulators (emulate).
 //!
 //! Logs go to standard error (`RUST_LOG` sets the level); with `--json` a
 //! command prints exactly one JSON object on standard output.
 
 mod bench_cmd;
 mod dataset;
+mod emulate_cmd;
 mod eval_cmd;
 mod group_cmd;
 mod log_cmd;
@@ -45,6 +47,9 @@ enum Cmd {
     /// Benchmarks of the process pipeline (latency against bare iceoryx2).
     #[command(subcommand)]
     Bench(bench_cmd::BenchCmd),
+    /// Emulate a real IMU or UWB device on a pseudo-terminal or a loopback TCP port, fed by a scenario or a log.
+    #[command(subcommand)]
+    Emulate(emulate_cmd::EmulateCmd),
     /// Live per-topic rates, last-sample ages, publishers and subscribers of a running group.
     Inspect(group_cmd::InspectArgs),
 }
@@ -86,5 +91,6 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Inspect(a) => group_cmd::inspect(&a),
         Cmd::Chaos(a) => group_cmd::chaos(&a),
         Cmd::Bench(c) => bench_cmd::run(&c),
+        Cmd::Emulate(c) => emulate_cmd::run(&c),
     }
 }
