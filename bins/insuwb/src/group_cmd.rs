@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use insuwb_devices::emulator::{DeviceSink, Faults, PlayReport, Player, PtyEmulator, TcpEmulator};
+use insuwb_devices::Protocol;
 use insuwb_launch::{Event, StageSpec, Supervisor, SupervisorState};
 use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, UwbFix};
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
@@ -181,9 +183,31 @@ fn rate(t: (u64, u64, u64)) -> f64 {
     (t.2 - 1) as f64 / ((t.1 - t.0) as f64 * 1e-9)
 }
 
+/// What a group run may be given besides its [`RunOptions`] (the device
+/// demo, whose emulators are paced to the epoch and whose drivers publish
+/// no ground truth).
+#[derive(Debug, Default)]
+pub struct GroupExtras {
+    /// The start epoch (CLOCK_MONOTONIC ns) instead of one chosen at start.
+    pub start_epoch_ns: Option<u64>,
+    /// Ground truth known beforehand, CLOCK_MONOTONIC times, taken with the
+    /// truth topic's for the accuracy figures.
+    pub truth: Vec<GroundTruth>,
+}
+
 /// Starts the group of `cfg` (from the file `cfg_path`), supervises it and
 /// returns what it measured once it stops.
 pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Result<GroupReport> {
+    run_group_with(cfg_path, cfg, opts, GroupExtras::default())
+}
+
+/// [`run_group`] with [`GroupExtras`].
+pub fn run_group_with(
+    cfg_path: &Path,
+    cfg: &RobotConfig,
+    opts: &RunOptions,
+    extras: GroupExtras,
+) -> Result<GroupReport> {
     // Owner-only files (0600/0700) for the launcher and, inherited, every stage.
     insuwb_runtime::perm::restrict_umask();
     if insuwb_runtime::perm::is_shared(&cfg.group.run_dir) {
@@ -201,7 +225,9 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     let rt = cfg.runtime("launcher");
     // Resources left by a previous run of this group that died.
     let _ = cleanup::cleanup_dead_nodes(&rt);
-    let epoch = choose_start_epoch(monotonic_ns() + 500_000_000);
+    let epoch = extras
+        .start_epoch_ns
+        .unwrap_or_else(|| choose_start_epoch(monotonic_ns() + 500_000_000));
     let cfg_arg = cfg_path.display().to_string();
     let mut specs = Vec::new();
     for s in &cfg.stages {
@@ -233,7 +259,7 @@ pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Resul
     sup.start(t0)?;
     let mut mon = Monitor {
         fused: Vec::new(),
-        truth: Vec::new(),
+        truth: extras.truth,
         imu_times: (0, 0, 0),
         fix_times: (0, 0, 0),
         health: std::collections::BTreeMap::new(),
@@ -505,7 +531,98 @@ pub struct DemoArgs {
     /// Print one JSON object on standard output.
     #[arg(long)]
     pub json: bool,
+    /// Feed the drivers through emulated devices: the IMU driver reads WitMotion frames from a pseudo-terminal, the UWB driver Eliko `$PEKIO` lines from a loopback TCP port, both played from the same scenario and seed.
+    #[arg(long)]
+    pub via_devices: bool,
 }
+
+/// The emulated devices of `insuwb demo --via-devices`, playing.
+struct DemoDevices {
+    imu: Player<PtyEmulator>,
+    uwb: Player<TcpEmulator>,
+}
+
+impl DemoDevices {
+    /// Stops both players and prints what they played.
+    fn finish(self) {
+        for (name, report) in [
+            ("IMU (witmotion, pty)", self.imu.stop_and_join()),
+            ("UWB (eliko, tcp)", self.uwb.stop_and_join()),
+        ] {
+            match report {
+                Ok(r) => eprintln!("insuwb demo: {name}: {}", crate::emulate_cmd::summary(&r)),
+                Err(e) => eprintln!("insuwb demo: {name}: {e}"),
+            }
+        }
+    }
+}
+
+/// Stops a player and gives back its report (the device is closed).
+trait StopAndJoin {
+    fn stop_and_join(self) -> Result<PlayReport>;
+}
+
+impl<S: DeviceSink> StopAndJoin for Player<S> {
+    fn stop_and_join(self) -> Result<PlayReport> {
+        self.stop();
+        Ok(self.join()?.1)
+    }
+}
+
+/// The `[sources]` and `[devices.*]` of the device demo, and its devices
+/// started: a WitMotion IMU on a pseudo-terminal (symlink `run_dir/imu`) and
+/// an Eliko server on a loopback port, both playing the demo scenario from
+/// `epoch`. Returns the config text, the devices, and the scenario's truth
+/// at CLOCK_MONOTONIC times.
+fn start_demo_devices(
+    run_dir: &Path,
+    epoch: u64,
+) -> Result<(String, DemoDevices, Vec<GroundTruth>)> {
+    use insuwb_stage::emulate::{self, Encoding};
+    let rec = emulate::from_scenario(DEMO_SCENARIO, DEMO_SEED)?;
+    let imu_enc = Encoding::new(Protocol::WitMotion);
+    let uwb_enc = Encoding {
+        tag: DEMO_TAG,
+        ..Encoding::new(Protocol::Eliko)
+    };
+    let imu_chunks = emulate::imu_chunks(&rec.imu, &imu_enc)?;
+    let uwb_chunks = emulate::uwb_chunks(&rec.fixes, &uwb_enc)?;
+    let link = run_dir.join("imu");
+    let pty = crate::emulate_cmd::open_pty(Some(&link))?;
+    let tcp = crate::emulate_cmd::start_eliko(0)?;
+    let port = tcp.port();
+    let text = format!(
+        "[sources]\nimu = \"device\"\nuwb = \"device\"\nscenario = \"{DEMO_SCENARIO}\"\nseed = {DEMO_SEED}\n\
+         [devices.imu]\nsource = \"serial:{}\"\nprotocol = \"witmotion\"\nbaud = {}\n\
+         [devices.uwb]\nsource = \"tcp:127.0.0.1:{port}\"\nprotocol = \"eliko\"\ntag_id = {DEMO_TAG}\n",
+        link.display(),
+        imu_enc.baud,
+    );
+    eprintln!(
+        "insuwb demo: devices: WitMotion IMU on serial:{} ({} cycles), Eliko server on tcp:127.0.0.1:{port} ({} COORD lines)",
+        link.display(),
+        imu_chunks.len(),
+        uwb_chunks.len()
+    );
+    let imu = Player::start(pty, imu_chunks, epoch, monotonic_ns, Faults::none())?;
+    let uwb = Player::start(tcp, uwb_chunks, epoch, monotonic_ns, Faults::none())?;
+    let truth = rec
+        .truth
+        .iter()
+        .map(|t| {
+            let mut t = *t;
+            t.header.meas_time_ns = t.header.meas_time_ns.saturating_add(epoch);
+            t
+        })
+        .collect();
+    Ok((text, DemoDevices { imu, uwb }, truth))
+}
+
+/// The demo's scenario and seed (the plain and the device demo alike).
+const DEMO_SCENARIO: &str = "nlos-long";
+const DEMO_SEED: u64 = 1;
+/// The Eliko tag id of the device demo.
+const DEMO_TAG: u32 = 1;
 
 /// Runs `insuwb demo`: the whole group on simulated sensors in real time.
 pub fn demo(a: &DemoArgs) -> Result<()> {
@@ -517,34 +634,10 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
     }
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
     let run_dir = std::env::temp_dir().join(format!("insuwb-demo-{id}"));
+    // Owner-only, as run_group makes everything else.
+    insuwb_runtime::perm::restrict_umask();
     std::fs::create_dir_all(&run_dir)?;
-    let text = format!(
-        "[group]\nname = \"demo\"\nprefix = \"insuwb_demo{id}_\"\nrun_dir = \"{}\"\n\
-         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\nspeed = 1.0\n\
-         [fusion]\nfilter = \"{}\"\n",
-        run_dir.display(),
-        a.filter
-    );
-    let cfg_path = run_dir.join("demo.toml");
-    std::fs::write(&cfg_path, &text)?;
-    let cfg = RobotConfig::load(&cfg_path)?;
-    eprintln!(
-        "insuwb demo: {} stages on the simulated scenario nlos-long for {} s (run directory {})",
-        cfg.stages.len(),
-        a.duration,
-        run_dir.display()
-    );
-    let result = run_group(
-        &cfg_path,
-        &cfg,
-        &RunOptions {
-            duration: Some(Duration::from_secs_f64(a.duration)),
-            live: true,
-            faults: Vec::new(),
-            chaos_seed: None,
-            env: Vec::new(),
-        },
-    );
+    let result = demo_group(a, &id, &run_dir);
     let _ = std::fs::remove_dir_all(&run_dir);
     let r = result?;
     if a.json {
@@ -568,6 +661,61 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Writes the demo's config into `run_dir`, starts the devices if asked,
+/// and runs the group.
+fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
+    let mut extras = GroupExtras::default();
+    let (sources, devices) = if a.via_devices {
+        let epoch = choose_start_epoch(monotonic_ns() + 500_000_000);
+        let (text, devices, truth) = start_demo_devices(run_dir, epoch)?;
+        extras.start_epoch_ns = Some(epoch);
+        extras.truth = truth;
+        (text, Some(devices))
+    } else {
+        (
+            format!(
+                "[sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{DEMO_SCENARIO}\"\nseed = {DEMO_SEED}\nspeed = 1.0\n"
+            ),
+            None,
+        )
+    };
+    let text = format!(
+        "[group]\nname = \"demo\"\nprefix = \"insuwb_demo{id}_\"\nrun_dir = \"{}\"\n\
+         {sources}[fusion]\nfilter = \"{}\"\n",
+        run_dir.display(),
+        a.filter
+    );
+    let cfg_path = run_dir.join("demo.toml");
+    let result = std::fs::write(&cfg_path, &text)
+        .map_err(anyhow::Error::from)
+        .and_then(|()| RobotConfig::load(&cfg_path))
+        .and_then(|cfg| {
+            eprintln!(
+                "insuwb demo: {} stages on the simulated scenario {DEMO_SCENARIO}{} for {} s (run directory {})",
+                cfg.stages.len(),
+                if a.via_devices { " through emulated devices" } else { "" },
+                a.duration,
+                run_dir.display()
+            );
+            run_group_with(
+                &cfg_path,
+                &cfg,
+                &RunOptions {
+                    duration: Some(Duration::from_secs_f64(a.duration)),
+                    live: true,
+                    faults: Vec::new(),
+                    chaos_seed: None,
+                    env: Vec::new(),
+                },
+                extras,
+            )
+        });
+    if let Some(d) = devices {
+        d.finish();
+    }
+    result
 }
 
 /// Arguments of `insuwb inspect`.
