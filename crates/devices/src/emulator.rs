@@ -107,6 +107,14 @@ fn create_pair() -> Result<(TTYPort, PathBuf), PtyError> {
         nix::fcntl::FcntlArg::F_SETFL(nix::fcntl::OFlag::O_NONBLOCK),
     )
     .map_err(|e| PtyError::Create(format!("setting O_NONBLOCK: {e}")))?;
+    // Not inherited by the processes the emulator's owner starts (the
+    // group it feeds): a copy of the master held open there would keep the
+    // device plugged in after `disconnect`.
+    nix::fcntl::fcntl(
+        master.as_raw_fd(),
+        nix::fcntl::FcntlArg::F_SETFD(nix::fcntl::FdFlag::FD_CLOEXEC),
+    )
+    .map_err(|e| PtyError::Create(format!("setting FD_CLOEXEC: {e}")))?;
     Ok((master, path))
 }
 
