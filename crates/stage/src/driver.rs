@@ -70,7 +70,8 @@ const MAX_PAIRS_PER_TIME: usize = 64;
 const MAX_ACCEL_MPS2: f64 = 400.0;
 const MAX_RATE_RPS: f64 = 70.0;
 
-fn imu_ok(s: &ImuSample) -> bool {
+/// Whether an IMU sample's values are finite and plausible.
+pub(crate) fn imu_ok(s: &ImuSample) -> bool {
     s.accel_mps2
         .iter()
         .all(|v| v.is_finite() && v.abs() < MAX_ACCEL_MPS2)
@@ -96,7 +97,8 @@ const EPOLL_STEP_NS: u64 = 1_000_000;
 /// timeout of `left - EPOLL_STEP_NS`, always hands over inside this margin).
 const PRECISE_NS: u64 = 1_500_000;
 
-/// Runs a driver stage until SIGINT/SIGTERM.
+/// Runs a driver stage until SIGINT/SIGTERM. Source `device`: the live
+/// loop of [`crate::device`] (speed and epoch do not apply).
 pub fn run(
     want: Want,
     cfg: &RobotConfig,
@@ -104,6 +106,9 @@ pub fn run(
     speed: f64,
     epoch_ns: u64,
 ) -> Result<()> {
+    if source_spec == "device" {
+        return crate::device::run(want, cfg);
+    }
     let name = match want {
         Want::Imu => "imu",
         Want::Uwb => "uwb",

@@ -1,12 +1,14 @@
 //! The body of each stage process and what they share: the robot group
 //! configuration ([`group`]), the sensor sources ([`source`]), and one module
-//! per stage ([`driver`] for the IMU and UWB drivers, [`ins`], [`fusion`],
+//! per stage ([`driver`] for the IMU and UWB drivers, [`device`] for their
+//! loop over a real sensor, [`ins`], [`fusion`],
 //! [`logger`]), and what the device emulators play ([`emulate`]). The stage
 //! binaries in `bins/` are thin `main`s over [`cli`]; all the algorithms come
 //! from `insuwb-fusion`, the same code `insuwb eval` runs.
 #![warn(missing_docs)]
 
 pub mod cli;
+pub mod device;
 pub mod driver;
 pub mod emulate;
 pub mod fusion;
