@@ -632,6 +632,11 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
             a.duration
         );
     }
+    if a.via_devices
+        && insuwb_eval::run::parse_filter(&a.filter) == Some(insuwb_msg::FilterKind::IakfTdoa)
+    {
+        bail!("--via-devices needs a loosely coupled filter (kf, shaf, stf, iakf): the devices report positions, not TDOA");
+    }
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
     let run_dir = std::env::temp_dir().join(format!("insuwb-demo-{id}"));
     // Owner-only, as run_group makes everything else.
