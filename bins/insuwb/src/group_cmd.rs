@@ -97,6 +97,15 @@ pub struct StageFigures {
     pub seq_gaps: u64,
     /// Stage-specific counters.
     pub extra: [u64; 4],
+    /// Last state reported: ok, degraded, disconnected or stopping.
+    pub state: &'static str,
+    /// Device drivers: the device clock's offset to CLOCK_MONOTONIC, ns
+    /// (`extra[2]`, decoded; absent while unknown).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clock_offset_ns: Option<i64>,
+    /// Device drivers: the device clock's drift, parts per billion (`extra[3]`, decoded).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clock_drift_ppb: Option<i64>,
 }
 
 /// Options of a group run.
@@ -371,6 +380,16 @@ pub fn run_group_with(
     sup.shutdown(&SHUTDOWN_ORDER);
     let restarts = sup.total_restarts();
     let mut report = summarise(&mon, restarts, elapsed);
+    for (stage, src) in [("imu", &cfg.sources.imu), ("uwb", &cfg.sources.uwb)] {
+        if src == "device" {
+            if let Some(f) = report.stages.get_mut(stage) {
+                // Two's complement bits of an i64; 0 while unknown.
+                let signed = |v: u64| (v != 0).then_some(i64::from_ne_bytes(v.to_ne_bytes()));
+                f.clock_offset_ns = signed(f.extra[2]);
+                f.clock_drift_ppb = signed(f.extra[3]);
+            }
+        }
+    }
     report.faults = injected;
     report.gave_up = sup.given_up();
     drop(tick);
@@ -472,6 +491,15 @@ fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
                     dropped_version: h.dropped_version,
                     seq_gaps: h.seq_gaps,
                     extra: h.extra,
+                    state: match h.state {
+                        Health::STATE_OK => "ok",
+                        Health::STATE_DEGRADED => "degraded",
+                        Health::STATE_DISCONNECTED => "disconnected",
+                        Health::STATE_STOPPING => "stopping",
+                        _ => "unknown",
+                    },
+                    clock_offset_ns: None,
+                    clock_drift_ppb: None,
                 };
                 (name.clone(), f)
             })

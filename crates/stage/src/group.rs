@@ -238,7 +238,16 @@ impl RobotConfig {
     pub fn load(path: &Path) -> Result<Self> {
         let mut c: Self = insuwb_config::load_file(path)?;
         let base = path.parent().unwrap_or(Path::new("."));
-        c.resolve(base, &path.display().to_string())?;
+        // Relative paths in the file are relative to its folder, made
+        // absolute here (the iceoryx2 root must be absolute).
+        let base = if base.is_absolute() {
+            base.to_path_buf()
+        } else {
+            std::env::current_dir()
+                .context("reading the current directory")?
+                .join(base)
+        };
+        c.resolve(&base, &path.display().to_string())?;
         Ok(c)
     }
 
