@@ -250,3 +250,90 @@ fn emulated_eliko_server_streams_the_scenarios_fixes_after_the_handshake() {
         assert_eq!(t.ticks * t.tick_ns / 1000, expected_us, "line {k}");
     }
 }
+
+/// A MAVLink IMU whose clock runs 100 ppm fast, played by `insuwb emulate`
+/// through a pseudo-terminal at 115200 baud: the device-clock filter maps
+/// its `time_usec` onto CLOCK_MONOTONIC within 1 ms of when each sample was
+/// measured (epoch + t), and estimates the drift.
+#[test]
+fn device_clock_with_100_ppm_drift_maps_within_1_ms() {
+    let _lock = lock();
+    let dir = std::env::temp_dir().join(format!("insuwb-test-{}-clock", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let link_path = dir.join("fc");
+    let epoch = monotonic_ns() + 1_500_000_000;
+    let (child, path) = emulate(&[
+        "imu",
+        "--protocol",
+        "mavlink",
+        "--link",
+        link_path.to_str().unwrap(),
+        "--start-epoch-ns",
+        &epoch.to_string(),
+        "--clock-start-s",
+        "1234.5",
+        "--drift-ppm",
+        "100",
+    ]);
+    let mut link = Link::new(
+        format!("serial:{path}").parse().unwrap(),
+        115_200,
+        ReconnectPolicy::default(),
+        Vec::new(),
+        monotonic_ns,
+    )
+    .unwrap();
+    let mut decoder = AnyDecoder::new(Protocol::Mavlink);
+    // 8 s of samples at 100 Hz.
+    let got = read_readings(&mut link, &mut decoder, 800);
+    let stderr = interrupt(child);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(got.len(), 800, "{stderr}");
+
+    let sc = insuwb_eval::scenario::ScenarioFile::load("nlos-long").unwrap();
+    let data = sc.dataset(1).unwrap();
+    let mut filter: Option<insuwb_devices::ClockFilter> = None;
+    let mut worst_ns: u64 = 0;
+    let mut frame = [0_u8; insuwb_devices::mavlink::MAX_FRAME_LEN];
+    for (k, ((reading, host_ns), s)) in got.iter().zip(&data.imu).enumerate() {
+        let Reading::Imu {
+            device_time: Some(dt),
+            ..
+        } = reading
+        else {
+            panic!("reading {k} has no device time: {reading:?}")
+        };
+        let f = filter.get_or_insert_with(|| {
+            insuwb_devices::ClockFilter::new(
+                dt.tick_ns,
+                dt.wrap,
+                insuwb_devices::ClockConfig::default(),
+            )
+            .unwrap()
+        });
+        // The frame's own length (as the emulator encoded it) on the wire.
+        let n = insuwb_devices::mavlink::encode_highres_imu(
+            &insuwb_devices::mavlink::Header::v2(0),
+            dt.ticks,
+            s.accel_mps2,
+            s.gyro_rps,
+            0,
+            &mut frame,
+        );
+        let _ = f.update(dt.ticks, host_ns - wire_time_ns(n, 115_200));
+        // Judged from 2 s on (the filter has seen 200 samples).
+        if k >= 200 {
+            let mapped = f.to_host(dt.ticks).unwrap();
+            let truth = epoch + s.header.meas_time_ns;
+            worst_ns = worst_ns.max(mapped.abs_diff(truth));
+        }
+    }
+    let f = filter.unwrap();
+    let drift = f.drift_ppm().unwrap();
+    eprintln!(
+        "100 ppm device clock through a pty: worst mapping error {:.3} ms over 2-8 s, drift estimate {drift:.1} ppm",
+        worst_ns as f64 * 1e-6
+    );
+    assert!(worst_ns <= 1_000_000, "mapped up to {worst_ns} ns off");
+    assert!((50.0..=150.0).contains(&drift), "drift {drift} ppm");
+}
