@@ -143,6 +143,11 @@ pub struct LooseConfig {
     /// minus the fix's, `d_pos_z = 2 w T dz`, `d_vel_z = w^2 T dz`. Default 0
     /// (off, the paper's 2D filter).
     pub vertical_bandwidth_rps: f64,
+    /// The UWB antenna's position in the body frame (the IMU's), m: a fix
+    /// is compared with the INS position plus this arm rotated by the INS
+    /// attitude. The arm's velocity (rotation rate x arm) is neglected: the
+    /// velocity of a fix is a regression over about a second. Default zero.
+    pub lever_arm_m: [f64; 3],
 }
 
 impl Default for LooseConfig {
@@ -151,6 +156,7 @@ impl Default for LooseConfig {
             use_velocity: true,
             accel_feedback: AccelFeedback::Bias,
             vertical_bandwidth_rps: 0.0,
+            lever_arm_m: [0.0; 3],
         }
     }
 }
@@ -188,6 +194,14 @@ pub enum LooseConfigError {
     /// `vertical_bandwidth_rps` is negative, not finite or above 10 rad/s.
     #[error("loose.vertical_bandwidth_rps must be in [0, 10] rad/s, got {0}")]
     VerticalBandwidth(f64),
+    /// A lever-arm component is not finite or longer than 10 m.
+    #[error("loose.lever_arm_m[{index}] must be finite and within [-10, 10] m, got {value}")]
+    LeverArm {
+        /// The component.
+        index: usize,
+        /// Its value.
+        value: f64,
+    },
 }
 
 impl LooseConfig {
@@ -196,6 +210,11 @@ impl LooseConfig {
     /// # Errors
     /// [`LooseConfigError`] naming the key and its value.
     pub fn validate(&self) -> Result<(), LooseConfigError> {
+        for (index, &value) in self.lever_arm_m.iter().enumerate() {
+            if !(value.is_finite() && value.abs() <= 10.0) {
+                return Err(LooseConfigError::LeverArm { index, value });
+            }
+        }
         let w = self.vertical_bandwidth_rps;
         if !(w.is_finite() && (0.0..=10.0).contains(&w)) {
             return Err(LooseConfigError::VerticalBandwidth(w));
@@ -269,6 +288,24 @@ impl PaperEstimator {
             self.gravity_mps2 = gravity_mps2;
         }
         self
+    }
+
+    /// The INS state moved to the UWB antenna ([`LooseConfig::lever_arm_m`]).
+    fn antenna(&self, ins: &InsAt) -> InsAt {
+        let l = self.cfg.lever_arm_m;
+        if l == [0.0; 3] {
+            return *ins;
+        }
+        let q = ins.quat;
+        let r = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[0], q[1], q[2], q[3],
+        ));
+        let arm = r * nalgebra::Vector3::new(l[0], l[1], l[2]);
+        let mut a = *ins;
+        for (p, d) in a.pos_m.iter_mut().zip(arm.iter()) {
+            *p += d;
+        }
+        a
     }
 
     /// The vertical loop's correction for a fix ([`LooseConfig::vertical_bandwidth_rps`]).
@@ -356,6 +393,8 @@ impl Estimator for PaperEstimator {
     }
 
     fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo> {
+        let antenna = self.antenna(ins);
+        let ins = &antenna;
         self.vertical = self.vertical_correction(ins, fix);
         let dp = [ins.pos_m[0] - fix.pos_m[0], ins.pos_m[1] - fix.pos_m[1]];
         let vel_ok = self.cfg.use_velocity && fix.header.flags & UwbFix::FLAG_VEL_VALID != 0;
@@ -471,6 +510,42 @@ mod tests {
     use crate::offline::{build_estimator, FusionConfig};
 
     const G: f64 = 9.80665;
+
+    /// With a lever arm, a fix at the antenna (arm rotated by the heading)
+    /// gives no innovation; without it, the arm is the innovation.
+    #[test]
+    fn the_lever_arm_moves_the_ins_to_the_antenna() {
+        let yaw90 =
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, core::f64::consts::FRAC_PI_2));
+        let ins = InsAt {
+            t_ns: 1_000_000_000,
+            pos_m: [1.0, 2.0, 0.0],
+            vel_mps: [0.0; 3],
+            quat: [yaw90.w, yaw90.i, yaw90.j, yaw90.k],
+        };
+        // Arm 0.5 m forward (body x); heading 90 deg: east is body y, so the
+        // antenna is 0.5 m north of the IMU.
+        let fix = UwbFix {
+            header: Header::new(0, 1_000_000_000),
+            pos_m: [1.0, 2.5, 0.0],
+            ..UwbFix::default()
+        };
+        for (arm, want_n) in [([0.5, 0.0, 0.0], 0.0), ([0.0; 3], -0.5)] {
+            let mut cfg = FusionConfig::default();
+            cfg.loose.lever_arm_m = arm;
+            cfg.loose.use_velocity = false;
+            let mut e = build_estimator(FilterKind::Kf, &cfg).unwrap();
+            let info = e.update_fix(&ins, &fix).unwrap();
+            assert!(info.innovation[0].abs() < 1e-12, "{info:?}");
+            assert!(
+                (info.innovation[1] - want_n).abs() < 1e-12,
+                "{arm:?}: {info:?}"
+            );
+        }
+        let mut cfg = FusionConfig::default();
+        cfg.loose.lever_arm_m = [0.0, 11.0, 0.0];
+        assert!(build_estimator(FilterKind::Kf, &cfg).is_err());
+    }
 
     /// A level, static vehicle seen by an INS tilted by `tilt`: the INS's
     /// horizontal acceleration error, turned into `d a`, maps back to `tilt`.

@@ -31,8 +31,9 @@
 //! regression the TDOA fix builder uses (`insuwb_uwb::velocity`, settings
 //! from the fusion config's `[fusion.fix.velocity]`); `vel_cov` is the
 //! regression's in both cases, and [`UwbFix::FLAG_VEL_VALID`] is set once
-//! the regression window is valid. The antenna lever arm (`lever_arm_m`) is
-//! not applied: the loose filters take the fix as the body's position.
+//! the regression window is valid. The fix is the antenna's position; the
+//! antenna lever arm (`lever_arm_m`) is applied by the loose filters in the
+//! fusion stage (`[fusion.loose] lever_arm_m`, see `RobotConfig::fusion_config`).
 //!
 //! Both drop and count samples with a NaN, infinite or out-of-range value
 //! (`Health::dropped_invalid`: the IMU limits of [`crate::driver`]; a

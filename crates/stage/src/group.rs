@@ -167,7 +167,8 @@ pub struct DeviceConfig {
     /// IMU: mounting rotation from the sensor frame to the body frame,
     /// roll, pitch, yaw in degrees (applied to accelerations and rates).
     pub rotation_deg: [f64; 3],
-    /// UWB: the antenna's position in the body frame, m (lever arm).
+    /// UWB: the antenna's position in the body frame, m (lever arm); when
+    /// not zero it becomes the loose filters' `[fusion.loose] lever_arm_m`.
     pub lever_arm_m: [f64; 3],
     /// UWB: standard deviation of a position fix the device reports, m.
     pub position_sigma_m: f64,
@@ -473,6 +474,17 @@ impl RobotConfig {
     /// table if set, else the scenario's (sim, INS start for `sources.seed`),
     /// else the replayed log's metadata.
     pub fn fusion_config(&self) -> Result<FusionConfig> {
+        let mut f = self.fusion_config_file()?;
+        // A UWB device's antenna lever arm (robot.toml) is the loose filters'.
+        if let (true, Some(d)) = (self.sources.uwb == "device", &self.devices.uwb) {
+            if d.lever_arm_m != [0.0; 3] {
+                f.loose.lever_arm_m = d.lever_arm_m;
+            }
+        }
+        Ok(f)
+    }
+
+    fn fusion_config_file(&self) -> Result<FusionConfig> {
         #[derive(Deserialize)]
         struct Wrap {
             #[serde(default)]

@@ -61,3 +61,26 @@ fn bad_realtime_and_device_settings_name_the_key() {
     .unwrap();
     assert_eq!(ok.devices.uwb.unwrap().tag_id, 7);
 }
+
+#[test]
+fn a_uwb_device_lever_arm_reaches_the_loose_filters() {
+    let c = parse(
+        "[sources]\nuwb = \"device\"\n\
+         [devices.uwb]\nsource = \"tcp:127.0.0.1:25025\"\nprotocol = \"eliko\"\nlever_arm_m = [0.1, 0.0, 0.3]\n",
+    )
+    .unwrap();
+    assert_eq!(
+        c.fusion_config().unwrap().loose.lever_arm_m,
+        [0.1, 0.0, 0.3]
+    );
+    // Without a device the scenario's own (zero) arm stays.
+    assert_eq!(
+        parse("")
+            .unwrap()
+            .fusion_config()
+            .unwrap()
+            .loose
+            .lever_arm_m,
+        [0.0; 3]
+    );
+}
