@@ -124,24 +124,31 @@ fn read_readings(link: &mut Link, decoder: &mut AnyDecoder, want: usize) -> Vec<
     got
 }
 
-#[test]
-fn emulated_imu_pty_carries_the_scenarios_samples_in_order_and_never_early() {
-    let _lock = lock();
-    let dir = std::env::temp_dir().join(format!("insuwb-test-{}-emulate", std::process::id()));
+/// An IMU played by `insuwb emulate imu --protocol <protocol>` on a pty
+/// behind a stable link in a temporary folder, due from 1.5 s from now, and
+/// a serial `Link` opened on it: (emulator, link, epoch, folder).
+fn emulated_imu(protocol: &str, extra: &[&str]) -> (Child, Link, u64, std::path::PathBuf) {
+    let dir = std::env::temp_dir().join(format!(
+        "insuwb-test-{}-emulate-{protocol}",
+        std::process::id()
+    ));
     std::fs::create_dir_all(&dir).unwrap();
     let link_path = dir.join("imu");
     let epoch = monotonic_ns() + 1_500_000_000;
-    let (child, path) = emulate(&[
+    let epoch_arg = epoch.to_string();
+    let mut args = vec![
         "imu",
         "--protocol",
-        "witmotion",
+        protocol,
         "--link",
         link_path.to_str().unwrap(),
         "--start-epoch-ns",
-        &epoch.to_string(),
-    ]);
+        &epoch_arg,
+    ];
+    args.extend_from_slice(extra);
+    let (child, path) = emulate(&args);
     assert_eq!(path, link_path.display().to_string());
-    let mut link = Link::new(
+    let link = Link::new(
         format!("serial:{path}").parse().unwrap(),
         115_200,
         ReconnectPolicy::default(),
@@ -149,6 +156,13 @@ fn emulated_imu_pty_carries_the_scenarios_samples_in_order_and_never_early() {
         monotonic_ns,
     )
     .unwrap();
+    (child, link, epoch, dir)
+}
+
+#[test]
+fn emulated_imu_pty_carries_the_scenarios_samples_in_order_and_never_early() {
+    let _lock = lock();
+    let (child, mut link, epoch, dir) = emulated_imu("witmotion", &[]);
     let mut decoder = AnyDecoder::new(Protocol::WitMotion);
     let got = read_readings(&mut link, &mut decoder, 150);
     let stderr = interrupt(child);
@@ -258,31 +272,10 @@ fn emulated_eliko_server_streams_the_scenarios_fixes_after_the_handshake() {
 #[test]
 fn device_clock_with_100_ppm_drift_maps_within_1_ms() {
     let _lock = lock();
-    let dir = std::env::temp_dir().join(format!("insuwb-test-{}-clock", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let link_path = dir.join("fc");
-    let epoch = monotonic_ns() + 1_500_000_000;
-    let (child, path) = emulate(&[
-        "imu",
-        "--protocol",
+    let (child, mut link, epoch, dir) = emulated_imu(
         "mavlink",
-        "--link",
-        link_path.to_str().unwrap(),
-        "--start-epoch-ns",
-        &epoch.to_string(),
-        "--clock-start-s",
-        "1234.5",
-        "--drift-ppm",
-        "100",
-    ]);
-    let mut link = Link::new(
-        format!("serial:{path}").parse().unwrap(),
-        115_200,
-        ReconnectPolicy::default(),
-        Vec::new(),
-        monotonic_ns,
-    )
-    .unwrap();
+        &["--clock-start-s", "1234.5", "--drift-ppm", "100"],
+    );
     let mut decoder = AnyDecoder::new(Protocol::Mavlink);
     // 8 s of samples at 100 Hz.
     let got = read_readings(&mut link, &mut decoder, 800);
