@@ -383,10 +383,8 @@ pub fn run_group_with(
     for (stage, src) in [("imu", &cfg.sources.imu), ("uwb", &cfg.sources.uwb)] {
         if src == "device" {
             if let Some(f) = report.stages.get_mut(stage) {
-                // Two's complement bits of an i64; 0 while unknown.
-                let signed = |v: u64| (v != 0).then_some(i64::from_ne_bytes(v.to_ne_bytes()));
-                f.clock_offset_ns = signed(f.extra[2]);
-                f.clock_drift_ppb = signed(f.extra[3]);
+                (f.clock_offset_ns, f.clock_drift_ppb) =
+                    insuwb_stage::device::clock_from_extra(&f.extra);
             }
         }
     }

@@ -461,6 +461,14 @@ fn i64_bits(v: i64) -> u64 {
     u64::from_ne_bytes(v.to_ne_bytes())
 }
 
+/// The device clock's offset (ns) and drift (ppb) from a device driver's
+/// `Health::extra` (indices 2 and 3 of [`DEVICE_EXTRA`]); `None` while unknown.
+#[must_use]
+pub fn clock_from_extra(extra: &[u64; 4]) -> (Option<i64>, Option<i64>) {
+    let signed = |v: u64| (v != 0).then(|| i64::from_ne_bytes(v.to_ne_bytes()));
+    (signed(extra[2]), signed(extra[3]))
+}
+
 /// The driver's state from the link and what the decoder saw.
 fn device_state(link: LinkState, wrong_baud: bool, last_frame_ns: Option<u64>, now_ns: u64) -> u32 {
     match link {
@@ -789,6 +797,11 @@ mod tests {
         assert!((offset - 5_000_000_000).abs() < 100_000, "{offset}");
         assert!(c.clock_drift_ppb().is_some());
         assert_eq!(i64_bits(-1), u64::MAX);
+        assert_eq!(
+            clock_from_extra(&[7, 1, i64_bits(-1_700), i64_bits(3_800)]),
+            (Some(-1_700), Some(3_800))
+        );
+        assert_eq!(clock_from_extra(&[7, 1, 0, 0]), (None, None));
     }
 
     #[test]
