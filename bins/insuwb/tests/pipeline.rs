@@ -41,7 +41,7 @@ fn group_runs_at_10hz_and_survives_a_sigkill_of_every_stage() {
         );
         let rmse = f(&r, "rmse_horizontal");
         eprintln!("{stage} killed at 4 s: rmse {rmse:.4} m (undisturbed {base_rmse:.4} m), max gap {gap:.0} ms, restarts {}", f(&r, "restarts"));
-        // One fault in 10 s costs a little: killed stages measured 0.98-1.32x
+        // One fault in 10 s costs a little: killed stages measured 0.84-1.32x
         // the undisturbed error over clean-CI runs (the fix epochs around
         // the restart differ from run to run); a wrong reset or a lost
         // correction costs several times more.
