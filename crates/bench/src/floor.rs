@@ -4,9 +4,9 @@
 //! (`insuwb_stage`), on the same runtime ports (same topics, payload types,
 //! QoS, WaitSet wake-ups, heartbeats), with the maths and the logging taken
 //! out:
-//! - `imu`: at `imu_rate_hz` from the start epoch, publishes a ground-truth
-//!   sample and an IMU sample, paced like the driver (WaitSet timeouts to
-//!   within 1.5 ms of the due time, nanosleep for the rest);
+//! - `imu`: at `imu_rate_hz` from the start epoch, publishes an IMU sample
+//!   and then a ground-truth sample, paced like the driver (one wait on the
+//!   waiter's deadline timer per sample);
 //! - `uwb`: at `uwb_rate_hz`, publishes `tdoa_per_epoch` TDOA measurements
 //!   and, before the last of them, the fix they complete (the driver's order);
 //! - `ins`: wakes on IMU samples and corrections; forwards every IMU sample as
@@ -257,26 +257,14 @@ fn period_ns(rate_hz: f64) -> u64 {
     (1e9 / rate_hz).round() as u64
 }
 
-/// Granularity of the WaitSet's timeout (epoll, milliseconds rounded up), ns.
-const EPOLL_STEP_NS: u64 = 1_000_000;
-/// Closer than this to the due time, a driver sleeps with nanosleep (as the
-/// pipeline's drivers), ns.
-const PRECISE_NS: u64 = 1_500_000;
+/// How long a driver waits at most before it looks at the clock again, ns.
+const MAX_WAIT_NS: u64 = 200_000_000;
 
-/// How a driver waits for `due_ns`, as the pipeline's drivers: the WaitSet
-/// timeout, and whether to sleep the rest with nanosleep after it. Farther
-/// than [`PRECISE_NS`] from the due time it waits in the WaitSet until about
-/// 1 ms before it; closer, it only polls the WaitSet (heartbeat, shutdown)
-/// and sleeps the rest.
-fn wait_for(due_ns: u64) -> (Duration, bool) {
-    let left = due_ns.saturating_sub(monotonic_ns());
-    if left < PRECISE_NS {
-        return (Duration::ZERO, true);
-    }
-    (
-        Duration::from_nanos((left - EPOLL_STEP_NS).min(200_000_000)),
-        false,
-    )
+/// The deadline a driver waits for, as the pipeline's drivers: the next
+/// sample's due time (the waiter's timer ends the wait there in one
+/// wake-up), at most [`MAX_WAIT_NS`] ahead.
+fn wait_for(due_ns: u64) -> u64 {
+    due_ns.min(monotonic_ns().saturating_add(MAX_WAIT_NS))
 }
 
 fn run_imu(cfg: &FloorConfig) -> Result<(), FloorError> {
@@ -295,35 +283,27 @@ fn run_imu(cfg: &FloorConfig) -> Result<(), FloorError> {
         let now = monotonic_ns();
         while epoch + k * period <= now {
             let t = epoch + k * period;
-            truth_pub.publish(GroundTruth {
-                header: Header::new(k, t),
-                quat: [1.0, 0.0, 0.0, 0.0],
-                ..GroundTruth::default()
-            })?;
+            // The sensor sample first, then the truth (as the pipeline's driver).
             imu_pub.publish(ImuSample {
                 header: Header::new(k, t),
                 accel_mps2: [0.0, 0.0, 9.81],
                 gyro_rps: [0.0; 3],
             })?;
+            truth_pub.publish(GroundTruth {
+                header: Header::new(k, t),
+                quat: [1.0, 0.0, 0.0, 0.0],
+                ..GroundTruth::default()
+            })?;
             counters.published += 1;
             k += 1;
         }
-        let due = epoch + k * period;
-        let (timeout, precise) = wait_for(due);
-        match waiter.wait_timeout(timeout)? {
+        match waiter.wait_deadline(wait_for(epoch + k * period))? {
             Wake::Shutdown => break,
             Wake::Fired(f) if f.contains(&hb) => {
                 health.report(&counters, Health::STATE_OK)?;
                 imu_pub.update_connections()?;
             }
             _ => {}
-        }
-        if precise
-            && stage
-                .sleep(Duration::from_nanos(due.saturating_sub(monotonic_ns())))
-                .is_err()
-        {
-            break;
         }
     }
     health.report(&counters, Health::STATE_STOPPING)?;
@@ -372,22 +352,13 @@ fn run_uwb(cfg: &FloorConfig) -> Result<(), FloorError> {
             }
             k += 1;
         }
-        let due = epoch + k * period;
-        let (timeout, precise) = wait_for(due);
-        match waiter.wait_timeout(timeout)? {
+        match waiter.wait_deadline(wait_for(epoch + k * period))? {
             Wake::Shutdown => break,
             Wake::Fired(f) if f.contains(&hb) => {
                 health.report(&counters, Health::STATE_OK)?;
                 tdoa_pub.update_connections()?;
             }
             _ => {}
-        }
-        if precise
-            && stage
-                .sleep(Duration::from_nanos(due.saturating_sub(monotonic_ns())))
-                .is_err()
-        {
-            break;
         }
     }
     health.report(&counters, Health::STATE_STOPPING)?;

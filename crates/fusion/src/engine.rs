@@ -488,7 +488,17 @@ impl FusionEngine {
                     .iter()
                     .position(|n| n.header.meas_time_ns >= t_m)
                 else {
-                    return; // wait for INS data
+                    // Wait for INS data. Eagerly, predict now through the
+                    // states before t_m: the lazy path predicts through
+                    // every one of them first when the covering state comes
+                    // (the same predictions in the same order), and only
+                    // the last prediction and the update are left for then.
+                    if self.cfg.eager_lag_s.is_some() {
+                        while let Some(n) = self.nav_buf.pop_front() {
+                            self.advance_to(&n);
+                        }
+                    }
+                    return;
                 };
                 for _ in 0..=cover {
                     if let Some(n) = self.nav_buf.pop_front() {

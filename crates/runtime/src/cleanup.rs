@@ -113,7 +113,7 @@ fn liveness<S: iceoryx2::service::Service>(s: &NodeState<S>) -> NodeLiveness {
     }
 }
 
-fn node_info(state: &NodeState<ipc::Service>) -> NodeInfo {
+fn node_info(state: &NodeState<crate::service::Ipc>) -> NodeInfo {
     let id = format!("{:?}", state.node_id());
     let details = match state {
         NodeState::Alive(v) => v.details().clone(),
@@ -141,7 +141,7 @@ fn node_info(state: &NodeState<ipc::Service>) -> NodeInfo {
 pub fn list_nodes(cfg: &RuntimeConfig) -> Result<Vec<NodeInfo>, CleanupError> {
     let iox = iceoryx_config(cfg)?;
     let mut out = Vec::new();
-    Node::<ipc::Service>::list(&iox, |state| {
+    Node::<crate::service::Ipc>::list(&iox, |state| {
         out.push(node_info(&state));
         CallbackProgression::Continue
     })
@@ -156,7 +156,7 @@ pub fn cleanup_dead_nodes(cfg: &RuntimeConfig) -> Result<usize, CleanupError> {
 
 pub(crate) fn cleanup_dead_nodes_of(iox: &Config) -> Result<usize, CleanupError> {
     let mut dead = Vec::new();
-    Node::<ipc::Service>::list(iox, |state| {
+    Node::<crate::service::Ipc>::list(iox, |state| {
         if let NodeState::Dead(view) = state {
             dead.push(view);
         }
@@ -187,10 +187,10 @@ const KNOWN_TOPICS: [&str; 9] = [
     topics::TRUTH,
 ];
 
-fn pubsub_counts(node: &Node<ipc::Service>, topic: &str) -> Option<(usize, usize)> {
+fn pubsub_counts(node: &Node<crate::service::Ipc>, topic: &str) -> Option<(usize, usize)> {
     use insuwb_msg::*;
     fn counts<T: ZeroCopySend + core::fmt::Debug + 'static>(
-        node: &Node<ipc::Service>,
+        node: &Node<crate::service::Ipc>,
         topic: &str,
     ) -> Option<(usize, usize)> {
         let svc = open_existing_pubsub::<T>(node, topic).ok()?.ok()?;
@@ -211,7 +211,7 @@ fn pubsub_counts(node: &Node<ipc::Service>, topic: &str) -> Option<(usize, usize
     }
 }
 
-fn event_counts(node: &Node<ipc::Service>, topic: &str) -> Option<(usize, usize)> {
+fn event_counts(node: &Node<crate::service::Ipc>, topic: &str) -> Option<(usize, usize)> {
     let svc = open_existing_event(node, topic).ok()?.ok()?;
     let d = svc.dynamic_config();
     Some((d.number_of_notifiers(), d.number_of_listeners()))
@@ -224,7 +224,7 @@ fn event_counts(node: &Node<ipc::Service>, topic: &str) -> Option<(usize, usize)
 pub fn list_services(cfg: &RuntimeConfig) -> Result<Vec<ServiceInfo>, CleanupError> {
     let iox = iceoryx_config(cfg)?;
     let mut out = Vec::new();
-    ipc::Service::list(&iox, |details| {
+    <crate::service::Ipc as iceoryx2::service::Service>::list(&iox, |details| {
         let sc = &details.static_details;
         let kind = match sc.messaging_pattern() {
             StaticPattern::PublishSubscribe(_) => ServiceKind::PublishSubscribe,
@@ -265,7 +265,7 @@ pub fn list_services(cfg: &RuntimeConfig) -> Result<Vec<ServiceInfo>, CleanupErr
         let node = NodeBuilder::new()
             .name(&name)
             .config(&iox)
-            .create::<ipc::Service>()
+            .create::<crate::service::Ipc>()
             .map_err(CleanupError::Node)?;
         for s in &mut out {
             let Some(topic) = topic_of(s) else { continue };

@@ -7,6 +7,7 @@
 //! versions and tracks sequence gaps and restarts), the wait loop ([`Waiter`]
 //! over a WaitSet, or busy polling), the heartbeat ([`HealthReporter`]), the
 //! process-comparable clock ([`monotonic_ns`]), logging ([`init_tracing`]),
+//! the iceoryx2 service type whose loans allocate nothing ([`service::Ipc`]),
 //! owner-only files ([`perm`]) and inspection/cleanup of a deployment's
 //! resources ([`cleanup`]).
 //!
@@ -71,6 +72,7 @@ mod health;
 pub mod perm;
 mod port;
 pub mod realtime;
+pub mod service;
 mod stage;
 mod waiter;
 

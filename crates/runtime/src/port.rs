@@ -140,8 +140,8 @@ pub enum ReceiveError {
     },
 }
 
-type PsFactory<T> = ps_factory::PortFactory<ipc::Service, T, ()>;
-type EvFactory = event_factory::PortFactory<ipc::Service>;
+type PsFactory<T> = ps_factory::PortFactory<crate::service::Ipc, T, ()>;
+type EvFactory = event_factory::PortFactory<crate::service::Ipc>;
 
 fn service_name(topic: &str) -> Result<ServiceName, PortError> {
     ServiceName::new(topic).map_err(|_| PortError::InvalidTopic(topic.to_owned()))
@@ -149,7 +149,7 @@ fn service_name(topic: &str) -> Result<ServiceName, PortError> {
 
 /// Opens or creates the publish-subscribe service of `topic` with its QoS.
 pub(crate) fn open_pubsub<T>(
-    node: &Node<ipc::Service>,
+    node: &Node<crate::service::Ipc>,
     topic: &str,
 ) -> Result<PsFactory<T>, PortError>
 where
@@ -166,7 +166,7 @@ where
 
 /// Opens (never creates) the publish-subscribe service of `topic` with its QoS.
 pub(crate) fn open_existing_pubsub<T>(
-    node: &Node<ipc::Service>,
+    node: &Node<crate::service::Ipc>,
     topic: &str,
 ) -> Result<Result<PsFactory<T>, PublishSubscribeOpenError>, PortError>
 where
@@ -177,10 +177,13 @@ where
 }
 
 fn pubsub_builder<T>(
-    node: &Node<ipc::Service>,
+    node: &Node<crate::service::Ipc>,
     topic: &str,
     q: &ServiceQos,
-) -> Result<iceoryx2::service::builder::publish_subscribe::Builder<T, (), ipc::Service>, PortError>
+) -> Result<
+    iceoryx2::service::builder::publish_subscribe::Builder<T, (), crate::service::Ipc>,
+    PortError,
+>
 where
     T: ZeroCopySend + Debug + 'static,
 {
@@ -197,12 +200,12 @@ where
 }
 
 fn event_builder(
-    node: &Node<ipc::Service>,
+    node: &Node<crate::service::Ipc>,
     topic: &str,
 ) -> Result<
     (
         String,
-        iceoryx2::service::builder::event::Builder<ipc::Service>,
+        iceoryx2::service::builder::event::Builder<crate::service::Ipc>,
     ),
     PortError,
 > {
@@ -219,7 +222,10 @@ fn event_builder(
 }
 
 /// Opens or creates the event service that wakes `topic`'s subscribers.
-pub(crate) fn open_event(node: &Node<ipc::Service>, topic: &str) -> Result<EvFactory, PortError> {
+pub(crate) fn open_event(
+    node: &Node<crate::service::Ipc>,
+    topic: &str,
+) -> Result<EvFactory, PortError> {
     let (name, b) = event_builder(node, topic)?;
     b.open_or_create()
         .map_err(|source| PortError::Event { name, source })
@@ -227,7 +233,7 @@ pub(crate) fn open_event(node: &Node<ipc::Service>, topic: &str) -> Result<EvFac
 
 /// Opens (never creates) the event service of `topic`.
 pub(crate) fn open_existing_event(
-    node: &Node<ipc::Service>,
+    node: &Node<crate::service::Ipc>,
     topic: &str,
 ) -> Result<Result<EvFactory, EventOpenError>, PortError> {
     let (_, b) = event_builder(node, topic)?;
@@ -241,8 +247,8 @@ where
     T: ZeroCopySend + Copy + Debug + HasHeader + 'static,
 {
     topic: String,
-    publisher: Publisher<ipc::Service, T, ()>,
-    notifier: Notifier<ipc::Service>,
+    publisher: Publisher<crate::service::Ipc, T, ()>,
+    notifier: Notifier<crate::service::Ipc>,
     service: PsFactory<T>,
     _event: EvFactory,
     next_seq: u64,
@@ -271,7 +277,7 @@ where
     T: ZeroCopySend + Copy + Debug + HasHeader + 'static,
 {
     pub(crate) fn create(
-        node: &Node<ipc::Service>,
+        node: &Node<crate::service::Ipc>,
         topic: &str,
         generation: u32,
         source_id: u16,
@@ -552,8 +558,8 @@ where
     T: ZeroCopySend + Copy + Debug + HasHeader + 'static,
 {
     topic: String,
-    subscriber: Subscriber<ipc::Service, T, ()>,
-    pub(crate) listener: Listener<ipc::Service>,
+    subscriber: Subscriber<crate::service::Ipc, T, ()>,
+    pub(crate) listener: Listener<crate::service::Ipc>,
     _service: PsFactory<T>,
     _event: EvFactory,
     // Interior mutability: a Sub is read through `&self` so that it can be
@@ -581,7 +587,7 @@ impl<T> Sub<T>
 where
     T: ZeroCopySend + Copy + Debug + HasHeader + 'static,
 {
-    pub(crate) fn create(node: &Node<ipc::Service>, topic: &str) -> Result<Self, PortError> {
+    pub(crate) fn create(node: &Node<crate::service::Ipc>, topic: &str) -> Result<Self, PortError> {
         let q = for_topic(topic);
         let service = open_pubsub::<T>(node, topic)?;
         let event = open_event(node, topic)?;

@@ -80,7 +80,7 @@ pub struct Shutdown;
 pub struct Stage {
     cfg: RuntimeConfig,
     iox: Config,
-    node: Node<ipc::Service>,
+    node: Node<crate::service::Ipc>,
     generation: u32,
     source_id: u16,
 }
@@ -188,7 +188,7 @@ impl Stage {
         let node = NodeBuilder::new()
             .name(&name)
             .config(&iox)
-            .create::<ipc::Service>()
+            .create::<crate::service::Ipc>()
             .map_err(|source| StageError::Node {
                 name: cfg.stage_name.clone(),
                 source,

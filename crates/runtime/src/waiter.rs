@@ -10,7 +10,11 @@
 //! a wake-up allocates nothing (iceoryx2 0.10's WaitSet allocates two vectors
 //! per wake-up): the listeners' file descriptors sit in an epoll set whose
 //! events land in an array on the stack, interval deadlines are kept per
-//! slot, and [`Fired`] is a bit set. Termination follows iceoryx2's
+//! slot, and [`Fired`] is a bit set. Deadlines (timeouts and intervals) are
+//! kept by a timerfd in the same epoll set, armed at the earliest deadline
+//! as an absolute CLOCK_MONOTONIC time: a high-resolution timer without
+//! timer slack, so a wait ends within microseconds of its deadline (epoll's
+//! own timeout counts milliseconds, rounded up) in one wake-up. Termination follows iceoryx2's
 //! convention: its signal handler (installed by the stage's first
 //! termination check) records SIGINT/SIGTERM, `epoll_wait` returns EINTR, and
 //! [`Wake::Shutdown`] is returned, as it is when the request came in while
@@ -153,9 +157,41 @@ impl Drop for Attachment<'_, '_> {
     }
 }
 
-/// An owned epoll file descriptor.
+/// An owned file descriptor (the epoll set, the timerfd).
 #[derive(Debug)]
 struct EpollFd(i32);
+
+/// The epoll data of the deadline timer (never a slot number).
+const TIMER_TOKEN: u64 = u64::MAX;
+
+/// Arms `tfd` to expire at `at_ns` (CLOCK_MONOTONIC, absolute), or disarms it
+/// with `None`. Either clears an expiry not yet read, so the timer is
+/// readable only when the deadline it was last armed with has passed.
+fn arm_timer(tfd: i32, at_ns: Option<u64>) -> std::io::Result<()> {
+    let ns = at_ns.map_or(0, |t| t.max(1));
+    let value = libc::timespec {
+        tv_sec: libc::time_t::try_from(ns / 1_000_000_000).unwrap_or(libc::time_t::MAX),
+        tv_nsec: libc::c_long::try_from(ns % 1_000_000_000).unwrap_or(0),
+    };
+    let spec = libc::itimerspec {
+        it_interval: libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        },
+        it_value: value,
+    };
+    // SAFETY: `spec` is a valid itimerspec for the call's duration; the old
+    // value is not asked for (null); a bad descriptor is reported.
+    #[allow(unsafe_code)]
+    let rc = unsafe {
+        libc::timerfd_settime(tfd, libc::TFD_TIMER_ABSTIME, &spec, core::ptr::null_mut())
+    };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
 
 impl Drop for EpollFd {
     fn drop(&mut self) {
@@ -187,6 +223,10 @@ fn epoll_ctl(epfd: i32, op: i32, fd: i32, slot: u64) -> std::io::Result<()> {
 #[derive(Debug)]
 pub struct Waiter {
     epfd: EpollFd,
+    /// The deadline timer (CLOCK_MONOTONIC), in the epoll set as [`TIMER_TOKEN`].
+    timer: EpollFd,
+    /// The deadline the timer is armed with (`None`: disarmed).
+    armed: core::cell::Cell<Option<u64>>,
     slots: RefCell<[Slot; MAX_ATTACHMENTS]>,
     busy_poll: bool,
 }
@@ -201,8 +241,29 @@ impl Waiter {
         if fd < 0 {
             return Err(WaitError::Create(std::io::Error::last_os_error()));
         }
+        let epfd = EpollFd(fd);
+        // SAFETY: plain system call without pointers.
+        #[allow(unsafe_code)]
+        let tfd = unsafe {
+            libc::timerfd_create(
+                libc::CLOCK_MONOTONIC,
+                libc::TFD_CLOEXEC | libc::TFD_NONBLOCK,
+            )
+        };
+        if tfd < 0 {
+            return Err(WaitError::Create(std::io::Error::last_os_error()));
+        }
+        let timer = EpollFd(tfd);
+        epoll_ctl(epfd.0, libc::EPOLL_CTL_ADD, timer.0, TIMER_TOKEN).map_err(|source| {
+            WaitError::Attach {
+                what: "the deadline timer".to_owned(),
+                source,
+            }
+        })?;
         Ok(Self {
-            epfd: EpollFd(fd),
+            epfd,
+            timer,
+            armed: core::cell::Cell::new(None),
             slots: RefCell::new([Slot::Free; MAX_ATTACHMENTS]),
             busy_poll,
         })
@@ -287,6 +348,23 @@ impl Waiter {
         self.wait_until(Some(monotonic_ns().saturating_add(ns)))
     }
 
+    /// As [`Waiter::wait`], giving up at `deadline_ns` (CLOCK_MONOTONIC, see
+    /// [`monotonic_ns`]) with [`Wake::Timeout`]: never before it, and late
+    /// only by the wake-up itself (tens of microseconds), not by epoll's
+    /// millisecond rounding. A driver paces its samples with it.
+    pub fn wait_deadline(&self, deadline_ns: u64) -> Result<Wake, WaitError> {
+        self.wait_until(Some(deadline_ns))
+    }
+
+    /// Arms the deadline timer at `until` unless it already is.
+    fn arm(&self, until: Option<u64>) -> Result<(), WaitError> {
+        if self.armed.get() != until {
+            arm_timer(self.timer.0, until).map_err(WaitError::Run)?;
+            self.armed.set(until);
+        }
+        Ok(())
+    }
+
     /// Marks the intervals due at `now` and moves their deadlines on; the
     /// earliest deadline left.
     fn due_intervals(&self, now: u64, mask: &mut u32) -> Result<Option<u64>, WaitError> {
@@ -325,27 +403,25 @@ impl Waiter {
                 (Some(d), Some(i)) => Some(d.min(i)),
                 (d, i) => d.or(i),
             };
-            let timeout_ms: i32 = if self.busy_poll || mask != 0 {
+            let timeout_ms: i32 = if self.busy_poll || mask != 0 || until.is_some_and(|u| u <= now)
+            {
                 0
             } else {
-                match until {
-                    None => {
-                        let any = self
-                            .slots
-                            .try_borrow()
-                            .map_err(|_| WaitError::Reentrant)?
-                            .iter()
-                            .any(|s| *s != Slot::Free);
-                        if !any {
-                            return Err(WaitError::NoAttachments);
-                        }
-                        -1
-                    }
-                    // epoll counts milliseconds: round up, never wake early.
-                    Some(u) => {
-                        i32::try_from(u.saturating_sub(now).div_ceil(1_000_000)).unwrap_or(i32::MAX)
+                if until.is_none() {
+                    let any = self
+                        .slots
+                        .try_borrow()
+                        .map_err(|_| WaitError::Reentrant)?
+                        .iter()
+                        .any(|s| *s != Slot::Free);
+                    if !any {
+                        return Err(WaitError::NoAttachments);
                     }
                 }
+                // The timer ends the wait at `until`: epoll itself waits
+                // without a timeout.
+                self.arm(until)?;
+                -1
             };
             // SAFETY: `events` is a valid array of MAX_ATTACHMENTS entries
             // that the kernel fills; the epoll descriptor is owned.
@@ -366,13 +442,20 @@ impl Waiter {
                 }
                 return Err(WaitError::Run(e));
             }
+            let mut timer_fired = false;
             for ev in events.iter().take(usize::try_from(n).unwrap_or(0)) {
                 let slot = ev.u64;
                 if slot < MAX_ATTACHMENTS as u64 {
                     mask |= 1u32 << slot;
+                } else if slot == TIMER_TOKEN {
+                    timer_fired = true;
                 }
             }
-            if n > 0 || timeout_ms > 0 {
+            if timer_fired {
+                // Expired: readable until re-armed; the next wait arms it anew.
+                self.arm(None)?;
+            }
+            if n > 0 {
                 // Intervals that came due while waiting fire with the rest.
                 self.due_intervals(monotonic_ns(), &mut mask)?;
             }

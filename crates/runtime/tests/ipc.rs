@@ -245,6 +245,70 @@ fn waiter_reports_which_attachment_fired_and_times_out() {
 }
 
 #[test]
+fn deadlines_end_a_wait_never_early_and_without_millisecond_rounding() {
+    let env = Env::new("deadline");
+    {
+        let st = Stage::new(env.cfg("d")).unwrap();
+        let mut p = st.publisher::<ImuSample>(topics::IMU).unwrap();
+        let s_imu = st.subscriber::<ImuSample>(topics::IMU).unwrap();
+        let w = st.waiter().unwrap();
+        let a_imu = w.attach(&s_imu).unwrap();
+        // 40 deadlines 2.3 ms ahead: epoll's millisecond timeout would end
+        // each wait at 3 ms, 700 us late.
+        let mut late_us = Vec::new();
+        for _ in 0..40 {
+            let due = insuwb_runtime::monotonic_ns() + 2_300_000;
+            assert!(matches!(w.wait_deadline(due).unwrap(), Wake::Timeout));
+            let now = insuwb_runtime::monotonic_ns();
+            assert!(now >= due, "woke {} ns early", due - now);
+            late_us.push((now - due) / 1000);
+        }
+        late_us.sort_unstable();
+        let median = late_us[late_us.len() / 2];
+        eprintln!("deadline lateness: median {median} us, all {late_us:?}");
+        // Generous (2 loaded cores): well under the 700 us of epoll rounding.
+        assert!(median < 400, "median lateness {median} us: {late_us:?}");
+
+        // A deadline already passed returns at once; a publication before
+        // the deadline wakes the waiter for it, and the timer armed for that
+        // deadline does not fire a later, longer wait early.
+        assert!(matches!(
+            w.wait_deadline(insuwb_runtime::monotonic_ns() - 1).unwrap(),
+            Wake::Timeout
+        ));
+        p.publish(imu(1)).unwrap();
+        let due = insuwb_runtime::monotonic_ns() + 20_000_000;
+        let Wake::Fired(f) = w.wait_deadline(due).unwrap() else {
+            panic!("expected the sample")
+        };
+        assert!(f.contains(&a_imu));
+        assert_eq!(s_imu.drain(|_| {}).unwrap(), 1);
+        std::thread::sleep(Duration::from_millis(25));
+        // The 20 ms deadline has passed (its timer expired unread): a new
+        // 30 ms wait must last its 30 ms.
+        let t0 = insuwb_runtime::monotonic_ns();
+        assert!(matches!(
+            w.wait_deadline(t0 + 30_000_000).unwrap(),
+            Wake::Timeout
+        ));
+        assert!(insuwb_runtime::monotonic_ns() - t0 >= 30_000_000);
+
+        // Intervals keep their phase through the same timer.
+        let tick = w.attach_interval(Duration::from_millis(7)).unwrap();
+        let t0 = insuwb_runtime::monotonic_ns();
+        let mut ticks = 0;
+        while ticks < 10 {
+            if let Wake::Fired(f) = w.wait_timeout(Duration::from_secs(10)).unwrap() {
+                ticks += u32::from(f.contains(&tick));
+            }
+        }
+        let elapsed = insuwb_runtime::monotonic_ns() - t0;
+        assert!(elapsed >= 70_000_000, "10 ticks of 7 ms in {elapsed} ns");
+    }
+    env.finish();
+}
+
+#[test]
 fn busy_poll_waiter_wakes_times_out_and_fires_intervals() {
     let env = Env::new("busy");
     {

@@ -25,8 +25,6 @@
 //! a solution run away from the anchors, another solver error). Skips are
 //! also logged with their last reason, at most every [`SKIP_LOG_PERIOD_NS`].
 
-use std::time::Duration;
-
 use anyhow::Result;
 use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, UwbFix, UwbTdoa};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
@@ -89,13 +87,6 @@ fn tdoa_ok(s: &UwbTdoa) -> bool {
             .all(|v| v.is_finite())
         && s.anchor_a != s.anchor_b
 }
-
-/// Granularity of the WaitSet's timeout (epoll, milliseconds rounded up), ns.
-const EPOLL_STEP_NS: u64 = 1_000_000;
-/// Closer than this to a sample's due time, a driver sleeps with nanosleep
-/// instead of the WaitSet, ns (the WaitSet, woken up to 1 ms early by a
-/// timeout of `left - EPOLL_STEP_NS`, always hands over inside this margin).
-const PRECISE_NS: u64 = 1_500_000;
 
 /// Runs a driver stage until SIGINT/SIGTERM. Source `device`: the live
 /// loop of [`crate::device`] (speed and epoch do not apply).
@@ -287,30 +278,19 @@ pub fn run(
                 }
             }
         }
-        // The WaitSet's timeout has a granularity of 1 ms (epoll rounds it
-        // up): sleeping in it until the due time would publish each sample up
-        // to 1 ms late, differently in each driver. Wait in the WaitSet until
-        // less than PRECISE_NS before the due time; then only poll it (the
-        // heartbeat, a shutdown) and sleep the rest with nanosleep (late by
-        // the timer slack, about 50 us).
-        let mut timeout = Duration::from_millis(200);
-        let mut precise_due = None;
-        if let Some(item) = pending {
-            if lockstep {
-                // Woken by the consumers' progress; the timeout only bounds a stall.
-                timeout = Duration::from_millis(20);
-            } else {
-                let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
-                let left = due.saturating_sub(monotonic_ns());
-                if left < PRECISE_NS {
-                    precise_due = Some(due);
-                    timeout = Duration::ZERO;
-                } else {
-                    timeout = Duration::from_nanos((left - EPOLL_STEP_NS).min(200_000_000));
-                }
+        // Wait for the next sample's due time (the waiter's timer ends the
+        // wait within microseconds of it, in one wake-up), a heartbeat or a
+        // shutdown; lockstep is woken by the consumers' progress and the
+        // deadline only bounds a stall.
+        let now = monotonic_ns();
+        let deadline = match pending {
+            Some(_) if lockstep => now + 20_000_000,
+            Some(item) => {
+                (epoch_ns + (item.time_ns() as f64 / speed) as u64).min(now + 200_000_000)
             }
-        }
-        match waiter.wait_timeout(timeout)? {
+            None => now + 200_000_000,
+        };
+        match waiter.wait_deadline(deadline)? {
             Wake::Shutdown => break,
             Wake::Fired(f) if f.contains(&hb) => {
                 counters.dropped_invalid = drops.invalid;
@@ -350,12 +330,6 @@ pub fn run(
                 }
             }
             _ => {}
-        }
-        if let Some(due) = precise_due {
-            let left = due.saturating_sub(monotonic_ns());
-            if stage.sleep(Duration::from_nanos(left)).is_err() {
-                break;
-            }
         }
     }
     health.report(&counters, Health::STATE_STOPPING)?;

@@ -6,10 +6,12 @@
 //! global allocator that charges each allocation to the stage whose thread
 //! made it (threads a stage spawns itself, such as the logger's writer, are
 //! charged to "other"). Allocations are counted over a 4 s window of the
-//! steady state and compared with the samples each stage published there:
-//! iceoryx2 0.10 itself allocates once per loaned sample; the stages' own
-//! loops allocate nothing more per sample. SIGTERM to the
-//! process stops every stage, as it stops a stage process.
+//! steady state and compared with the samples each stage published there.
+//! The stages publish through `insuwb_runtime::service::Ipc`, whose loans
+//! take their bookkeeping from a pool (iceoryx2 0.10's `ipc::Service`
+//! allocates an `Rc` per loaned sample): a stage's loop allocates nothing,
+//! per sample or otherwise. SIGTERM to the process stops every stage, as it
+//! stops a stage process.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -189,18 +191,18 @@ fn stages_do_not_allocate_per_sample_in_the_steady_state() {
     eprintln!("4 s of steady state: {}", report.join("; "));
     assert!(published[1] >= 700, "{report:?}");
     // Threads a stage runs beside its loop (the fusion checkpoint writer,
-    // the logger's file writer) do periodic file work: reported, and held to
-    // fewer than one allocation per IMU sample.
-    assert!(b[0] - a[0] < published[1] / 4, "{report:?}");
+    // 2 Hz, TOML; the logger's file writer, 20 Hz) allocate per period, not
+    // per sample: reported, and held to fewer than one allocation per 8 IMU
+    // samples.
+    assert!(b[0] - a[0] < published[1] / 8, "{report:?}");
     for (i, name) in SLOTS.iter().enumerate().skip(1) {
-        // iceoryx2 0.10 allocates once per loaned sample (an Arc in
-        // `Publisher::loan_uninit`): that is the publishing, not the stage.
-        // Beyond it, fewer than one allocation per fix (the 10 Hz path, the
-        // rarest sample) is left for periodic work (health, checkpoints).
-        let own = (b[i] - a[i]).saturating_sub(published[i]);
+        // The loops themselves allocate nothing (0 measured for every stage
+        // over 4 s); a handful is left for a rare log line, far below one
+        // per sample of the rarest stream (10 Hz fixes: 40 in the window).
+        let own = b[i] - a[i];
         assert!(
-            own < 40,
-            "{name}: {own} allocations beyond the loans: {report:?}"
+            own < 4 && published[i] >= 20,
+            "{name}: {own} allocations in the window: {report:?}"
         );
     }
 }

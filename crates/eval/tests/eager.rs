@@ -1,0 +1,99 @@
+//! Eager prediction (the fusion stage in real time) gives the lazy engine's
+//! result exactly, in the order samples reach the fusion stage in real time:
+//! a UWB fix before the INS state of its own epoch (one hop against two),
+//! so the fix waits for that state, and the engine predicts through the
+//! states before the fix at once.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use insuwb_eval::scenario::ScenarioFile;
+use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
+use insuwb_fusion::ins_engine::InsEngine;
+use insuwb_fusion::offline::{self, FusionConfig};
+use insuwb_msg::{FilterKind, FusedState, NavState};
+
+/// The chain of `offline::run_with`, fed in real-time arrival order: at equal
+/// times the TDOA of an epoch (and the fix it completes) before the IMU sample.
+fn real_time_order(
+    cfg: &FusionConfig,
+    kind: FilterKind,
+    sim: &insuwb_sim::SimOutput,
+) -> Vec<FusedState> {
+    let est = offline::build_estimator(kind, cfg).unwrap();
+    let mut ins = InsEngine::new(cfg.ins.clone()).unwrap();
+    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone()).unwrap();
+    let mut fusion = FusionEngine::new(cfg.engine.clone(), est);
+    let mut o = Outputs::default();
+    let mut fused = Vec::new();
+    let mut renav: Vec<NavState> = Vec::new();
+    let settle = |ins: &mut InsEngine,
+                  fusion: &mut FusionEngine,
+                  o: &mut Outputs,
+                  renav: &mut Vec<NavState>,
+                  fused: &mut Vec<FusedState>| loop {
+        fused.extend_from_slice(&o.fused);
+        let corrections = std::mem::take(&mut o.corrections);
+        o.clear();
+        if corrections.is_empty() {
+            return;
+        }
+        for c in &corrections {
+            ins.on_correction(c, renav);
+            for n in renav.iter() {
+                fusion.on_nav(n, o);
+            }
+        }
+    };
+    let (mut i, mut j) = (0usize, 0usize);
+    loop {
+        let imu_first = match (sim.imu.get(i), sim.tdoa.get(j)) {
+            (Some(a), Some(b)) => a.header.meas_time_ns < b.header.meas_time_ns,
+            (Some(_), None) => true,
+            (None, Some(_)) => false,
+            (None, None) => break,
+        };
+        if imu_first {
+            if let Some(n) = ins.on_imu(&sim.imu[i]) {
+                fusion.on_nav(&n, &mut o);
+            }
+            i += 1;
+        } else {
+            if let Ok(fixes) = fixb.push(&sim.tdoa[j]) {
+                for f in fixes.iter() {
+                    fusion.on_measurement(Measurement::Fix(*f), &mut o);
+                    settle(&mut ins, &mut fusion, &mut o, &mut renav, &mut fused);
+                }
+            }
+            j += 1;
+        }
+        settle(&mut ins, &mut fusion, &mut o, &mut renav, &mut fused);
+    }
+    fused
+}
+
+#[test]
+fn eager_prediction_in_real_time_order_equals_the_lazy_engine() {
+    let sc = ScenarioFile::load("nlos-long").unwrap();
+    let sim = insuwb_sim::simulate(&sc.sim, 1).unwrap();
+    for kind in [FilterKind::Iakf, FilterKind::Kf] {
+        let lazy_cfg = sc.fusion_for_seed(1).unwrap();
+        assert!(lazy_cfg.engine.eager_lag_s.is_none());
+        let lazy = offline::run(&sim.imu, &sim.tdoa, &lazy_cfg, kind)
+            .unwrap()
+            .fused;
+        let mut eager_cfg = lazy_cfg.clone();
+        eager_cfg.engine.eager_lag_s = Some(0.02);
+        let eager = real_time_order(&eager_cfg, kind, &sim);
+        assert!(lazy.len() > 500, "{kind:?}: {} fused states", lazy.len());
+        assert_eq!(lazy.len(), eager.len(), "{kind:?}");
+        for (a, b) in lazy.iter().zip(&eager) {
+            assert_eq!(a.header.meas_time_ns, b.header.meas_time_ns, "{kind:?}");
+            assert_eq!(a.pos_m, b.pos_m, "{kind:?} at {}", a.header.meas_time_ns);
+            assert_eq!(
+                a.vel_mps, b.vel_mps,
+                "{kind:?} at {}",
+                a.header.meas_time_ns
+            );
+            assert_eq!(a.cov, b.cov, "{kind:?} at {}", a.header.meas_time_ns);
+        }
+    }
+}
