@@ -80,20 +80,20 @@ fn eager_prediction_in_real_time_order_equals_the_lazy_engine() {
         let lazy = offline::run(&sim.imu, &sim.tdoa, &lazy_cfg, kind)
             .unwrap()
             .fused;
-        let mut eager_cfg = lazy_cfg.clone();
-        eager_cfg.engine.eager_lag_s = Some(0.02);
-        let eager = real_time_order(&eager_cfg, kind, &sim);
         assert!(lazy.len() > 500, "{kind:?}: {} fused states", lazy.len());
-        assert_eq!(lazy.len(), eager.len(), "{kind:?}");
-        for (a, b) in lazy.iter().zip(&eager) {
-            assert_eq!(a.header.meas_time_ns, b.header.meas_time_ns, "{kind:?}");
-            assert_eq!(a.pos_m, b.pos_m, "{kind:?} at {}", a.header.meas_time_ns);
-            assert_eq!(
-                a.vel_mps, b.vel_mps,
-                "{kind:?} at {}",
-                a.header.meas_time_ns
-            );
-            assert_eq!(a.cov, b.cov, "{kind:?} at {}", a.header.meas_time_ns);
+        // The stage's default lag (5 ms), the former one, and none.
+        for lag in [0.005, 0.02, 0.0] {
+            let mut eager_cfg = lazy_cfg.clone();
+            eager_cfg.engine.eager_lag_s = Some(lag);
+            let eager = real_time_order(&eager_cfg, kind, &sim);
+            assert_eq!(lazy.len(), eager.len(), "{kind:?} lag {lag}");
+            for (a, b) in lazy.iter().zip(&eager) {
+                let at = a.header.meas_time_ns;
+                assert_eq!(at, b.header.meas_time_ns, "{kind:?} lag {lag}");
+                assert_eq!(a.pos_m, b.pos_m, "{kind:?} lag {lag} at {at}");
+                assert_eq!(a.vel_mps, b.vel_mps, "{kind:?} lag {lag} at {at}");
+                assert_eq!(a.cov, b.cov, "{kind:?} lag {lag} at {at}");
+            }
         }
     }
 }

@@ -207,6 +207,19 @@ pub struct FusionEngine {
     nis_bad: usize,
 }
 
+/// An empty queue with room for `n` items whose memory was written once
+/// here. A queue used as a FIFO walks its whole buffer; without this each
+/// page of it is faulted in on the path the first time the queue reaches it
+/// (for the INS history, minutes after the start), not at start-up.
+pub(crate) fn prefaulted_deque<T>(n: usize) -> VecDeque<T> {
+    let mut v: Vec<T> = Vec::with_capacity(n);
+    for slot in v.spare_capacity_mut() {
+        *slot = core::mem::MaybeUninit::zeroed();
+    }
+    std::hint::black_box(&mut v);
+    VecDeque::from(v)
+}
+
 impl FusionEngine {
     /// A new engine around `est`.
     #[must_use]
@@ -214,8 +227,8 @@ impl FusionEngine {
         let initialised = !cfg.init_from_first_fix;
         let cfg_nis_capacity = cfg.nis_window.min(4096);
         Self {
-            nav_buf: VecDeque::with_capacity(cfg.max_nav_buffer.min(65_536)),
-            pending: VecDeque::with_capacity(cfg.max_pending.min(65_536)),
+            nav_buf: prefaulted_deque(cfg.max_nav_buffer.min(65_536)),
+            pending: prefaulted_deque(cfg.max_pending.min(65_536)),
             cfg,
             est,
             prev_nav: None,

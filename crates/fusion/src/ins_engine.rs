@@ -188,7 +188,7 @@ impl InsEngine {
             cfg.history_len
         };
         Ok(Self {
-            ring: VecDeque::with_capacity(history_len),
+            ring: crate::engine::prefaulted_deque(history_len),
             cfg: InsEngineConfig { history_len, ..cfg },
             ins: None,
             align: AlignAcc::default(),

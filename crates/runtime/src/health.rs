@@ -1,5 +1,6 @@
 //! Heartbeat: a stage's counters published as [`insuwb_msg::Health`] on topic
-//! `health` at a fixed period.
+//! `health` at a fixed period; each heartbeat also pages in the shared
+//! memory the stage mapped since ([`crate::prefault`]).
 
 use core::time::Duration;
 
@@ -7,6 +8,7 @@ use insuwb_msg::{fixed_name, Header, Health};
 
 use crate::monotonic_ns;
 use crate::port::{Pub, PublishError, SubStats};
+use crate::prefault::{PrefaultError, ShmPrefault};
 
 /// The counters a stage reports in its heartbeat.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -44,16 +46,23 @@ pub struct HealthReporter {
     pid: u32,
     period: Duration,
     next_due_ns: u64,
+    prefault: ShmPrefault,
 }
 
 impl HealthReporter {
-    pub(crate) fn new(publisher: Pub<Health>, stage_name: &str, period: Duration) -> Self {
+    pub(crate) fn new(
+        publisher: Pub<Health>,
+        stage_name: &str,
+        period: Duration,
+        prefix: &str,
+    ) -> Self {
         Self {
             publisher,
             stage: fixed_name(stage_name),
             pid: std::process::id(),
             period,
             next_due_ns: 0,
+            prefault: ShmPrefault::new(prefix),
         }
     }
 
@@ -83,6 +92,19 @@ impl HealthReporter {
         let seq = self.publisher.publish(h)?;
         let period_ns = u64::try_from(self.period.as_nanos()).unwrap_or(u64::MAX);
         self.next_due_ns = now.saturating_add(period_ns);
+        match self.prefault.run_if_due(now) {
+            Ok(Some(r)) if r.populated > 0 => tracing::debug!(
+                "prefault: {} of {} shared-memory mappings populated ({} KiB)",
+                r.populated,
+                r.mappings,
+                r.bytes / 1024
+            ),
+            Ok(_) => {}
+            Err(e @ PrefaultError::Unsupported(_)) => {
+                tracing::info!("{e}; shared memory is paged in on first use");
+            }
+            Err(e) => tracing::debug!("prefault: {e}"),
+        }
         Ok(seq)
     }
 

@@ -8,6 +8,7 @@
 //! over a WaitSet, or busy polling), the heartbeat ([`HealthReporter`]), the
 //! process-comparable clock ([`monotonic_ns`]), logging ([`init_tracing`]),
 //! the iceoryx2 service type whose loans allocate nothing ([`service::Ipc`]),
+//! shared memory paged in ahead of use ([`prefault`]),
 //! owner-only files ([`perm`]) and inspection/cleanup of a deployment's
 //! resources ([`cleanup`]).
 //!
@@ -71,6 +72,7 @@ mod config;
 mod health;
 pub mod perm;
 mod port;
+pub mod prefault;
 pub mod realtime;
 pub mod service;
 mod stage;

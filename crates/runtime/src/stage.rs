@@ -241,6 +241,7 @@ impl Stage {
             self.publisher(insuwb_msg::topics::HEALTH)?,
             &self.cfg.stage_name,
             Duration::from_secs_f64(self.cfg.heartbeat_period_s),
+            &self.cfg.prefix,
         ))
     }
 

@@ -118,9 +118,14 @@ pub struct FusionStageConfig {
     /// Predict through INS states as they arrive, keeping the newest this
     /// many seconds buffered for UWB samples still on their way, s (see
     /// `FusionEngineConfig::eager_lag_s`): takes the prediction off the
-    /// fix-to-fused path and lets the coasting covariance grow. A UWB sample
-    /// later than this behind the INS stream is dropped (counted). Negative:
-    /// off. Ignored at `speed = "max"` (the drivers run ahead there).
+    /// fix-to-fused path and lets the coasting covariance grow. The result is
+    /// the lazy engine's while a UWB sample of time t arrives before the INS
+    /// state at t + one IMU period + this lag (15 ms at 100 Hz with the
+    /// default 5 ms; the fix usually arrives first); a later one is applied
+    /// on the INS state interpolated at t, one older than the INS interval
+    /// processed last is dropped (counted). Each 10 ms of lag keeps one more
+    /// covariance prediction on the fix-to-fused path. Negative: off.
+    /// Ignored at `speed = "max"` (the drivers run ahead there).
     pub eager_lag_s: f64,
 }
 
@@ -133,7 +138,7 @@ impl Default for FusionStageConfig {
             coast_rate_hz: 10.0,
             stale_ins_timeout_s: 0.25,
             checkpoint_period_s: 0.5,
-            eager_lag_s: 0.02,
+            eager_lag_s: 0.005,
         }
     }
 }
