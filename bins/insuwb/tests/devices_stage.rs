@@ -288,8 +288,10 @@ fn unplugging_the_imu_for_half_a_second_reconnects_without_a_restart() {
             .unwrap()
             .join()
             .unwrap();
-        pty.disconnect();
+        // Stamped before the unplug: the driver may report it within
+        // microseconds, before this thread runs again.
         let unplugged = monotonic_ns();
+        pty.disconnect();
         std::thread::sleep(Duration::from_nanos(
             (epoch + back_at).saturating_sub(monotonic_ns()),
         ));

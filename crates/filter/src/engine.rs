@@ -46,8 +46,16 @@ pub(crate) struct Posterior<const M: usize> {
     pub k: SMatrix<f64, N_STATES, M>,
 }
 
+/// True when no entry is NaN or infinite. Branch-free, so it vectorises (the
+/// early-exit `iter().all(is_finite)` over P and Q_acc cost as much as one
+/// sparse propagation): a value is not finite when its exponent bits are
+/// all ones.
 fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
-    m.iter().all(|v| v.is_finite())
+    const EXP: u64 = 0x7ff0_0000_0000_0000;
+    m.as_slice()
+        .iter()
+        .fold(0u64, |acc, v| acc | u64::from(v.to_bits() & EXP == EXP))
+        == 0
 }
 
 fn symmetrise(p: &mut Mat14) {
@@ -347,5 +355,27 @@ impl SageHusa {
             .fixed_view_mut::<N_MEAS, M>(0, 0)
             .copy_from(&k_gain.fixed_rows::<N_MEAS>(0));
         self.hph_prev = p_post.fixed_view::<N_MEAS, N_MEAS>(0, 0).into_owned();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn all_finite_finds_any_nan_or_infinity() {
+        let mut m = Mat14::from_fn(|i, j| (i as f64 - 7.0) * 1e300 + j as f64);
+        m[(0, 0)] = f64::MAX;
+        m[(1, 1)] = f64::MIN_POSITIVE / 2.0; // subnormal
+        m[(2, 2)] = -0.0;
+        assert!(all_finite(&m));
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            for (i, j) in [(0, 0), (13, 13), (5, 9), (13, 0)] {
+                let mut b = m;
+                b[(i, j)] = bad;
+                assert!(!all_finite(&b), "{bad} at ({i}, {j})");
+            }
+        }
+        assert!(all_finite(&Vec14::zeros()));
     }
 }
