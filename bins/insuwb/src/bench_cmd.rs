@@ -1,21 +1,25 @@
 //! `insuwb bench latency`: the latency of the 10 Hz loop against bare iceoryx2.
 //!
-//! In one run: first the floor (`insuwb-floor`, the same process graph with
-//! bare forwarding processes: same payloads, rates, WaitSet wake-ups and
-//! waiting rule at the fusion node, no maths, no logging), then the real
-//! group on simulated sensors (scenario nlos-long, real time), each for
-//! `--duration` seconds; then the per-hop analysis of both recordings
-//! (`insuwb_bench::analysis`), the CPU time of every process over the steady
-//! window, and the ratios of the group's end-to-end percentiles over the
-//! floor's. With `--json` standard output holds only the report object; the
-//! per-hop tables of both graphs go to standard error.
+//! In one run: the floor (`insuwb-floor`, the same process graph with bare
+//! forwarding processes: same payloads, rates, wake-ups and waiting rule at
+//! the fusion node, no maths, no logging) and the real group on simulated
+//! sensors (scenario nlos-long, real time), alternating in `--rounds`
+//! rounds, the floor first in each, so that both meet the same spells of
+//! machine noise; then the per-hop analysis of every recording
+//! (`insuwb_bench::analysis`), pooled per graph over the rounds, the CPU
+//! time of every process over the steady windows, and the ratios of the
+//! group's end-to-end percentiles over the floor's. With `--json` standard
+//! output holds only the report object; the per-hop tables of both graphs
+//! go to standard error.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
-use insuwb_bench::analysis::{analyse, AnalysisConfig, Hops, Percentiles, RunLatency};
+use insuwb_bench::analysis::{
+    samples, AnalysisConfig, Hops, LatencySamples, Percentiles, RunLatency,
+};
 use insuwb_bench::graph::{cpu_percent, cpu_snapshot, run_floor_graph, FloorGraphOptions};
 use insuwb_runtime::monotonic_ns;
 use insuwb_stage::group::RobotConfig;
@@ -34,10 +38,17 @@ pub enum BenchCmd {
 /// Arguments of `insuwb bench latency`.
 #[derive(Debug, clap::Args)]
 pub struct LatencyArgs {
-    /// Seconds each graph runs (the floor, then the group), in [5, 55] (the
-    /// simulated scenario lasts 60 s).
+    /// Seconds of steady state measured per graph, over all rounds; each
+    /// round of a graph runs `duration / rounds` seconds plus a start-up
+    /// allowance of 3 s (process start, first fused state, 1 s warm-up).
     #[arg(long, default_value_t = 30.0)]
     pub duration: f64,
+    /// Rounds: the floor and then the group run this many times, in turn,
+    /// and their samples are pooled (1: the floor once, then the group once).
+    /// `duration / rounds` must be in [3, 50] s (the simulated scenario lasts
+    /// 60 s).
+    #[arg(long, default_value_t = 3)]
+    pub rounds: u32,
     /// Print the report as one JSON object on standard output.
     #[arg(long)]
     pub json: bool,
@@ -98,11 +109,17 @@ pub struct LatencyReport {
     pub ratio_p50: f64,
     /// `e2e_uwb_fused_p99_us / floor_p99_us`.
     pub ratio_p99: f64,
+    /// Rounds the figures pool (each graph ran this many times, in turn).
+    pub rounds: u32,
 }
 
 /// Start of the CPU window after a graph starts (past process start-up and
 /// the INS alignment at rest).
 const CPU_FROM: Duration = Duration::from_secs(3);
+
+/// What a round of a graph runs beyond its share of `--duration`: the start
+/// epoch (up to 2 s ahead), the first fused state and the analysis warm-up.
+const START_ALLOWANCE: Duration = Duration::from_secs(3);
 
 /// Runs an `insuwb bench` subcommand.
 pub fn run(cmd: &BenchCmd) -> Result<()> {
@@ -120,13 +137,21 @@ fn program_beside(name: &str) -> Result<PathBuf> {
 }
 
 fn latency(a: &LatencyArgs) -> Result<()> {
-    if !(a.duration.is_finite() && (5.0..=55.0).contains(&a.duration)) {
-        bail!("--duration must be in [5, 55] s, got {}", a.duration);
+    if !(1..=10).contains(&a.rounds) {
+        bail!("--rounds must be in [1, 10], got {}", a.rounds);
     }
-    let duration = Duration::from_secs_f64(a.duration);
+    let per_round = a.duration / f64::from(a.rounds);
+    if !(a.duration.is_finite() && (3.0..=50.0).contains(&per_round)) {
+        bail!(
+            "--duration / --rounds must be in [3, 50] s, got {} / {} = {per_round} s",
+            a.duration,
+            a.rounds
+        );
+    }
+    let duration = Duration::from_secs_f64(per_round) + START_ALLOWANCE;
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
     let base = std::env::temp_dir().join(format!("insuwb-bench-{id}"));
-    std::fs::create_dir_all(&base).with_context(|| format!("{}: cannot create", base.display()))?;
+    private_dir(&base)?;
     let result = measure(a, duration, &id, &base);
     let _ = std::fs::remove_dir_all(&base);
     let report = result?;
@@ -142,26 +167,67 @@ fn latency(a: &LatencyArgs) -> Result<()> {
 
 fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result<LatencyReport> {
     let acfg = AnalysisConfig::default();
-    // 1. The floor.
     eprintln!(
-        "insuwb bench latency: floor graph for {} s, then the group for {} s",
-        a.duration, a.duration
+        "insuwb bench latency: {} round(s) of the floor graph then the group, {:.1} s each",
+        a.rounds,
+        duration.as_secs_f64()
     );
-    let floor = run_floor_graph(&FloorGraphOptions {
-        program: program_beside("insuwb-floor")?,
-        run_dir: base.join("floor"),
-        prefix: format!("insuwb_bfl{id}_"),
-        duration,
-        cpu_from: CPU_FROM,
-    })?;
-    let fl = analyse(&floor.records, &floor.recv, &acfg).context("the floor run")?;
-    print_table("floor", &fl, &floor.cpu_percent);
+    let (mut fl, mut gr) = (LatencySamples::default(), LatencySamples::default());
+    let (mut fl_cpu, mut gr_cpu) = (Vec::new(), Vec::new());
+    for round in 0..a.rounds {
+        // 1. The floor.
+        let floor = run_floor_graph(&FloorGraphOptions {
+            program: program_beside("insuwb-floor")?,
+            run_dir: base.join(format!("floor{round}")),
+            prefix: format!("insuwb_bfl{id}r{round}_"),
+            duration,
+            cpu_from: CPU_FROM,
+        })?;
+        let s = samples(&floor.records, &floor.recv, &acfg)
+            .with_context(|| format!("the floor run of round {}", round + 1))?;
+        fl.extend(&s);
+        fl_cpu.push(floor.cpu_percent);
+        // 2. The group on simulated sensors, its logger noting fused receive times.
+        let (s, cpu) = group_round(round, duration, id, base, &acfg)?;
+        gr.extend(&s);
+        gr_cpu.push(cpu);
+    }
+    let (fl_cpu, gr_cpu) = (mean_cpu(&fl_cpu), mean_cpu(&gr_cpu));
+    let (fl, gr) = (fl.summary(), gr.summary());
+    print_table("floor", &fl, &fl_cpu);
+    print_table("group", &gr, &gr_cpu);
 
-    // 2. The group on simulated sensors, its logger noting fused receive times.
-    let run_dir = base.join("group");
-    std::fs::create_dir_all(&run_dir)?;
+    let ratio = |g: f64, f: f64| if f > 0.0 { g / f } else { f64::INFINITY };
+    Ok(LatencyReport {
+        floor_p50_us: fl.e2e_uwb_fused.p50_us,
+        floor_p99_us: fl.e2e_uwb_fused.p99_us,
+        e2e_uwb_fused_p50_us: gr.e2e_uwb_fused.p50_us,
+        e2e_uwb_fused_p99_us: gr.e2e_uwb_fused.p99_us,
+        e2e_uwb_fused_p999_us: gr.e2e_uwb_fused.p999_us,
+        loop_jitter_p99_us: gr.jitter.p99_us,
+        floor_jitter_p99_us: fl.jitter.p99_us,
+        missed_cycles: gr.missed_cycles,
+        hops: gr.hops,
+        cpu_percent: CpuPercent::from_named(&gr_cpu),
+        ratio_p50: ratio(gr.e2e_uwb_fused.p50_us, fl.e2e_uwb_fused.p50_us),
+        ratio_p99: ratio(gr.e2e_uwb_fused.p99_us, fl.e2e_uwb_fused.p99_us),
+        rounds: a.rounds,
+    })
+}
+
+/// One run of the group (round `round`): its samples and the CPU time of
+/// each stage over the steady window.
+fn group_round(
+    round: u32,
+    duration: Duration,
+    id: &str,
+    base: &Path,
+    acfg: &AnalysisConfig,
+) -> Result<(LatencySamples, Vec<(String, f64)>)> {
+    let run_dir = base.join(format!("group{round}"));
+    private_dir(&run_dir)?;
     let text = format!(
-        "[group]\nname = \"bench\"\nprefix = \"insuwb_bgr{id}_\"\nrun_dir = \"{}\"\n\
+        "[group]\nname = \"bench\"\nprefix = \"insuwb_bgr{id}r{round}_\"\nrun_dir = \"{}\"\n\
          [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\nspeed = 1.0\n\
          [fusion]\nfilter = \"iakf\"\n",
         run_dir.display()
@@ -188,35 +254,55 @@ fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result
             )],
         },
     )?;
-    let group_cpu = sampler.join().unwrap_or_default();
+    let cpu = sampler.join().unwrap_or_default();
     if group.restarts > 0 {
         eprintln!(
-            "warning: {} stage restart(s) during the group run",
-            group.restarts
+            "warning: {} stage restart(s) during the group run of round {}",
+            group.restarts,
+            round + 1
         );
     }
     let records = insuwb_log::read_segments(run_dir.join("log"))
         .context("reading the group's recording")?
         .records;
     let recv = insuwb_bench::trace::read(&trace_path)?;
-    let gr = analyse(&records, &recv, &acfg).context("the group run")?;
-    print_table("group", &gr, &group_cpu);
+    let s = samples(&records, &recv, acfg)
+        .with_context(|| format!("the group run of round {}", round + 1))?;
+    Ok((s, cpu))
+}
 
-    let ratio = |g: f64, f: f64| if f > 0.0 { g / f } else { f64::INFINITY };
-    Ok(LatencyReport {
-        floor_p50_us: fl.e2e_uwb_fused.p50_us,
-        floor_p99_us: fl.e2e_uwb_fused.p99_us,
-        e2e_uwb_fused_p50_us: gr.e2e_uwb_fused.p50_us,
-        e2e_uwb_fused_p99_us: gr.e2e_uwb_fused.p99_us,
-        e2e_uwb_fused_p999_us: gr.e2e_uwb_fused.p999_us,
-        loop_jitter_p99_us: gr.jitter.p99_us,
-        floor_jitter_p99_us: fl.jitter.p99_us,
-        missed_cycles: gr.missed_cycles,
-        hops: gr.hops,
-        cpu_percent: CpuPercent::from_named(&group_cpu),
-        ratio_p50: ratio(gr.e2e_uwb_fused.p50_us, fl.e2e_uwb_fused.p50_us),
-        ratio_p99: ratio(gr.e2e_uwb_fused.p99_us, fl.e2e_uwb_fused.p99_us),
-    })
+/// Creates `dir` (and its parents) readable by the owner only, as the
+/// launcher wants a run directory.
+fn private_dir(dir: &Path) -> Result<()> {
+    use std::os::unix::fs::DirBuilderExt;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)
+        .with_context(|| format!("{}: cannot create", dir.display()))
+}
+
+/// Mean CPU percent per name over rounds (a name missing from a round counts 0 there).
+fn mean_cpu(rounds: &[Vec<(String, f64)>]) -> Vec<(String, f64)> {
+    let mut names: Vec<String> = Vec::new();
+    for r in rounds {
+        for (n, _) in r {
+            if !names.contains(n) {
+                names.push(n.clone());
+            }
+        }
+    }
+    let k = rounds.len().max(1) as f64;
+    names
+        .into_iter()
+        .map(|n| {
+            let sum: f64 = rounds
+                .iter()
+                .filter_map(|r| r.iter().find(|(m, _)| *m == n).map(|(_, p)| *p))
+                .sum();
+            (n, sum / k)
+        })
+        .collect()
 }
 
 /// Samples the CPU time of this process's stage children (`insuwb-*`) at

@@ -1,7 +1,7 @@
 //! Latency of the 10 Hz loop with real processes (CI-safe, generous bounds,
 //! percentiles only, never a maximum): the group on simulated sensors in
 //! real time for 10 s, measured from its own recording; and the
-//! `insuwb bench latency` report (floor graph, then the group).
+//! `insuwb bench latency` report (floor graph and group in turn, pooled).
 //!
 //! Both tests start process groups and measure time, so they run one at a
 //! time (a lock). They need the workspace's binaries next to `insuwb`
@@ -103,7 +103,15 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
     let out = Command::new(insuwb())
-        .args(["bench", "latency", "--duration", "8", "--json"])
+        .args([
+            "bench",
+            "latency",
+            "--duration",
+            "8",
+            "--rounds",
+            "2",
+            "--json",
+        ])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -126,6 +134,7 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
         "cpu_percent",
         "ratio_p50",
         "ratio_p99",
+        "rounds",
     ];
     want.sort_unstable();
     assert_eq!(keys, want, "{v}");
@@ -157,6 +166,7 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
         assert!(num(p) > 0.0 && num(p) < 100.0, "cpu_percent.{k}: {v}");
     }
     assert_eq!(num(&v["missed_cycles"]), 0.0, "{v}");
+    assert_eq!(num(&v["rounds"]), 2.0, "{v}");
     // The ratios are the group's percentiles over the floor's.
     for (ratio, g, f) in [
         ("ratio_p50", "e2e_uwb_fused_p50_us", "floor_p50_us"),
@@ -169,4 +179,28 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
         num(&v["e2e_uwb_fused_p50_us"]),
         num(&v["hops"]["uwb_fusion"]["p50_us"])
     );
+}
+
+#[test]
+fn bench_latency_refuses_rounds_and_durations_out_of_range() {
+    for args in [
+        &["--rounds", "0"][..],
+        &["--rounds", "11"],
+        &["--duration", "5", "--rounds", "2"],
+        &["--duration", "120", "--rounds", "2"],
+        &["--duration", "NaN"],
+    ] {
+        let out = Command::new(insuwb())
+            .args(["bench", "latency"])
+            .args(args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} accepted");
+        assert!(
+            stderr.contains("--rounds") || stderr.contains("--duration"),
+            "{args:?}: {stderr}"
+        );
+        assert!(out.stdout.is_empty(), "{args:?}");
+    }
 }

@@ -193,6 +193,65 @@ fn is_update(f: &FusedState) -> bool {
     f.header.flags & FusedState::FLAG_DEGRADED == 0
 }
 
+/// The raw values of one or more runs, in nanoseconds, before percentiles:
+/// runs measured apart (rounds of `insuwb bench latency`) are pooled with
+/// [`LatencySamples::extend`] and summarised once ([`LatencySamples::summary`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct LatencySamples {
+    /// UWB fix publish -> fused publish, per steady-state fused state.
+    pub uwb_fusion_ns: Vec<u64>,
+    /// INS publish -> fused publish, per steady-state fused state.
+    pub ins_fusion_ns: Vec<u64>,
+    /// IMU publish -> first INS publish, per steady-state IMU sample.
+    pub imu_ins_ns: Vec<u64>,
+    /// Fused publish -> logger receive, per steady-state fused state.
+    pub fusion_logger_ns: Vec<u64>,
+    /// Deviation of the fused output period from the nominal one.
+    pub jitter_ns: Vec<u64>,
+    /// Fixes from the first fused state on.
+    pub fixes: u64,
+    /// Of those, fixes with no fused state naming them.
+    pub missed_cycles: u64,
+    /// Fused states from UWB updates recorded.
+    pub fused: u64,
+}
+
+impl LatencySamples {
+    /// Adds the values of another run.
+    pub fn extend(&mut self, other: &Self) {
+        self.uwb_fusion_ns.extend_from_slice(&other.uwb_fusion_ns);
+        self.ins_fusion_ns.extend_from_slice(&other.ins_fusion_ns);
+        self.imu_ins_ns.extend_from_slice(&other.imu_ins_ns);
+        self.fusion_logger_ns
+            .extend_from_slice(&other.fusion_logger_ns);
+        self.jitter_ns.extend_from_slice(&other.jitter_ns);
+        self.fixes += other.fixes;
+        self.missed_cycles += other.missed_cycles;
+        self.fused += other.fused;
+    }
+
+    /// Percentiles of every figure.
+    #[must_use]
+    pub fn summary(&self) -> RunLatency {
+        let uwb_fusion = Percentiles::of(self.uwb_fusion_ns.iter().copied());
+        let imu_ins = Percentiles::of(self.imu_ins_ns.iter().copied());
+        RunLatency {
+            e2e_uwb_fused: uwb_fusion,
+            e2e_imu_ins: imu_ins,
+            hops: Hops {
+                imu_ins,
+                ins_fusion: Percentiles::of(self.ins_fusion_ns.iter().copied()),
+                uwb_fusion,
+                fusion_logger: Percentiles::of(self.fusion_logger_ns.iter().copied()),
+            },
+            jitter: Percentiles::of(self.jitter_ns.iter().copied()),
+            fixes: self.fixes,
+            missed_cycles: self.missed_cycles,
+            fused: self.fused,
+        }
+    }
+}
+
 /// Measures a run from its `records` (any order; duplicates, e.g. a
 /// restarted logger's history, are ignored) and the logger's `recv` stamps.
 pub fn analyse(
@@ -200,6 +259,15 @@ pub fn analyse(
     recv: &[RecvStamp],
     cfg: &AnalysisConfig,
 ) -> Result<RunLatency, AnalysisError> {
+    samples(records, recv, cfg).map(|s| s.summary())
+}
+
+/// The raw values of one run (see [`analyse`]).
+pub fn samples(
+    records: &[Record],
+    recv: &[RecvStamp],
+    cfg: &AnalysisConfig,
+) -> Result<LatencySamples, AnalysisError> {
     cfg.validate()?;
     // seq -> (meas, pub) of fixes and IMU samples; first INS publication per
     // IMU seq; first fused state per fix seq and per fused seq.
@@ -265,47 +333,50 @@ pub fn analyse(
         .filter(|f| in_steady(f.uwb_meas_time_ns))
         .collect();
     steady.sort_by_key(|f| f.uwb_seq);
-    let uwb_fusion = Percentiles::of(
-        steady
-            .iter()
-            .map(|f| f.header.pub_time_ns.saturating_sub(f.uwb_pub_time_ns)),
-    );
-    let ins_fusion = Percentiles::of(
-        steady
-            .iter()
-            .map(|f| f.header.pub_time_ns.saturating_sub(f.ins_pub_time_ns)),
-    );
-    let jitter = Percentiles::of(steady.windows(2).filter_map(|w| {
-        let (a, b) = (w.first()?, w.get(1)?);
-        (b.uwb_seq == a.uwb_seq + 1).then(|| {
-            b.header
-                .pub_time_ns
-                .saturating_sub(a.header.pub_time_ns)
-                .abs_diff(cfg.period_ns)
+    let uwb_fusion_ns: Vec<u64> = steady
+        .iter()
+        .map(|f| f.header.pub_time_ns.saturating_sub(f.uwb_pub_time_ns))
+        .collect();
+    let ins_fusion_ns: Vec<u64> = steady
+        .iter()
+        .map(|f| f.header.pub_time_ns.saturating_sub(f.ins_pub_time_ns))
+        .collect();
+    let jitter_ns: Vec<u64> = steady
+        .windows(2)
+        .filter_map(|w| {
+            let (a, b) = (w.first()?, w.get(1)?);
+            (b.uwb_seq == a.uwb_seq + 1).then(|| {
+                b.header
+                    .pub_time_ns
+                    .saturating_sub(a.header.pub_time_ns)
+                    .abs_diff(cfg.period_ns)
+            })
         })
-    }));
-    let imu_ins = Percentiles::of(nav_first.iter().filter_map(|(seq, &nav_pub)| {
-        let &(meas, imu_pub) = imu.get(seq)?;
-        in_steady(meas).then(|| nav_pub.saturating_sub(imu_pub))
-    }));
+        .collect();
+    let imu_ins_ns: Vec<u64> = nav_first
+        .iter()
+        .filter_map(|(seq, &nav_pub)| {
+            let &(meas, imu_pub) = imu.get(seq)?;
+            in_steady(meas).then(|| nav_pub.saturating_sub(imu_pub))
+        })
+        .collect();
     let steady_by_seq: HashMap<u64, u64> = steady
         .iter()
         .map(|f| (f.header.seq, f.header.pub_time_ns))
         .collect();
-    let fusion_logger = Percentiles::of(recv.iter().filter_map(|r| {
-        let &p = steady_by_seq.get(&r.seq)?;
-        (p == r.pub_time_ns).then(|| r.receive_ns.saturating_sub(p))
-    }));
-    Ok(RunLatency {
-        e2e_uwb_fused: uwb_fusion,
-        e2e_imu_ins: imu_ins,
-        hops: Hops {
-            imu_ins,
-            ins_fusion,
-            uwb_fusion,
-            fusion_logger,
-        },
-        jitter,
+    let fusion_logger_ns: Vec<u64> = recv
+        .iter()
+        .filter_map(|r| {
+            let &p = steady_by_seq.get(&r.seq)?;
+            (p == r.pub_time_ns).then(|| r.receive_ns.saturating_sub(p))
+        })
+        .collect();
+    Ok(LatencySamples {
+        uwb_fusion_ns,
+        ins_fusion_ns,
+        imu_ins_ns,
+        fusion_logger_ns,
+        jitter_ns,
         fixes: n_fixes,
         missed_cycles: missed,
         fused: fused_by_fix.len() as u64,
@@ -439,6 +510,32 @@ mod tests {
         assert!(close(e.p99_us, 194.0), "{e:?}");
         assert!(close(e.max_us, 194.0), "{e:?}");
         assert!(close(r.jitter.p50_us, 1.0), "{:?}", r.jitter);
+    }
+
+    #[test]
+    fn runs_pool_into_the_percentiles_of_all_their_values() {
+        // Run a: every fused state 100 us after its fix; run b: 300 us, one
+        // fix missed. Pooled, half the values are each: p50 at 100 us, p99
+        // at 300 us; counts add up.
+        let (ra, va) = run(|_| 100 * US, &[]);
+        let (rb, vb) = run(|_| 300 * US, &[50]);
+        let cfg = AnalysisConfig::default();
+        let a = samples(&ra, &va, &cfg).unwrap();
+        let b = samples(&rb, &vb, &cfg).unwrap();
+        let mut pooled = a.clone();
+        pooled.extend(&b);
+        let s = pooled.summary();
+        assert_eq!(
+            s.e2e_uwb_fused.count,
+            a.uwb_fusion_ns.len() as u64 + b.uwb_fusion_ns.len() as u64
+        );
+        assert!(close(s.e2e_uwb_fused.p50_us, 100.0), "{s:?}");
+        assert!(close(s.e2e_uwb_fused.p99_us, 300.0), "{s:?}");
+        assert_eq!(s.missed_cycles, 1);
+        assert_eq!(s.fixes, a.fixes + b.fixes);
+        assert_eq!(s.fused, a.fused + b.fused);
+        // One run alone summarises as `analyse` does.
+        assert_eq!(a.summary(), analyse(&ra, &va, &cfg).unwrap());
     }
 
     #[test]
