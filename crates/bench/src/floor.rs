@@ -11,8 +11,10 @@
 //!   and, before the last of them, the fix they complete (the driver's order);
 //! - `ins`: wakes on IMU samples and corrections; forwards every IMU sample as
 //!   an INS state naming it (corrections are read and dropped);
-//! - `fusion`: wakes on INS states, fixes, TDOA measurements and a 50 ms
-//!   tick; a fix waits until the INS state covering its epoch (the first
+//! - `fusion`: wakes on INS states, fixes, TDOA measurements, a 50 ms
+//!   tick and, as the fusion stage, shortly before each fix is due
+//!   ([`insuwb_runtime::anticipate`]; the stage warms its update there, this
+//!   node has nothing to do); a fix waits until the INS state covering its epoch (the first
 //!   with a time at or after it) is there, then a fused state naming both
 //!   inputs, a correction and a diagnostics sample go out, in the fusion
 //!   stage's order;
@@ -32,6 +34,7 @@ use insuwb_msg::{
     topics, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample, InsCorrection,
     NavState, UwbFix, UwbTdoa,
 };
+use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, PortError, PublishError, ReceiveError, RuntimeConfig, Stage,
     StageError, Sub, WaitError, Wake,
@@ -533,16 +536,26 @@ fn run_fusion(cfg: &FloorConfig) -> Result<(), FloorError> {
     let mut m = Matcher::new();
     let mut correction_id = 0u64;
     let mut counters = HealthCounters::default();
+    // The fusion stage's wake-up shortly before each fix is due (it warms
+    // its update there; this node has nothing to warm).
+    let mut next_fix = Anticipator::new();
     loop {
-        let wake = waiter.wait_timeout(Duration::from_millis(500))?;
+        let wake = match next_fix.deadline() {
+            Some(d) => waiter.wait_deadline(d.min(monotonic_ns() + 500_000_000))?,
+            None => waiter.wait_timeout(Duration::from_millis(500))?,
+        };
         let Wake::Fired(f) = wake else {
             if matches!(wake, Wake::Shutdown) {
                 break;
             }
+            next_fix.take_due(monotonic_ns());
             continue;
         };
         if f.contains(&nav_a) || f.contains(&fix_a) || f.contains(&tdoa_a) {
-            fix_sub.drain(|x| m.on_fix(x))?;
+            fix_sub.drain(|x| {
+                next_fix.observe(x.header.meas_time_ns, x.header.pub_time_ns);
+                m.on_fix(x);
+            })?;
             tdoa_sub.drain(|_| {})?;
             nav_sub.drain(|n| m.on_nav(n))?;
             // Fused states, corrections, diagnostics: the fusion stage's order.
@@ -590,6 +603,7 @@ fn run_fusion(cfg: &FloorConfig) -> Result<(), FloorError> {
             counters = HealthCounters::default();
             fused_pub.update_connections()?;
         }
+        next_fix.take_due(monotonic_ns());
     }
     health.report(&counters, Health::STATE_STOPPING)?;
     Ok(())

@@ -219,6 +219,15 @@ pub trait ErrorFilter: core::fmt::Debug + Send {
     /// [`ResetError`] when `p0` is not finite, symmetric, with a non-negative
     /// diagonal; the filter is then unchanged.
     fn reset(&mut self, p0: &Mat14) -> Result<(), ResetError>;
+    /// A copy of this filter on the heap (a scratch filter for
+    /// [`ErrorFilter::copy_to`]; allocates, so made once).
+    fn clone_boxed(&self) -> Box<dyn ErrorFilter>;
+    /// Copies this filter's whole state into `dst` when it is a filter of
+    /// the same type (false otherwise, `dst` unchanged). Allocates nothing:
+    /// the filters hold fixed-size data only.
+    fn copy_to(&self, dst: &mut dyn ErrorFilter) -> bool;
+    /// `self` as `Any`, for [`ErrorFilter::copy_to`].
+    fn as_any_mut(&mut self) -> &mut dyn core::any::Any;
 }
 
 macro_rules! common_filter_methods {
@@ -249,6 +258,21 @@ macro_rules! common_filter_methods {
         }
         fn take_correction(&mut self) -> Vec14 {
             self.core.take_correction()
+        }
+        fn clone_boxed(&self) -> Box<dyn ErrorFilter> {
+            Box::new(self.clone())
+        }
+        fn copy_to(&self, dst: &mut dyn ErrorFilter) -> bool {
+            match dst.as_any_mut().downcast_mut::<Self>() {
+                Some(d) => {
+                    d.clone_from(self);
+                    true
+                }
+                None => false,
+            }
+        }
+        fn as_any_mut(&mut self) -> &mut dyn core::any::Any {
+            self
         }
     };
 }

@@ -370,6 +370,13 @@ impl FusionEngine {
         Some(f)
     }
 
+    /// Brings the code and data of the next update into the caches without
+    /// changing the estimate ([`Estimator::warm_up`]); for a caller that
+    /// knows a fix is due shortly (the fusion stage, in real time).
+    pub fn warm_up(&mut self) {
+        self.est.warm_up();
+    }
+
     /// Handles one INS state.
     pub fn on_nav(&mut self, n: &NavState, out: &mut Outputs) {
         if n.header.layout_version != LAYOUT_VERSION {

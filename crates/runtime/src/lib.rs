@@ -8,7 +8,8 @@
 //! over a WaitSet, or busy polling), the heartbeat ([`HealthReporter`]), the
 //! process-comparable clock ([`monotonic_ns`]), logging ([`init_tracing`]),
 //! the iceoryx2 service type whose loans allocate nothing ([`service::Ipc`]),
-//! shared memory paged in ahead of use ([`prefault`]),
+//! shared memory paged in ahead of use ([`prefault`]), the due time of the
+//! next periodic sample ([`anticipate`]),
 //! owner-only files ([`perm`]) and inspection/cleanup of a deployment's
 //! resources ([`cleanup`]).
 //!
@@ -67,6 +68,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod anticipate;
 pub mod cleanup;
 mod config;
 mod health;

@@ -11,6 +11,7 @@ use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
 use insuwb_msg::{
     topics, FilterDiag, FusedState, Health, InsCorrection, NavState, UwbFix, UwbTdoa,
 };
+use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 use serde::{Deserialize, Serialize};
 
@@ -141,11 +142,20 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             })
             .context("starting the checkpoint writer thread")?
     };
+    // Shortly before the next fix is due, run the update once on a scratch
+    // copy: the real update then finds its code and data in the caches.
+    let mut next_fix = Anticipator::new();
     loop {
-        let wake = waiter.wait_timeout(Duration::from_millis(500))?;
+        let wake = match next_fix.deadline() {
+            Some(d) => waiter.wait_deadline(d.min(monotonic_ns() + 500_000_000))?,
+            None => waiter.wait_timeout(Duration::from_millis(500))?,
+        };
         let Wake::Fired(f) = wake else {
             if matches!(wake, Wake::Shutdown) {
                 break;
+            }
+            if next_fix.take_due(monotonic_ns()) {
+                engine.warm_up();
             }
             continue;
         };
@@ -154,6 +164,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             // Fixes before the TDOA measurements that completed them, then INS states.
             let fresh = |pub_ns: u64| pub_ns >= started_ns;
             fix_sub.drain(|m| {
+                next_fix.observe(m.header.meas_time_ns, m.header.pub_time_ns);
                 if fresh(m.header.pub_time_ns) {
                     engine.on_measurement(Measurement::Fix(m), &mut out);
                 }
@@ -250,6 +261,10 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             };
             health.report(&counters, state)?;
             fused_pub.update_connections()?;
+        }
+        // Samples first: a warm-up due meanwhile runs after them.
+        if next_fix.take_due(monotonic_ns()) {
+            engine.warm_up();
         }
     }
     drop(ckpt_tx);

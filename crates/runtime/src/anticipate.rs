@@ -1,0 +1,107 @@
+//! When the next sample of a periodic stream is due, learned from the last
+//! two, so that a stage can get ready for it shortly before.
+//!
+//! A stage that sleeps between samples pays for it on the next one: after
+//! ~100 ms asleep its code and data have left the caches (in a virtual
+//! machine the core may even have run another guest), and the compute of
+//! the fusion update costs several times its hot figure. [`Anticipator`]
+//! gives the moment [`WARM_LEAD_NS`] before the next fix is due; the fusion
+//! stage wakes then and runs its update once on a scratch copy. The floor
+//! graph of `insuwb bench latency` wakes at the same moment (with nothing
+//! to warm), so the two graphs keep the same wake-ups.
+
+/// How long before the next sample is due a stage gets ready, ns: more
+/// than the warm-up takes (about 20 us cold) plus the publish jitter of a
+/// driver (tens of microseconds), little enough that the caches stay warm.
+pub const WARM_LEAD_NS: u64 = 250_000;
+
+/// Shortest period learned, ns (faster streams need no anticipation).
+pub const MIN_PERIOD_NS: u64 = 5_000_000;
+/// Longest period learned, ns (a longer gap is an outage, not a period).
+pub const MAX_PERIOD_NS: u64 = 2_000_000_000;
+
+/// The next due time of a periodic stream (see the module documentation).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Anticipator {
+    last_meas_ns: Option<u64>,
+    period_ns: Option<u64>,
+    due_ns: Option<u64>,
+}
+
+impl Anticipator {
+    /// Nothing learned yet.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A sample of the stream arrived: its measurement time and publish time
+    /// (CLOCK_MONOTONIC ns). The period is the difference of the last two
+    /// measurement times when it lies in [[`MIN_PERIOD_NS`], [`MAX_PERIOD_NS`]];
+    /// the next sample is expected one period after this one's publish time.
+    pub fn observe(&mut self, meas_ns: u64, pub_ns: u64) {
+        if let Some(last) = self.last_meas_ns {
+            let d = meas_ns.saturating_sub(last);
+            self.period_ns = (MIN_PERIOD_NS..=MAX_PERIOD_NS).contains(&d).then_some(d);
+        }
+        self.last_meas_ns = Some(meas_ns);
+        self.due_ns = self
+            .period_ns
+            .map(|p| pub_ns.saturating_add(p).saturating_sub(WARM_LEAD_NS));
+    }
+
+    /// When to get ready for the next sample, if known and not done yet.
+    #[must_use]
+    pub fn deadline(&self) -> Option<u64> {
+        self.due_ns
+    }
+
+    /// True once when the deadline has passed at `now_ns`; the deadline is
+    /// then cleared until the next [`Anticipator::observe`] (no sample: no
+    /// further wake-up).
+    pub fn take_due(&mut self, now_ns: u64) -> bool {
+        match self.due_ns {
+            Some(d) if now_ns >= d => {
+                self.due_ns = None;
+                true
+            }
+            _ => false,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = 1_000_000;
+
+    #[test]
+    fn the_deadline_is_one_period_after_the_last_publish_less_the_lead() {
+        let mut a = Anticipator::new();
+        a.observe(1_000 * MS, 1_000 * MS + 40_000);
+        assert_eq!(a.deadline(), None, "one sample gives no period");
+        a.observe(1_100 * MS, 1_100 * MS + 30_000);
+        let due = 1_200 * MS + 30_000 - WARM_LEAD_NS;
+        assert_eq!(a.deadline(), Some(due));
+        assert!(!a.take_due(due - 1));
+        assert!(a.take_due(due));
+        assert!(!a.take_due(due + MS), "once only");
+        assert_eq!(a.deadline(), None);
+    }
+
+    #[test]
+    fn gaps_and_bursts_are_not_periods() {
+        let mut a = Anticipator::new();
+        a.observe(0, 10);
+        a.observe(3 * MS, 3 * MS); // faster than MIN_PERIOD_NS
+        assert_eq!(a.deadline(), None);
+        a.observe(3 * MS + 3_000 * MS, 3_003 * MS); // an outage
+        assert_eq!(a.deadline(), None);
+        a.observe(3_103 * MS, 3_103 * MS);
+        assert_eq!(a.deadline(), Some(3_203 * MS - WARM_LEAD_NS));
+        // A sample before the deadline moves it on.
+        a.observe(3_153 * MS, 3_153 * MS);
+        assert_eq!(a.deadline(), Some(3_203 * MS - WARM_LEAD_NS));
+    }
+}
