@@ -274,11 +274,7 @@ fn group_round(
 /// Creates `dir` (and its parents) readable by the owner only, as the
 /// launcher wants a run directory.
 fn private_dir(dir: &Path) -> Result<()> {
-    use std::os::unix::fs::DirBuilderExt;
-    std::fs::DirBuilder::new()
-        .recursive(true)
-        .mode(0o700)
-        .create(dir)
+    insuwb_runtime::perm::create_private_dir(dir)
         .with_context(|| format!("{}: cannot create", dir.display()))
 }
 

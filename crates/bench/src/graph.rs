@@ -115,15 +115,10 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
     let trace_dir = opts.run_dir.join("trace");
     for d in [&root, &trace_dir] {
         // Owner-only, as the stages want their iceoryx2 root.
-        use std::os::unix::fs::DirBuilderExt;
-        std::fs::DirBuilder::new()
-            .recursive(true)
-            .mode(0o700)
-            .create(d)
-            .map_err(|source| GraphError::RunDir {
-                path: d.display().to_string(),
-                source,
-            })?;
+        insuwb_runtime::perm::create_private_dir(d).map_err(|source| GraphError::RunDir {
+            path: d.display().to_string(),
+            source,
+        })?;
     }
     // As the pipeline's launcher: the next whole second at least 1 s ahead.
     let epoch = (monotonic_ns() + 1_000_000_000).div_ceil(1_000_000_000) * 1_000_000_000;

@@ -86,6 +86,16 @@ fn restrict_files_in(dir: &Path, prefix: &str, suffix: &str) -> Result<usize, Re
     Ok(changed)
 }
 
+/// Creates `dir` and its missing parents readable by the owner only
+/// (0700), as a run directory or an iceoryx2 root should be.
+pub fn create_private_dir(dir: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::DirBuilderExt;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)
+}
+
 /// Whether `path` exists with group or other permission bits.
 #[must_use]
 pub fn is_shared(path: &Path) -> bool {
@@ -95,6 +105,21 @@ pub fn is_shared(path: &Path) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn private_dirs_are_owner_only_down_to_the_leaf() {
+        use std::os::unix::fs::PermissionsExt;
+        let base = std::env::temp_dir().join(format!("insuwb-privdir-{}", std::process::id()));
+        let leaf = base.join("a").join("b");
+        create_private_dir(&leaf).unwrap();
+        for d in [&base, &base.join("a"), &leaf] {
+            let mode = std::fs::metadata(d).unwrap().permissions().mode() & 0o777;
+            assert_eq!(mode, 0o700, "{}", d.display());
+        }
+        assert!(!is_shared(&leaf));
+        create_private_dir(&leaf).unwrap(); // existing: fine
+        std::fs::remove_dir_all(&base).unwrap();
+    }
 
     fn mode(p: &Path) -> u32 {
         std::fs::metadata(p).unwrap().permissions().mode() & 0o777
