@@ -69,6 +69,15 @@ impl Anticipator {
         self.due_ns
     }
 
+    /// The deadline to wait for at `now_ns`: this one, or `now_ns + max_ns`
+    /// when that comes first or none is known (a loop that also serves
+    /// other wake-ups waits at most `max_ns`).
+    #[must_use]
+    pub fn deadline_within(&self, now_ns: u64, max_ns: u64) -> u64 {
+        let limit = now_ns.saturating_add(max_ns);
+        self.due_ns.map_or(limit, |d| d.min(limit))
+    }
+
     /// True once when the deadline has passed at `now_ns`; the deadline is
     /// then cleared until the next [`Anticipator::observe`] (no sample: no
     /// further wake-up).
@@ -98,10 +107,13 @@ mod tests {
         // The smallest publish latency (30 us) after the next measurement time.
         let due = 1_200 * MS + 30_000 - WARM_LEAD_NS;
         assert_eq!(a.deadline(), Some(due));
+        assert_eq!(a.deadline_within(due - MS, 500 * MS), due);
+        assert_eq!(a.deadline_within(due - MS, MS / 2), due - MS / 2);
         assert!(!a.take_due(due - 1));
         assert!(a.take_due(due));
         assert!(!a.take_due(due + MS), "once only");
         assert_eq!(a.deadline(), None);
+        assert_eq!(a.deadline_within(due, 500 * MS), due + 500 * MS);
     }
 
     #[test]

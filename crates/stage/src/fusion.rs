@@ -146,10 +146,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     // copy: the real update then finds its code and data in the caches.
     let mut next_fix = Anticipator::new();
     loop {
-        let wake = match next_fix.deadline() {
-            Some(d) => waiter.wait_deadline(d.min(monotonic_ns() + 500_000_000))?,
-            None => waiter.wait_timeout(Duration::from_millis(500))?,
-        };
+        let wake = waiter.wait_deadline(next_fix.deadline_within(monotonic_ns(), 500_000_000))?;
         let Wake::Fired(f) = wake else {
             if matches!(wake, Wake::Shutdown) {
                 break;
