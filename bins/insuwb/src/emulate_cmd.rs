@@ -333,9 +333,9 @@ fn serve<S: DeviceSink>(
     epoch: u64,
     faults: Faults,
 ) -> Result<()> {
-    // The first check installs iceoryx2's SIGINT/SIGTERM handler: from then
-    // on those signals are reported here instead of killing the process.
-    let _ = iceoryx2_bb_posix::signal::SignalHandler::termination_requested();
+    // From here SIGINT/SIGTERM are reported below instead of killing the
+    // process (a flag no other signal overwrites).
+    insuwb_runtime::signal::install()?;
     let now = monotonic_ns();
     if epoch > now {
         eprintln!(
@@ -346,7 +346,7 @@ fn serve<S: DeviceSink>(
     let player = Player::start(sink, chunks, epoch, monotonic_ns, faults)?;
     let mut interrupted = false;
     while !player.is_finished() {
-        if iceoryx2_bb_posix::signal::SignalHandler::termination_requested() {
+        if insuwb_runtime::signal::termination_requested() {
             interrupted = true;
             player.stop();
             break;

@@ -77,6 +77,7 @@ mod port;
 pub mod prefault;
 pub mod realtime;
 pub mod service;
+pub mod signal;
 mod stage;
 mod waiter;
 

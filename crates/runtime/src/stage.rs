@@ -50,6 +50,9 @@ pub enum StageError {
         /// iceoryx2's reason.
         source: NodeCreationFailure,
     },
+    /// The SIGINT/SIGTERM handler could not be installed.
+    #[error(transparent)]
+    Signal(#[from] crate::signal::SignalError),
     /// SIGINT or SIGTERM arrived while the stage was starting: the caller
     /// should exit cleanly (status 0).
     #[error("shutdown requested (SIGINT/SIGTERM) while starting stage {0:?}")]
@@ -198,8 +201,12 @@ impl Stage {
         if let Err(e) = crate::perm::restrict_global_segment(&cfg.prefix, &suffix) {
             tracing::warn!(stage = %cfg.stage_name, "{e}");
         }
-        // The first termination check installs iceoryx2's signal handler.
+        // iceoryx2's signal handler, then ours in front of it.
         if node.wait(Duration::ZERO).is_err() {
+            return Err(StageError::ShutdownRequested(cfg.stage_name.clone()));
+        }
+        crate::signal::install()?;
+        if crate::signal::termination_requested() {
             return Err(StageError::ShutdownRequested(cfg.stage_name.clone()));
         }
         let source_id = cfg.effective_source_id();
@@ -254,9 +261,17 @@ impl Stage {
     /// Sleeps for `d`; `Err(Shutdown)` when SIGINT or SIGTERM arrived before
     /// or during the sleep.
     pub fn sleep(&self, d: Duration) -> Result<(), Shutdown> {
-        match self.node.wait(d) {
-            Ok(()) => Ok(()),
-            Err(NodeWaitFailure::TerminationRequest | NodeWaitFailure::Interrupt) => Err(Shutdown),
+        match crate::signal::sleep(d) {
+            Ok(false) => Ok(()),
+            Ok(true) => Err(Shutdown),
+            // Not reachable once the stage exists (it installed the
+            // handler); sleep as iceoryx2 does.
+            Err(_) => match self.node.wait(d) {
+                Ok(()) => Ok(()),
+                Err(NodeWaitFailure::TerminationRequest | NodeWaitFailure::Interrupt) => {
+                    Err(Shutdown)
+                }
+            },
         }
     }
 

@@ -14,11 +14,12 @@
 //! kept by a timerfd in the same epoll set, armed at the earliest deadline
 //! as an absolute CLOCK_MONOTONIC time: a high-resolution timer without
 //! timer slack, so a wait ends within microseconds of its deadline (epoll's
-//! own timeout counts milliseconds, rounded up) in one wake-up. Termination follows iceoryx2's
-//! convention: its signal handler (installed by the stage's first
-//! termination check) records SIGINT/SIGTERM, `epoll_wait` returns EINTR, and
-//! [`Wake::Shutdown`] is returned, as it is when the request came in while
-//! the stage was busy.
+//! own timeout counts milliseconds, rounded up) in one wake-up. Termination:
+//! the waiter installs [`crate::signal`]'s SIGINT/SIGTERM handler, whose
+//! eventfd sits in the epoll set too, so [`Wake::Shutdown`] is returned at
+//! once whichever thread of the process took the signal, and at every later
+//! wait (the flag is never cleared), as when the request came in while the
+//! stage was busy.
 
 use core::cell::RefCell;
 use core::fmt::Debug;
@@ -26,7 +27,6 @@ use core::marker::PhantomData;
 use core::time::Duration;
 
 use iceoryx2::prelude::*;
-use iceoryx2_bb_posix::signal::SignalHandler;
 use insuwb_msg::HasHeader;
 
 use crate::monotonic_ns;
@@ -41,6 +41,9 @@ pub enum WaitError {
     /// The epoll set could not be created.
     #[error("cannot create the epoll set: {0}")]
     Create(#[source] std::io::Error),
+    /// The SIGINT/SIGTERM handler could not be installed.
+    #[error(transparent)]
+    Signal(#[from] crate::signal::SignalError),
     /// The listener could not be added to the epoll set.
     #[error("cannot attach {what}: {source}")]
     Attach {
@@ -163,6 +166,8 @@ struct EpollFd(i32);
 
 /// The epoll data of the deadline timer (never a slot number).
 const TIMER_TOKEN: u64 = u64::MAX;
+/// The epoll data of the termination eventfd ([`crate::signal::wake_fd`]).
+const SIGNAL_TOKEN: u64 = u64::MAX - 1;
 
 /// Arms `tfd` to expire at `at_ns` (CLOCK_MONOTONIC, absolute), or disarms it
 /// with `None`. Either clears an expiry not yet read, so the timer is
@@ -260,6 +265,15 @@ impl Waiter {
                 source,
             }
         })?;
+        crate::signal::install()?;
+        if let Some(fd) = crate::signal::wake_fd() {
+            epoll_ctl(epfd.0, libc::EPOLL_CTL_ADD, fd, SIGNAL_TOKEN).map_err(|source| {
+                WaitError::Attach {
+                    what: "the termination eventfd".to_owned(),
+                    source,
+                }
+            })?;
+        }
         Ok(Self {
             epfd,
             timer,
@@ -393,7 +407,7 @@ impl Waiter {
     fn wait_until(&self, deadline_ns: Option<u64>) -> Result<Wake, WaitError> {
         let mut events = [libc::epoll_event { events: 0, u64: 0 }; MAX_ATTACHMENTS];
         loop {
-            if SignalHandler::termination_requested() {
+            if crate::signal::termination_requested() {
                 return Ok(Wake::Shutdown);
             }
             let now = monotonic_ns();
@@ -449,6 +463,8 @@ impl Waiter {
                     mask |= 1u32 << slot;
                 } else if slot == TIMER_TOKEN {
                     timer_fired = true;
+                } else if slot == SIGNAL_TOKEN {
+                    return Ok(Wake::Shutdown);
                 }
             }
             if timer_fired {
