@@ -35,6 +35,7 @@ use insuwb_msg::{
     NavState, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::anticipate::Anticipator;
+use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, PortError, PublishError, ReceiveError, RuntimeConfig, Stage,
     StageError, Sub, WaitError, Wake,
@@ -654,20 +655,17 @@ fn run_logger(cfg: &FloorConfig) -> Result<(), FloorError> {
     let mut health = stage.health_reporter()?;
     let waiter = stage.waiter()?;
     // As the pipeline's logger: fused states wake it, the other topics are
-    // drained at each wake-up and every 50 ms.
+    // drained then, or 50 ms after the last drain when no fused state came.
     let fused_a = waiter.attach(&fused)?;
-    let bulk = waiter.attach_interval(Duration::from_millis(50))?;
+    let mut bulk = DrainClock::new(50_000_000, monotonic_ns());
     let hb = waiter.attach_interval(health.period())?;
     let mut counters = HealthCounters::default();
     loop {
-        let wake = waiter.wait_timeout(Duration::from_millis(500))?;
-        let Wake::Fired(f) = wake else {
-            if matches!(wake, Wake::Shutdown) {
-                break;
-            }
-            continue;
+        let wake = waiter.wait_deadline(bulk.deadline())?;
+        let Some(next) = bulk.after(&wake, &fused_a, &hb, monotonic_ns()) else {
+            break;
         };
-        if f.contains(&fused_a) || f.contains(&bulk) || f.contains(&hb) {
+        if next.drain {
             fused.drain(|s| keep.fused(s, &fused))?;
             imu.drain(|s| keep.push(Record::Imu(s)))?;
             tdoa.drain(|s| keep.push(Record::Tdoa(s)))?;
@@ -677,8 +675,9 @@ fn run_logger(cfg: &FloorConfig) -> Result<(), FloorError> {
             diag.drain(|s| keep.push(Record::Diag(s)))?;
             truth.drain(|s| keep.push(Record::Truth(s)))?;
             hsub.drain(|s| keep.push(Record::Health(s)))?;
+            bulk.drained(monotonic_ns());
         }
-        if f.contains(&hb) {
+        if next.beat {
             counters = HealthCounters::default();
             for st in [imu.stats(), tdoa.stats(), fused.stats(), nav.stats()] {
                 counters.add_sub(&st);

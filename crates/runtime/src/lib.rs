@@ -71,6 +71,7 @@
 pub mod anticipate;
 pub mod cleanup;
 mod config;
+pub mod drain;
 mod health;
 pub mod perm;
 mod port;

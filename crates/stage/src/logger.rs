@@ -17,13 +17,14 @@
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
-use crossbeam_channel::{bounded, TryRecvError, TrySendError};
+use crossbeam_channel::{bounded, RecvTimeoutError, TryRecvError, TrySendError};
 use insuwb_log::{Metadata, Record, SegmentWriter};
 use insuwb_msg::{
     topics, FilterDiag, FusedState, GroundTruth, Health, ImuSample, InsCorrection, NavState,
     UwbFix, UwbTdoa,
 };
-use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
+use insuwb_runtime::drain::DrainClock;
+use insuwb_runtime::{monotonic_ns, HealthCounters, Stage};
 
 use crate::group::RobotConfig;
 
@@ -33,12 +34,13 @@ use crate::group::RobotConfig;
 /// format of `insuwb_bench::trace`). At most [`FUSED_TRACE_MAX`] states,
 /// preallocated at start: nothing is allocated per sample.
 pub const FUSED_TRACE_ENV: &str = "INSUWB_LOGGER_FUSED_TRACE";
-/// How often the writer thread writes the records received meanwhile.
-const WRITER_PERIOD: Duration = Duration::from_millis(50);
-/// How often the logger drains the topics that do not wake it (all but
-/// `fused`); the smallest subscriber buffer (`health`, 256 samples at 5 Hz
-/// per stage) holds far more.
-const BULK_PERIOD: Duration = Duration::from_millis(50);
+/// The writer thread writes after each drain of the logger's loop; without
+/// one for this long it looks at the channel anyway.
+const WRITER_IDLE: Duration = Duration::from_millis(200);
+/// Longest time the logger leaves the topics that do not wake it (all but
+/// `fused`) undrained ([`DrainClock`]); the smallest subscriber buffer
+/// (`health`, 256 samples at 5 Hz per stage) holds far more.
+const BULK_PERIOD_NS: u64 = 50_000_000;
 
 /// Fused states [`FUSED_TRACE_ENV`] notes at most (3 hours at 10 Hz).
 pub const FUSED_TRACE_MAX: usize = 1 << 17;
@@ -109,18 +111,22 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         })?;
     tracing::info!("recording into {}", dir.display());
     let (tx, rx) = bounded::<Record>(65_536);
+    let (kick_tx, kick_rx) = bounded::<()>(1);
     let thread = std::thread::Builder::new()
         .name("log-writer".into())
         .spawn(move || -> Result<u64> {
             let mut w = writer;
             let mut n = 0u64;
-            // Wake every WRITER_PERIOD and write what the channel holds, never
-            // once per record: the writer stays off the CPU while the stages
-            // of the 10 Hz loop run (the channel holds far more than one
-            // period of every topic).
+            // Write what the channel holds when the loop kicks (after each
+            // drain: just after a fused state, in the quiet part of the
+            // 10 Hz cycle), never once per record: the writer stays off the
+            // CPU while the stages of the fix path run (the channel holds
+            // far more than one period of every topic).
             loop {
-                std::thread::sleep(WRITER_PERIOD);
-                let mut done = false;
+                let mut done = matches!(
+                    kick_rx.recv_timeout(WRITER_IDLE),
+                    Err(RecvTimeoutError::Disconnected)
+                );
                 loop {
                     match rx.try_recv() {
                         Ok(r) => {
@@ -154,12 +160,13 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let mut health = stage.health_reporter()?;
     let waiter = stage.waiter()?;
     // Fused states wake the logger at once (the fusion -> logger hop stays
-    // event-driven); every other topic is drained at each wake-up, at least
-    // every BULK_PERIOD (its subscriber buffer holds seconds of it): the
-    // logger does not wake for each of the ~400 samples a second and stays
-    // off the CPU while the stages of the 10 Hz loop run.
+    // event-driven); every other topic is drained then, or BULK_PERIOD_NS
+    // after the last drain when no fused state came (its subscriber buffer
+    // holds seconds of it): the logger does not wake for each of the ~400
+    // samples a second, and it and its writer stay off the CPU while the
+    // stages of the next fix's path run.
     let fused_a = waiter.attach(&fused)?;
-    let bulk = waiter.attach_interval(BULK_PERIOD)?;
+    let mut bulk = DrainClock::new(BULK_PERIOD_NS, monotonic_ns());
     let hb = waiter.attach_interval(health.period())?;
     let mut dropped = 0u64;
     let mut sent = 0u64;
@@ -167,17 +174,14 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let mut result = Ok(());
     let mut fused_trace = FusedTrace::from_env();
     loop {
-        let wake = waiter.wait_timeout(Duration::from_millis(500))?;
+        let wake = waiter.wait_deadline(bulk.deadline())?;
         if thread.is_finished() {
             break;
         }
-        let Wake::Fired(f) = wake else {
-            if matches!(wake, Wake::Shutdown) {
-                break;
-            }
-            continue;
+        let Some(next) = bulk.after(&wake, &fused_a, &hb, monotonic_ns()) else {
+            break;
         };
-        if f.contains(&fused_a) || f.contains(&bulk) || f.contains(&hb) {
+        if next.drain {
             let mut send = |r: Record| match tx.try_send(r) {
                 Ok(()) => sent += 1,
                 Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => dropped += 1,
@@ -196,8 +200,11 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             diag.drain(|s| send(Record::Diag(s)))?;
             truth.drain(|s| send(Record::Truth(s)))?;
             hsub.drain(|s| send(Record::Health(s)))?;
+            bulk.drained(monotonic_ns());
+            // Full: a kick is pending already.
+            let _ = kick_tx.try_send(());
         }
-        if f.contains(&hb) {
+        if next.beat {
             counters = HealthCounters::default();
             for st in [imu.stats(), tdoa.stats(), fused.stats(), nav.stats()] {
                 counters.add_sub(&st);
@@ -216,6 +223,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         }
     }
     drop(tx);
+    drop(kick_tx);
     match thread.join() {
         Ok(Ok(n)) => tracing::info!("logger: {n} records written, {dropped} dropped"),
         Ok(Err(e)) => {
