@@ -153,25 +153,27 @@ pub fn wake_fd() -> Option<i32> {
     (fd >= 0).then_some(fd)
 }
 
-/// Waits up to `timeout` for termination (returns early, `true`, when it
-/// arrives); `false` when the time ran out. Installs the handler first.
-pub fn sleep(timeout: core::time::Duration) -> Result<bool, SignalError> {
-    install()?;
+/// Waits up to `timeout` for termination: `true` as soon as it arrives,
+/// `false` when the time ran out. Wakes early only once [`install`] ran
+/// (before, it sleeps the whole `timeout` and then looks at the flag).
+#[must_use]
+pub fn sleep(timeout: core::time::Duration) -> bool {
     let end =
         crate::monotonic_ns().saturating_add(u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX));
     loop {
         if termination_requested() {
-            return Ok(true);
+            return true;
         }
         let now = crate::monotonic_ns();
         if now >= end {
-            return Ok(false);
+            return false;
         }
         let left = end - now;
         let ts = libc::timespec {
             tv_sec: libc::time_t::try_from(left / 1_000_000_000).unwrap_or(libc::time_t::MAX),
             tv_nsec: libc::c_long::try_from(left % 1_000_000_000).unwrap_or(0),
         };
+        // A negative descriptor (not installed) is ignored by ppoll.
         let mut pfd = libc::pollfd {
             fd: WAKE_FD.load(Ordering::SeqCst),
             events: libc::POLLIN,

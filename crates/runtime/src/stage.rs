@@ -7,7 +7,7 @@ use core::time::Duration;
 use std::path::Path as StdPath;
 
 use iceoryx2::config::Config;
-use iceoryx2::node::{NodeCreationFailure, NodeWaitFailure};
+use iceoryx2::node::NodeCreationFailure;
 use iceoryx2::prelude::*;
 use insuwb_msg::HasHeader;
 
@@ -261,17 +261,11 @@ impl Stage {
     /// Sleeps for `d`; `Err(Shutdown)` when SIGINT or SIGTERM arrived before
     /// or during the sleep.
     pub fn sleep(&self, d: Duration) -> Result<(), Shutdown> {
-        match crate::signal::sleep(d) {
-            Ok(false) => Ok(()),
-            Ok(true) => Err(Shutdown),
-            // Not reachable once the stage exists (it installed the
-            // handler); sleep as iceoryx2 does.
-            Err(_) => match self.node.wait(d) {
-                Ok(()) => Ok(()),
-                Err(NodeWaitFailure::TerminationRequest | NodeWaitFailure::Interrupt) => {
-                    Err(Shutdown)
-                }
-            },
+        // The stage installed the handler (Stage::new): the sleep ends at once on termination.
+        if crate::signal::sleep(d) {
+            Err(Shutdown)
+        } else {
+            Ok(())
         }
     }
 
