@@ -201,10 +201,8 @@ impl Stage {
         if let Err(e) = crate::perm::restrict_global_segment(&cfg.prefix, &suffix) {
             tracing::warn!(stage = %cfg.stage_name, "{e}");
         }
-        // iceoryx2's signal handler, then ours in front of it.
-        if node.wait(Duration::ZERO).is_err() {
-            return Err(StageError::ShutdownRequested(cfg.stage_name.clone()));
-        }
+        // iceoryx2's signal handler, then ours in front of it (a request
+        // iceoryx2 recorded already counts).
         crate::signal::install()?;
         if crate::signal::termination_requested() {
             return Err(StageError::ShutdownRequested(cfg.stage_name.clone()));
