@@ -778,7 +778,7 @@ impl FusionEngine {
             yaw_rad: yaw,
             cov: self.est.pos_vel_cov(),
             frame_id: fixed_name(&self.cfg.frame_id),
-            ins_seq: nav.imu_seq,
+            ins_seq: nav.header.seq,
             ins_meas_time_ns: nav.header.meas_time_ns,
             ins_pub_time_ns: nav.header.pub_time_ns,
             filter_kind: self.est.kind() as u32,
@@ -859,6 +859,16 @@ mod tests {
         }
     }
 
+    /// A KF engine that initialises from the first fix, and its outputs.
+    fn kf_from_first_fix() -> (FusionEngine, Outputs) {
+        let cfg = FusionEngineConfig {
+            init_from_first_fix: true,
+            ..FusionEngineConfig::default()
+        };
+        let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
+        (FusionEngine::new(cfg, est), Outputs::default())
+    }
+
     /// Initialisation waits for three consecutive fixes within 0.3 m of each
     /// other and takes the last one; a jump restarts the count.
     #[test]
@@ -901,13 +911,7 @@ mod tests {
     /// TDOA differences of its epoch moved the INS past it).
     #[test]
     fn a_fix_inside_the_last_interval_is_used() {
-        let cfg = FusionEngineConfig {
-            init_from_first_fix: true,
-            ..FusionEngineConfig::default()
-        };
-        let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
-        let mut e = FusionEngine::new(cfg, est);
-        let mut out = Outputs::default();
+        let (mut e, mut out) = kf_from_first_fix();
         for k in 0..=10 {
             e.on_nav(&nav(k), &mut out);
         }
@@ -933,5 +937,42 @@ mod tests {
         // Older than the interval processed last: late.
         e.on_measurement(Measurement::Fix(fix(5_000_000, [1.0, 2.0, 0.0])), &mut out);
         assert_eq!(e.counters().meas_late, 1);
+    }
+
+    /// A fused state names the INS state it was built on by that state's own
+    /// sequence number and times (not the IMU sample's), and the fix by its.
+    #[test]
+    fn a_fused_state_names_the_ins_state_and_the_fix_it_used() {
+        let (mut e, mut out) = kf_from_first_fix();
+        // INS states numbered apart from the IMU samples they integrated (as
+        // after re-propagations), published 40 us after their time.
+        let ins = |k: u64, correction_id: u64| NavState {
+            header: Header {
+                pub_time_ns: k * 1_000_000 + 40_000,
+                ..Header::new(500 + k, k * 1_000_000)
+            },
+            correction_id,
+            ..nav(k)
+        };
+        for k in 0..=10 {
+            e.on_nav(&ins(k, e.correction_id()), &mut out);
+        }
+        let f = UwbFix {
+            header: Header {
+                pub_time_ns: 10_000_000 + 90_000,
+                ..Header::new(77, 10_000_000)
+            },
+            ..fix(10_000_000, [1.0, 2.0, 0.0])
+        };
+        e.on_measurement(Measurement::Fix(f), &mut out);
+        let s = out.fused.last().unwrap();
+        assert_eq!(
+            (s.uwb_seq, s.uwb_meas_time_ns, s.uwb_pub_time_ns),
+            (77, 10_000_000, 10_090_000)
+        );
+        assert_eq!(
+            (s.ins_seq, s.ins_meas_time_ns, s.ins_pub_time_ns),
+            (510, 10_000_000, 10_040_000)
+        );
     }
 }
