@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use insuwb_bench::analysis::{
-    samples, AnalysisConfig, Hops, LatencySamples, Percentiles, RunLatency,
+    samples, AnalysisConfig, Cycle, Hops, LatencySamples, Percentiles, RunLatency,
 };
 use insuwb_bench::graph::{cpu_percent, cpu_snapshot, run_floor_graph, FloorGraphOptions};
 use insuwb_runtime::monotonic_ns;
@@ -52,6 +52,11 @@ pub struct LatencyArgs {
     /// Print the report as one JSON object on standard output.
     #[arg(long)]
     pub json: bool,
+    /// Also write every steady-state cycle of every round (the stamps along
+    /// the path of each fix) as `floor<round>.csv` and `group<round>.csv`
+    /// in this folder, for looking at single cycles.
+    #[arg(long, value_name = "DIR")]
+    pub samples: Option<PathBuf>,
 }
 
 /// CPU time of each stage over the steady window, percent of one core.
@@ -174,6 +179,10 @@ fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result
     );
     let (mut fl, mut gr) = (LatencySamples::default(), LatencySamples::default());
     let (mut fl_cpu, mut gr_cpu) = (Vec::new(), Vec::new());
+    if let Some(dir) = &a.samples {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the samples folder", dir.display()))?;
+    }
     for round in 0..a.rounds {
         // 1. The floor.
         let floor = run_floor_graph(&FloorGraphOptions {
@@ -185,10 +194,12 @@ fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result
         })?;
         let s = samples(&floor.records, &floor.recv, &acfg)
             .with_context(|| format!("the floor run of round {}", round + 1))?;
+        write_cycles(a.samples.as_deref(), &format!("floor{round}.csv"), &s)?;
         fl.extend(&s);
         fl_cpu.push(floor.cpu_percent);
         // 2. The group on simulated sensors, its logger noting fused receive times.
         let (s, cpu) = group_round(round, duration, id, base, &acfg)?;
+        write_cycles(a.samples.as_deref(), &format!("group{round}.csv"), &s)?;
         gr.extend(&s);
         gr_cpu.push(cpu);
     }
@@ -269,6 +280,22 @@ fn group_round(
     let s = samples(&records, &recv, acfg)
         .with_context(|| format!("the group run of round {}", round + 1))?;
     Ok((s, cpu))
+}
+
+/// Writes the cycles of one run as CSV to `dir/name` (nothing without `dir`).
+fn write_cycles(dir: Option<&Path>, name: &str, s: &LatencySamples) -> Result<()> {
+    let Some(dir) = dir else {
+        return Ok(());
+    };
+    let path = dir.join(name);
+    let mut text = String::with_capacity(64 * (s.cycles.len() + 1));
+    text.push_str(Cycle::CSV_HEADER);
+    text.push('\n');
+    for c in &s.cycles {
+        text.push_str(&c.csv_row());
+        text.push('\n');
+    }
+    std::fs::write(&path, text).with_context(|| format!("{}: cannot write", path.display()))
 }
 
 /// Creates `dir` (and its parents) readable by the owner only, as the

@@ -102,6 +102,7 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
     let _lock = ONE_AT_A_TIME
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let samples = std::env::temp_dir().join(format!("insuwb-bench-samples-{}", std::process::id()));
     let out = Command::new(insuwb())
         .args([
             "bench",
@@ -111,7 +112,9 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
             "--rounds",
             "1",
             "--json",
+            "--samples",
         ])
+        .arg(&samples)
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -166,8 +169,8 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
         assert!(num(p) > 0.0 && num(p) < 100.0, "cpu_percent.{k}: {v}");
     }
     assert_eq!(num(&v["missed_cycles"]), 0.0, "{v}");
-    // One round: each group start risks the logger SIGTERM stall noted in
-    // BENCHMARKS.md; pooling rounds is tested in insuwb-bench's analysis.
+    // One round keeps the test short; pooling rounds is tested in
+    // insuwb-bench's analysis.
     assert_eq!(num(&v["rounds"]), 1.0, "{v}");
     // The ratios are the group's percentiles over the floor's.
     for (ratio, g, f) in [
@@ -181,6 +184,38 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
         num(&v["e2e_uwb_fused_p50_us"]),
         num(&v["hops"]["uwb_fusion"]["p50_us"])
     );
+    // `--samples`: every steady cycle of each graph, its stamps in the order
+    // of the path (the fix and the IMU sample after their epoch, the INS
+    // state after its IMU sample, the fused state after both inputs, the
+    // logger after the fused state).
+    for graph in ["floor0.csv", "group0.csv"] {
+        let path = samples.join(graph);
+        let text =
+            std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let mut lines = text.lines();
+        assert_eq!(
+            lines.next(),
+            Some(
+                "uwb_seq,uwb_meas_ns,uwb_pub_ns,imu_pub_ns,ins_pub_ns,fused_pub_ns,logger_recv_ns"
+            )
+        );
+        let rows: Vec<Vec<u64>> = lines
+            .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+            .collect();
+        // 8 s minus the 1 s warm-up and 0.5 s tail at 10 Hz.
+        assert!(rows.len() >= 50, "{graph}: {} cycles", rows.len());
+        for r in &rows {
+            let (meas, uwb, imu, ins, fused, recv) = (r[1], r[2], r[3], r[4], r[5], r[6]);
+            assert!(uwb >= meas && imu >= meas, "{graph}: {r:?}");
+            assert!(ins > imu && fused > ins.max(uwb), "{graph}: {r:?}");
+            assert!(recv == 0 || recv >= fused, "{graph}: {r:?}");
+        }
+        assert!(
+            rows.windows(2).all(|w| w[1][0] > w[0][0]),
+            "{graph}: not by seq"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&samples);
 }
 
 #[test]

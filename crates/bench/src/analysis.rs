@@ -193,6 +193,48 @@ fn is_update(f: &FusedState) -> bool {
     f.header.flags & FusedState::FLAG_DEGRADED == 0
 }
 
+/// One steady-state cycle: the CLOCK_MONOTONIC stamps along the path of
+/// one fix, for looking at single cycles (`insuwb bench latency --samples`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Cycle {
+    /// Sequence number of the fix.
+    pub uwb_seq: u64,
+    /// Measurement time of the fix (ns).
+    pub uwb_meas_ns: u64,
+    /// Publish time of the fix (ns).
+    pub uwb_pub_ns: u64,
+    /// Publish time of the IMU sample the INS state used was built from
+    /// (ns; 0 when the recording lacks it).
+    pub imu_pub_ns: u64,
+    /// Publish time of the INS state the fused state used (ns).
+    pub ins_pub_ns: u64,
+    /// Publish time of the fused state (ns).
+    pub fused_pub_ns: u64,
+    /// The logger's receive time of the fused state (ns; 0 when not traced).
+    pub logger_recv_ns: u64,
+}
+
+impl Cycle {
+    /// Header of [`Cycle::csv_row`].
+    pub const CSV_HEADER: &'static str =
+        "uwb_seq,uwb_meas_ns,uwb_pub_ns,imu_pub_ns,ins_pub_ns,fused_pub_ns,logger_recv_ns";
+
+    /// The cycle as one CSV row (no line end).
+    #[must_use]
+    pub fn csv_row(&self) -> String {
+        format!(
+            "{},{},{},{},{},{},{}",
+            self.uwb_seq,
+            self.uwb_meas_ns,
+            self.uwb_pub_ns,
+            self.imu_pub_ns,
+            self.ins_pub_ns,
+            self.fused_pub_ns,
+            self.logger_recv_ns
+        )
+    }
+}
+
 /// The raw values of one or more runs, in nanoseconds, before percentiles:
 /// runs measured apart (rounds of `insuwb bench latency`) are pooled with
 /// [`LatencySamples::extend`] and summarised once ([`LatencySamples::summary`]).
@@ -214,6 +256,8 @@ pub struct LatencySamples {
     pub missed_cycles: u64,
     /// Fused states from UWB updates recorded.
     pub fused: u64,
+    /// The steady-state cycles, by fix sequence number.
+    pub cycles: Vec<Cycle>,
 }
 
 impl LatencySamples {
@@ -228,6 +272,7 @@ impl LatencySamples {
         self.fixes += other.fixes;
         self.missed_cycles += other.missed_cycles;
         self.fused += other.fused;
+        self.cycles.extend_from_slice(&other.cycles);
     }
 
     /// Percentiles of every figure.
@@ -274,6 +319,7 @@ pub fn samples(
     let mut fixes: HashMap<u64, (u64, u64)> = HashMap::new();
     let mut imu: HashMap<u64, (u64, u64)> = HashMap::new();
     let mut nav_first: HashMap<u64, u64> = HashMap::new();
+    let mut nav_imu: HashMap<u64, u64> = HashMap::new();
     let mut fused_by_fix: HashMap<u64, FusedState> = HashMap::new();
     for r in records {
         match r {
@@ -286,7 +332,10 @@ pub fn samples(
                 imu.entry(s.header.seq)
                     .or_insert((s.header.meas_time_ns, s.header.pub_time_ns));
             }
-            Record::Nav(n) => note_nav(&mut nav_first, n),
+            Record::Nav(n) => {
+                note_nav(&mut nav_first, n);
+                nav_imu.entry(n.header.seq).or_insert(n.imu_seq);
+            }
             Record::Fused(f) if is_update(f) => {
                 fused_by_fix
                     .entry(f.uwb_seq)
@@ -371,6 +420,28 @@ pub fn samples(
             (p == r.pub_time_ns).then(|| r.receive_ns.saturating_sub(p))
         })
         .collect();
+    let recv_of: HashMap<(u64, u64), u64> = recv
+        .iter()
+        .map(|r| ((r.seq, r.pub_time_ns), r.receive_ns))
+        .collect();
+    let cycles = steady
+        .iter()
+        .map(|f| Cycle {
+            uwb_seq: f.uwb_seq,
+            uwb_meas_ns: f.uwb_meas_time_ns,
+            uwb_pub_ns: f.uwb_pub_time_ns,
+            imu_pub_ns: nav_imu
+                .get(&f.ins_seq)
+                .and_then(|k| imu.get(k))
+                .map_or(0, |v| v.1),
+            ins_pub_ns: f.ins_pub_time_ns,
+            fused_pub_ns: f.header.pub_time_ns,
+            logger_recv_ns: recv_of
+                .get(&(f.header.seq, f.header.pub_time_ns))
+                .copied()
+                .unwrap_or(0),
+        })
+        .collect();
     Ok(LatencySamples {
         uwb_fusion_ns,
         ins_fusion_ns,
@@ -380,6 +451,7 @@ pub fn samples(
         fixes: n_fixes,
         missed_cycles: missed,
         fused: fused_by_fix.len() as u64,
+        cycles,
     })
 }
 
@@ -448,6 +520,7 @@ mod tests {
                 uwb_seq: j,
                 uwb_meas_time_ns: t,
                 uwb_pub_time_ns: fix_pub,
+                ins_seq: 10 * j,
                 ins_pub_time_ns: t + 70 * US,
                 ..FusedState::default()
             }));
@@ -494,6 +567,25 @@ mod tests {
         assert_eq!(r.jitter.max_us, 0.0);
         // IMU samples 100..=940 (1 s to 9.4 s) are steady.
         assert_eq!(r.hops.imu_ins.count, 841);
+        // The same cycles, stamp by stamp.
+        let s = samples(&recs, &recv, &AnalysisConfig::default()).unwrap();
+        assert_eq!(s.cycles.len(), 85);
+        let t = 1_000 * MS + 10 * 100 * MS;
+        assert_eq!(
+            s.cycles.first().copied(),
+            Some(Cycle {
+                uwb_seq: 10,
+                uwb_meas_ns: t,
+                uwb_pub_ns: t + 30 * US,
+                imu_pub_ns: t + 20 * US,
+                ins_pub_ns: t + 70 * US,
+                fused_pub_ns: t + 130 * US,
+                logger_recv_ns: t + 170 * US,
+            })
+        );
+        assert_eq!(s.cycles.last().map(|c| c.uwb_seq), Some(94));
+        let row = s.cycles.first().map(Cycle::csv_row).unwrap_or_default();
+        assert_eq!(row.split(',').count(), Cycle::CSV_HEADER.split(',').count());
     }
 
     #[test]
