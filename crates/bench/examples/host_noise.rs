@@ -11,7 +11,9 @@
 //!    guest and adds gaps of its own.
 //! 2. **Timer wake-ups.** A thread sleeps to absolute deadlines 10 ms apart
 //!    (clock_nanosleep, TIMER_ABSTIME) for SECONDS: how late each wake-up
-//!    is, as a driver's.
+//!    is, as a driver's; then pinned to each CPU in turn for SECONDS / CPUs
+//!    (a timer interrupt comes to the CPU that armed it, so a CPU the host
+//!    deschedules more often wakes its sleepers later).
 //!
 //! A gap of a few milliseconds that lands in the ~0.2 ms of a fix's path
 //! makes one outlier of the 300 cycles `insuwb bench latency` measures per
@@ -139,16 +141,30 @@ fn main() {
             println!("  gaps > 1 ms (ms@s): {}", times.join(" "));
         }
     }
-    let mut late = timer_lateness_us(Duration::from_secs_f64(secs));
-    late.sort_by(f64::total_cmp);
-    let over = late.iter().filter(|l| **l > 500.0).count();
-    println!(
-        "timer wake-ups every 10 ms: n = {}, late p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, \
-         max {:.1} us, {over} over 0.5 ms",
-        late.len(),
-        pct(&late, 0.5),
-        pct(&late, 0.99),
-        pct(&late, 0.999),
-        late.last().copied().unwrap_or(0.0)
-    );
+    // Timer wake-ups: unpinned (as the stages run), then pinned to each CPU
+    // in turn (the timer interrupt comes to the CPU that armed it).
+    let summary = |what: &str, mut late: Vec<f64>| {
+        late.sort_by(f64::total_cmp);
+        let over = late.iter().filter(|l| **l > 500.0).count();
+        println!(
+            "timer wake-ups every 10 ms, {what}: n = {}, late p50 {:.1} us, p99 {:.1} us, \
+             p99.9 {:.1} us, max {:.1} us, {over} over 0.5 ms",
+            late.len(),
+            pct(&late, 0.5),
+            pct(&late, 0.99),
+            pct(&late, 0.999),
+            late.last().copied().unwrap_or(0.0)
+        );
+    };
+    summary("unpinned", timer_lateness_us(Duration::from_secs_f64(secs)));
+    for cpu in 0..cpus {
+        let late = std::thread::spawn(move || pin_to(cpu).then(|| timer_lateness_us(per_cpu)))
+            .join()
+            .ok()
+            .flatten();
+        match late {
+            Some(late) => summary(&format!("pinned to cpu{cpu}"), late),
+            None => println!("cpu{cpu}: could not pin a thread to it"),
+        }
+    }
 }
