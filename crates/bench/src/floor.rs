@@ -11,15 +11,16 @@
 //!   and, before the last of them, the fix they complete (the driver's order);
 //! - `ins`: wakes on IMU samples and corrections; forwards every IMU sample as
 //!   an INS state naming it (corrections are read and dropped);
-//! - `fusion`: wakes on INS states, fixes, TDOA measurements, a 50 ms
-//!   tick and, as the fusion stage, shortly before each fix is due
+//! - `fusion`: wakes on INS states, fixes (not TDOA measurements: the
+//!   loosely coupled fusion stage the bench runs does not read them), a
+//!   50 ms tick and, as the fusion stage, shortly before each fix is due
 //!   ([`insuwb_runtime::anticipate`]; the stage warms its update there, this
 //!   node has nothing to do); a fix waits until the INS state covering its epoch (the first
 //!   with a time at or after it) is there, then a fused state naming both
 //!   inputs, a correction and a diagnostics sample go out, in the fusion
 //!   stage's order;
-//! - `logger`: wakes on fused states and every 50 ms (as the pipeline's
-//!   logger), drains every topic, copies every sample into memory
+//! - `logger`: wakes on fused states and, 50 ms after its last drain, when
+//!   none comes (as the pipeline's logger), drains every topic, copies every sample into memory
 //!   (preallocated, bounded) and notes when each fused state arrived; at
 //!   SIGTERM it writes them to its trace folder ([`FLOOR_LOG_FILE`],
 //!   [`FUSED_TRACE_FILE`]), after the measurement.
@@ -522,7 +523,6 @@ fn run_fusion(cfg: &FloorConfig) -> Result<(), FloorError> {
     let stage = Stage::new(cfg.runtime(Role::Fusion))?;
     let nav_sub = stage.subscriber::<NavState>(topics::NAV)?;
     let fix_sub = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
-    let tdoa_sub = stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?;
     let mut fused_pub = stage.publisher::<FusedState>(topics::FUSED)?;
     let mut diag_pub = stage.publisher::<FilterDiag>(topics::DIAG)?;
     let mut corr_pub = stage.publisher::<InsCorrection>(topics::CORRECTION)?;
@@ -530,7 +530,6 @@ fn run_fusion(cfg: &FloorConfig) -> Result<(), FloorError> {
     let waiter = stage.waiter()?;
     let nav_a = waiter.attach(&nav_sub)?;
     let fix_a = waiter.attach(&fix_sub)?;
-    let tdoa_a = waiter.attach(&tdoa_sub)?;
     // The fusion stage's coasting/staleness tick (0.5 / coast rate, at most 50 ms).
     let _tick = waiter.attach_interval(Duration::from_millis(50))?;
     let hb = waiter.attach_interval(health.period())?;
@@ -549,12 +548,11 @@ fn run_fusion(cfg: &FloorConfig) -> Result<(), FloorError> {
             next_fix.take_due(monotonic_ns());
             continue;
         };
-        if f.contains(&nav_a) || f.contains(&fix_a) || f.contains(&tdoa_a) {
+        if f.contains(&nav_a) || f.contains(&fix_a) {
             fix_sub.drain(|x| {
                 next_fix.observe(x.header.meas_time_ns, x.header.pub_time_ns);
                 m.on_fix(x);
             })?;
-            tdoa_sub.drain(|_| {})?;
             nav_sub.drain(|n| m.on_nav(n))?;
             // Fused states, corrections, diagnostics: the fusion stage's order.
             for (x, n) in m.out.iter() {

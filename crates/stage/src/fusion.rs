@@ -93,7 +93,14 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     }
     let nav_sub = stage.subscriber::<NavState>(topics::NAV)?;
     let fix_sub = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
-    let tdoa_sub = stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?;
+    // Only a tightly coupled filter reads the TDOA differences: a loose one
+    // would be woken by every one of them just to drop it, on the CPUs the
+    // INS needs at a fix epoch.
+    let tdoa_sub = if tight {
+        Some(stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?)
+    } else {
+        None
+    };
     let mut fused_pub = stage.publisher::<FusedState>(topics::FUSED)?;
     let mut diag_pub = stage.publisher::<FilterDiag>(topics::DIAG)?;
     let mut corr_pub = stage.publisher::<InsCorrection>(topics::CORRECTION)?;
@@ -101,7 +108,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let waiter = stage.waiter()?;
     let nav_a = waiter.attach(&nav_sub)?;
     let fix_a = waiter.attach(&fix_sub)?;
-    let tdoa_a = waiter.attach(&tdoa_sub)?;
+    let tdoa_a = tdoa_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
     let tick_period = Duration::from_secs_f64((0.5 / cfg.fusion.coast_rate_hz).min(0.05));
     let tick = waiter.attach_interval(tick_period)?;
     let tick_ns = u64::try_from(tick_period.as_nanos()).unwrap_or(u64::MAX);
@@ -157,7 +164,10 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             continue;
         };
         let mut updated = false;
-        if f.contains(&nav_a) || f.contains(&fix_a) || f.contains(&tdoa_a) {
+        if f.contains(&nav_a)
+            || f.contains(&fix_a)
+            || tdoa_a.as_ref().is_some_and(|a| f.contains(a))
+        {
             // Fixes before the TDOA measurements that completed them, then INS states.
             let fresh = |pub_ns: u64| pub_ns >= started_ns;
             fix_sub.drain(|m| {
@@ -166,14 +176,12 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                     engine.on_measurement(Measurement::Fix(m), &mut out);
                 }
             })?;
-            if tight {
+            if let Some(tdoa_sub) = &tdoa_sub {
                 tdoa_sub.drain(|m| {
                     if fresh(m.header.pub_time_ns) {
                         engine.on_measurement(Measurement::Tdoa(m), &mut out);
                     }
                 })?;
-            } else {
-                tdoa_sub.drain(|_| {})?;
             }
             nav_sub.drain(|n| {
                 if fresh(n.header.pub_time_ns) {
