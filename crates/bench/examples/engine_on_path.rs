@@ -2,8 +2,9 @@
 //! `FusionEngine::on_nav` call that completes a UWB update (predict to the
 //! fix epoch, update, correction, fused state), hot (back to back, caches
 //! warm), cold (8 MiB of other memory touched between cycles, as the other
-//! processes of the group do on a shared core) and after a 9 ms sleep before
-//! each INS state (as the fusion stage, woken for each one).
+//! processes of the group do on a shared core), after a 9 ms sleep before
+//! each INS state (as the fusion stage, woken for each one), and after the
+//! sleep and the stage's warm-up (`FusionEngine::warm_up`) right before it.
 //!
 //! `cargo run --release -p insuwb-bench --example engine_on_path [EAGER_LAG_S]`
 //! (with a lag, the engine predicts through INS states as they arrive, as
@@ -22,7 +23,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sim = insuwb_sim::simulate(&sc.sim, 1)?;
     let fixes = insuwb_fusion::offline::run_fixes(&sim.tdoa, &cfg)?;
     let mut junk = vec![0u8; 8 << 20];
-    for (cold, idle) in [(false, false), (true, false), (false, true)] {
+    for (cold, idle, warm) in [
+        (false, false, false),
+        (true, false, false),
+        (false, true, false),
+        (false, true, true),
+    ] {
         let est = insuwb_fusion::offline::build_estimator(FilterKind::Iakf, &cfg)?;
         let mut ins = InsEngine::new(cfg.ins.clone())?;
         let mut eng = FusionEngine::new(cfg.engine.clone(), est);
@@ -44,6 +50,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             if idle && (5_000_000_000..15_000_000_000).contains(&t) {
                 std::thread::sleep(std::time::Duration::from_millis(9));
+                if warm {
+                    eng.warm_up();
+                }
             }
             let a = Instant::now();
             eng.on_nav(&n, &mut out);
@@ -73,7 +82,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         };
         println!(
             "{}: {} updates, on_nav with the update p50 {:.1} us, p90 {:.1} us",
-            if idle {
+            if warm {
+                "idle, warmed"
+            } else if idle {
                 "idle"
             } else if cold {
                 "cold"

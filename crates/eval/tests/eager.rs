@@ -100,18 +100,27 @@ fn eager_prediction_in_real_time_order_equals_the_lazy_engine() {
                 assert_eq!(a.cov, b.cov, "{kind:?} lag {lag} at {at}");
             }
         }
-        // Warming up the update on a scratch copy changes nothing.
-        let mut warm_cfg = lazy_cfg.clone();
-        warm_cfg.engine.eager_lag_s = Some(0.005);
-        let warm = real_time_order(&warm_cfg, kind, &sim, true);
-        assert_eq!(lazy.len(), warm.len(), "{kind:?} warm");
-        for (a, b) in lazy.iter().zip(&warm) {
-            assert_eq!(
-                a.pos_m, b.pos_m,
-                "{kind:?} warm at {}",
-                a.header.meas_time_ns
-            );
-            assert_eq!(a.cov, b.cov, "{kind:?} warm at {}", a.header.meas_time_ns);
+        // Warming up the update on a scratch copy changes nothing, with
+        // position and velocity updates and with position-only ones (the
+        // warm-up runs the size the last update had).
+        for use_velocity in [true, false] {
+            let mut lazy_cfg = lazy_cfg.clone();
+            lazy_cfg.loose.use_velocity = use_velocity;
+            let lazy = offline::run(&sim.imu, &sim.tdoa, &lazy_cfg, kind)
+                .unwrap()
+                .fused;
+            let mut warm_cfg = lazy_cfg.clone();
+            warm_cfg.engine.eager_lag_s = Some(0.005);
+            let warm = real_time_order(&warm_cfg, kind, &sim, true);
+            let what = format!("{kind:?} warm, velocity {use_velocity}");
+            assert!(lazy.len() > 500, "{what}: {} fused states", lazy.len());
+            assert_eq!(lazy.len(), warm.len(), "{what}");
+            for (a, b) in lazy.iter().zip(&warm) {
+                let at = a.header.meas_time_ns;
+                assert_eq!(a.pos_m, b.pos_m, "{what} at {at}");
+                assert_eq!(a.vel_mps, b.vel_mps, "{what} at {at}");
+                assert_eq!(a.cov, b.cov, "{what} at {at}");
+            }
         }
     }
 }

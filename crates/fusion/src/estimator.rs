@@ -257,6 +257,9 @@ pub struct PaperEstimator {
     last_fix_t_ns: Option<u64>,
     /// A filter of the same kind for [`Estimator::warm_up`].
     scratch: Box<dyn insuwb_filter::ErrorFilter>,
+    /// Whether the last fix update used the velocity (the warm-up runs the
+    /// same kind of update: another size is other code).
+    last_update_vel: bool,
 }
 
 impl PaperEstimator {
@@ -276,6 +279,7 @@ impl PaperEstimator {
             vertical: None,
             last_fix_t_ns: None,
             scratch: filter.clone_boxed(),
+            last_update_vel: false,
             filter,
             cfg,
             p0,
@@ -331,6 +335,42 @@ impl PaperEstimator {
         Some((2.0 * w * dt_s * dz, w * w * dt_s * dz))
     }
 
+    /// The correction for the error state `x` and the vertical loop's
+    /// `(d_pos_z, d_vel_z)`.
+    fn delta_from(&self, x: &insuwb_filter::model::Vec14, (dz, dvz): (f64, f64)) -> Delta {
+        let mut d = Delta {
+            d_pos_m: [x[0], x[1], dz],
+            d_vel_mps: [x[2], x[3], dvz],
+            d_att_rad: [0.0, 0.0, x[4]],
+            ..Delta::default()
+        };
+        if self.bias_feedback && self.cfg.accel_feedback == AccelFeedback::Tilt {
+            // `d a = a_true - a_meas` (erratum 4): the INS's own error is
+            // `-d a = g [d_att_n, -d_att_e]`.
+            let q = self.last_quat;
+            let r = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                q[0], q[1], q[2], q[3],
+            ));
+            let bg = r.inverse() * nalgebra::Vector3::new(0.0, 0.0, -x[11]);
+            let [tilt_e, tilt_n] = tilt_from_accel_error(x[5], x[8], self.gravity_mps2);
+            d.d_att_rad = [tilt_e, tilt_n, x[4]];
+            d.d_gyro_bias_rps = [bg.x, bg.y, bg.z];
+        } else if self.bias_feedback {
+            // States 5, 8, 11 are `d a = a_true - a_meas` (ENU) and `d w`
+            // (erratum 4): the INS bias (subtracted from the samples) moves by
+            // minus their body-frame value.
+            let q = self.last_quat;
+            let r = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                q[0], q[1], q[2], q[3],
+            ));
+            let ba = r.inverse() * nalgebra::Vector3::new(-x[5], -x[8], 0.0);
+            let bg = r.inverse() * nalgebra::Vector3::new(0.0, 0.0, -x[11]);
+            d.d_accel_bias_mps2 = [ba.x, ba.y, ba.z];
+            d.d_gyro_bias_rps = [bg.x, bg.y, bg.z];
+        }
+        d
+    }
+
     /// The wrapped filter.
     #[must_use]
     pub fn filter(&self) -> &dyn insuwb_filter::ErrorFilter {
@@ -355,6 +395,21 @@ impl PaperEstimator {
         self.acc_ae = 0.0;
         self.acc_an = 0.0;
     }
+}
+
+/// The covariance of `[pe, pn, pu, ve, vn, vu]` in a paper filter's `p`.
+fn pos_vel_cov_of(p: &insuwb_filter::model::Mat14) -> [[f64; 6]; 6] {
+    // Filter states 0..4 are pe, pn, ve, vn; output order pe, pn, pu, ve, vn, vu.
+    let map = [Some(0usize), Some(1), None, Some(2), Some(3), None];
+    let mut c = [[0.0; 6]; 6];
+    for (i, mi) in map.iter().enumerate() {
+        for (j, mj) in map.iter().enumerate() {
+            if let (Some(a), Some(b)) = (mi, mj) {
+                c[i][j] = p[(*a, *b)];
+            }
+        }
+    }
+    c
 }
 
 fn report_to_info(r: &insuwb_filter::UpdateReport) -> UpdateInfo {
@@ -402,15 +457,27 @@ impl Estimator for PaperEstimator {
 
     fn warm_up(&mut self) {
         // The copy reads the whole state; one AR step of prediction and an
-        // update with a zero INS-UWB difference on it run the code of a fix
-        // epoch (with the state zero after each correction, the innovation
-        // is zero too: the usual path, no outlier). Errors are the copy's.
+        // update of the last update's size with a zero INS-UWB difference
+        // on it run the code of a fix epoch (with the state zero after each
+        // correction, the innovation is zero too: the usual path, no
+        // outlier), then the report, the correction and the output
+        // covariance as the engine takes them. Errors are the copy's.
         if !self.filter.copy_to(self.scratch.as_mut()) {
             return;
         }
         let _ = self.scratch.predict(self.step_s, 0.0, 0.0);
-        let _ = self.scratch.update(&nalgebra::SVector::<f64, 4>::zeros());
-        std::hint::black_box(self.scratch.state());
+        let rep = if self.last_update_vel {
+            self.scratch.update(&nalgebra::SVector::<f64, 4>::zeros())
+        } else {
+            self.scratch
+                .update_pos(&nalgebra::SVector::<f64, 2>::zeros())
+        };
+        if let Ok(r) = rep {
+            std::hint::black_box(report_to_info(&r));
+        }
+        let x = self.scratch.take_correction();
+        std::hint::black_box(self.delta_from(&x, (0.0, 0.0)));
+        std::hint::black_box(pos_vel_cov_of(self.scratch.covariance()));
     }
 
     fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo> {
@@ -419,6 +486,7 @@ impl Estimator for PaperEstimator {
         self.vertical = self.vertical_correction(ins, fix);
         let dp = [ins.pos_m[0] - fix.pos_m[0], ins.pos_m[1] - fix.pos_m[1]];
         let vel_ok = self.cfg.use_velocity && fix.header.flags & UwbFix::FLAG_VEL_VALID != 0;
+        self.last_update_vel = vel_ok;
         let rep = if vel_ok {
             let z = nalgebra::SVector::<f64, 4>::new(
                 dp[0],
@@ -446,53 +514,12 @@ impl Estimator for PaperEstimator {
 
     fn take_correction(&mut self) -> Delta {
         let x = self.filter.take_correction();
-        let (dz, dvz) = self.vertical.take().unwrap_or((0.0, 0.0));
-        let mut d = Delta {
-            d_pos_m: [x[0], x[1], dz],
-            d_vel_mps: [x[2], x[3], dvz],
-            d_att_rad: [0.0, 0.0, x[4]],
-            ..Delta::default()
-        };
-        if self.bias_feedback && self.cfg.accel_feedback == AccelFeedback::Tilt {
-            // `d a = a_true - a_meas` (erratum 4): the INS's own error is
-            // `-d a = g [d_att_n, -d_att_e]`.
-            let q = self.last_quat;
-            let r = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-                q[0], q[1], q[2], q[3],
-            ));
-            let bg = r.inverse() * nalgebra::Vector3::new(0.0, 0.0, -x[11]);
-            let [tilt_e, tilt_n] = tilt_from_accel_error(x[5], x[8], self.gravity_mps2);
-            d.d_att_rad = [tilt_e, tilt_n, x[4]];
-            d.d_gyro_bias_rps = [bg.x, bg.y, bg.z];
-        } else if self.bias_feedback {
-            // States 5, 8, 11 are `d a = a_true - a_meas` (ENU) and `d w`
-            // (erratum 4): the INS bias (subtracted from the samples) moves by
-            // minus their body-frame value.
-            let q = self.last_quat;
-            let r = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-                q[0], q[1], q[2], q[3],
-            ));
-            let ba = r.inverse() * nalgebra::Vector3::new(-x[5], -x[8], 0.0);
-            let bg = r.inverse() * nalgebra::Vector3::new(0.0, 0.0, -x[11]);
-            d.d_accel_bias_mps2 = [ba.x, ba.y, ba.z];
-            d.d_gyro_bias_rps = [bg.x, bg.y, bg.z];
-        }
-        d
+        let v = self.vertical.take().unwrap_or((0.0, 0.0));
+        self.delta_from(&x, v)
     }
 
     fn pos_vel_cov(&self) -> [[f64; 6]; 6] {
-        let p = self.filter.covariance();
-        // Filter states 0..4 are pe, pn, ve, vn; output order pe, pn, pu, ve, vn, vu.
-        let map = [Some(0usize), Some(1), None, Some(2), Some(3), None];
-        let mut c = [[0.0; 6]; 6];
-        for (i, mi) in map.iter().enumerate() {
-            for (j, mj) in map.iter().enumerate() {
-                if let (Some(a), Some(b)) = (mi, mj) {
-                    c[i][j] = p[(*a, *b)];
-                }
-            }
-        }
-        c
+        pos_vel_cov_of(self.filter.covariance())
     }
 
     fn covariance_snapshot(&self, out: &mut Vec<f64>) {
