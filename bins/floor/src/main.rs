@@ -38,6 +38,10 @@ struct Args {
     /// Folder the logger role writes its records and receive trace to at exit.
     #[arg(long)]
     trace_dir: Option<PathBuf>,
+    /// SCHED_FIFO priority (1-99) of this role, as a stage's
+    /// `[realtime.*] fifo_priority` (needs CAP_SYS_NICE); none: the normal scheduler.
+    #[arg(long)]
+    fifo_priority: Option<i32>,
 }
 
 fn main() -> ExitCode {
@@ -51,6 +55,7 @@ fn main() -> ExitCode {
         uwb_rate_hz: a.uwb_rate_hz,
         tdoa_per_epoch: a.tdoa_per_epoch,
         trace_dir: a.trace_dir,
+        fifo_priority: a.fifo_priority,
         ..FloorConfig::default()
     };
     match run_role(a.role, &cfg) {

@@ -19,6 +19,7 @@ fn the_floor_forwards_every_fix_with_the_ins_state_covering_its_epoch() {
         prefix: prefix.clone(),
         duration: Duration::from_secs(5),
         cpu_from: Duration::from_secs(2),
+        fifo_priority: None,
     })
     .unwrap();
     let leftover: Vec<String> = std::fs::read_dir("/dev/shm")

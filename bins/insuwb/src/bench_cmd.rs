@@ -57,6 +57,13 @@ pub struct LatencyArgs {
     /// in this folder, for looking at single cycles.
     #[arg(long, value_name = "DIR")]
     pub samples: Option<PathBuf>,
+    /// Run the stages of both graphs in the SCHED_FIFO class (the stages'
+    /// `[realtime.*] fifo_priority`, needs CAP_SYS_NICE): fusion at this
+    /// priority, the INS one below, the drivers two below, the logger in the
+    /// normal scheduler. Default: the normal scheduler for every stage, as
+    /// a robot's default configuration.
+    #[arg(long, value_name = "PRIORITY", value_parser = clap::value_parser!(i32).range(1..=99))]
+    pub fifo_priority: Option<i32>,
 }
 
 /// CPU time of each stage over the steady window, percent of one core.
@@ -191,6 +198,7 @@ fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result
             prefix: format!("insuwb_bfl{id}r{round}_"),
             duration,
             cpu_from: CPU_FROM,
+            fifo_priority: a.fifo_priority,
         })?;
         let s = samples(&floor.records, &floor.recv, &acfg)
             .with_context(|| format!("the floor run of round {}", round + 1))?;
@@ -198,7 +206,7 @@ fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result
         fl.extend(&s);
         fl_cpu.push(floor.cpu_percent);
         // 2. The group on simulated sensors, its logger noting fused receive times.
-        let (s, cpu) = group_round(round, duration, id, base, &acfg)?;
+        let (s, cpu) = group_round(round, duration, id, base, &acfg, a.fifo_priority)?;
         write_cycles(a.samples.as_deref(), &format!("group{round}.csv"), &s)?;
         gr.extend(&s);
         gr_cpu.push(cpu);
@@ -234,15 +242,23 @@ fn group_round(
     id: &str,
     base: &Path,
     acfg: &AnalysisConfig,
+    fifo_priority: Option<i32>,
 ) -> Result<(LatencySamples, Vec<(String, f64)>)> {
     let run_dir = base.join(format!("group{round}"));
     private_dir(&run_dir)?;
-    let text = format!(
+    let mut text = format!(
         "[group]\nname = \"bench\"\nprefix = \"insuwb_bgr{id}r{round}_\"\nrun_dir = \"{}\"\n\
          [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\nspeed = 1.0\n\
          [fusion]\nfilter = \"iakf\"\n",
         run_dir.display()
     );
+    if let Some(p) = fifo_priority {
+        for stage in ["imu", "uwb", "ins", "fusion", "logger"] {
+            if let Some(q) = insuwb_bench::graph::fifo_ladder(stage, p) {
+                text.push_str(&format!("[realtime.{stage}]\nfifo_priority = {q}\n"));
+            }
+        }
+    }
     let cfg_path = run_dir.join("bench.toml");
     std::fs::write(&cfg_path, &text)?;
     let cfg = RobotConfig::load(&cfg_path)?;

@@ -120,6 +120,9 @@ pub struct FloorConfig {
     /// counted and dropped. Default 65 536 (about 160 s of the graph's
     /// ~400 samples/s).
     pub max_records: usize,
+    /// SCHED_FIFO priority of every role (1-99), as the pipeline's
+    /// `[realtime.*] fifo_priority`; `None` (default): the normal scheduler.
+    pub fifo_priority: Option<i32>,
 }
 
 impl Default for FloorConfig {
@@ -133,6 +136,7 @@ impl Default for FloorConfig {
             tdoa_per_epoch: 3,
             trace_dir: None,
             max_records: 65_536,
+            fifo_priority: None,
         }
     }
 }
@@ -195,6 +199,10 @@ impl FloorConfig {
             prefix: self.prefix.clone(),
             root_path: self.root_path.clone(),
             stage_name: role.name().to_owned(),
+            realtime: insuwb_runtime::realtime::RealtimeConfig {
+                fifo_priority: self.fifo_priority,
+                ..Default::default()
+            },
             ..RuntimeConfig::default()
         }
     }

@@ -32,6 +32,27 @@ pub struct FloorGraphOptions {
     pub duration: Duration,
     /// Start of the CPU window after the start (the window ends at `duration`).
     pub cpu_from: Duration,
+    /// SCHED_FIFO priority of the fusion role; the others get theirs from
+    /// [`fifo_ladder`] (`None`: the normal scheduler).
+    pub fifo_priority: Option<i32>,
+}
+
+/// The SCHED_FIFO priority of stage `stage` when the fusion stage has
+/// `top`: one step down per hop away from the fused output along the fix
+/// path (fusion `top`, INS `top - 1`, the drivers `top - 2`), so a stage
+/// further down the path preempts the ones that feed it once their sample
+/// is out; the logger stays in the normal scheduler (its disk writes must
+/// not hold a CPU against the path). `None` for an unknown stage or a
+/// priority out of 1..=99.
+#[must_use]
+pub fn fifo_ladder(stage: &str, top: i32) -> Option<i32> {
+    let p = match stage {
+        "fusion" => top,
+        "ins" => top - 1,
+        "imu" | "uwb" => top - 2,
+        _ => return None,
+    };
+    (1..=99).contains(&p).then_some(p)
 }
 
 /// What a floor run produced.
@@ -127,25 +148,30 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
         trace_dir.display().to_string(),
         epoch.to_string(),
     );
+
     let specs: Vec<StageSpec> = Role::ALL
         .iter()
         .map(|r| {
-            StageSpec::new(
+            let mut args = vec![
+                "--role",
                 r.name(),
-                &opts.program,
-                &[
-                    "--role",
-                    r.name(),
-                    "--prefix",
-                    &opts.prefix,
-                    "--root-path",
-                    &root_s,
-                    "--start-epoch-ns",
-                    &epoch_s,
-                    "--trace-dir",
-                    &trace_s,
-                ],
-            )
+                "--prefix",
+                &opts.prefix,
+                "--root-path",
+                &root_s,
+                "--start-epoch-ns",
+                &epoch_s,
+                "--trace-dir",
+                &trace_s,
+            ];
+            let fifo = opts
+                .fifo_priority
+                .and_then(|top| fifo_ladder(r.name(), top))
+                .map(|p| p.to_string());
+            if let Some(p) = &fifo {
+                args.extend(["--fifo-priority", p.as_str()]);
+            }
+            StageSpec::new(r.name(), &opts.program, &args)
         })
         .collect();
     let policy = RestartPolicy {
@@ -227,6 +253,21 @@ mod tests {
     }
 
     #[test]
+    fn the_fifo_ladder_steps_down_the_fix_path() {
+        assert_eq!(fifo_ladder("fusion", 50), Some(50));
+        assert_eq!(fifo_ladder("ins", 50), Some(49));
+        assert_eq!(fifo_ladder("imu", 50), Some(48));
+        assert_eq!(fifo_ladder("uwb", 50), Some(48));
+        assert_eq!(fifo_ladder("logger", 50), None, "the logger stays normal");
+        assert_eq!(fifo_ladder("other", 50), None);
+        // Every priority stays in 1..=99.
+        assert_eq!(fifo_ladder("fusion", 2), Some(2));
+        assert_eq!(fifo_ladder("ins", 2), Some(1));
+        assert_eq!(fifo_ladder("imu", 2), None);
+        assert_eq!(fifo_ladder("fusion", 100), None);
+    }
+
+    #[test]
     fn a_missing_program_is_refused_by_path() {
         let e = run_floor_graph(&FloorGraphOptions {
             program: "/nonexistent/insuwb-floor".into(),
@@ -234,6 +275,7 @@ mod tests {
             prefix: "x_".into(),
             duration: Duration::from_secs(1),
             cpu_from: Duration::ZERO,
+            fifo_priority: None,
         })
         .unwrap_err();
         assert!(e.to_string().contains("/nonexistent/insuwb-floor"), "{e}");
