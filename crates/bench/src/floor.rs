@@ -103,8 +103,9 @@ pub struct FloorConfig {
     /// iceoryx2 root folder (absolute); `None`: iceoryx2's default.
     pub root_path: Option<PathBuf>,
     /// Start epoch shared by the two drivers, CLOCK_MONOTONIC ns: sample `k`
-    /// is due at `start_epoch_ns + k / rate`. 0 (default): the next whole
-    /// second at least 0.5 s ahead, as the pipeline's drivers choose.
+    /// is due at `start_epoch_ns + k / rate`. 0 (default): the first epoch
+    /// at least 0.5 s ahead (a whole second plus 2.5 ms), as the pipeline's
+    /// drivers choose ([`insuwb_runtime::epoch`]).
     pub start_epoch_ns: u64,
     /// IMU rate, Hz. Default 100 (the paper's IMU, as the pipeline's scenarios).
     pub imu_rate_hz: f64,
@@ -258,12 +259,13 @@ pub fn run_role(role: Role, cfg: &FloorConfig) -> Result<(), FloorError> {
     }
 }
 
-/// The start epoch of `cfg`, or the next whole second at least 0.5 s ahead.
+/// The start epoch of `cfg`, or the first epoch at least 0.5 s ahead, as
+/// the pipeline's ([`insuwb_runtime::epoch`]).
 fn epoch_of(cfg: &FloorConfig) -> u64 {
     if cfg.start_epoch_ns > 0 {
         return cfg.start_epoch_ns;
     }
-    (monotonic_ns() + 500_000_000).div_ceil(1_000_000_000) * 1_000_000_000
+    insuwb_runtime::epoch::epoch_at_or_after(monotonic_ns() + 500_000_000)
 }
 
 fn period_ns(rate_hz: f64) -> u64 {

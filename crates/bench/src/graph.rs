@@ -141,8 +141,9 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
             source,
         })?;
     }
-    // As the pipeline's launcher: the next whole second at least 1 s ahead.
-    let epoch = (monotonic_ns() + 1_000_000_000).div_ceil(1_000_000_000) * 1_000_000_000;
+    // As the pipeline's launcher: an epoch (a whole second plus 2.5 ms, off
+    // the kernel's tick) at least 1 s ahead.
+    let epoch = insuwb_runtime::epoch::epoch_at_or_after(monotonic_ns() + 1_000_000_000);
     let (root_s, trace_s, epoch_s) = (
         root.display().to_string(),
         trace_dir.display().to_string(),

@@ -205,6 +205,8 @@ pub struct FusionEngine {
     /// inconsistent, and how many of them were.
     nis_hist: VecDeque<bool>,
     nis_bad: usize,
+    /// Where the tight coupling's correction epochs start ([`FusionEngine::align_to`]).
+    epoch_phase_ns: u64,
 }
 
 /// An empty queue with room for `n` items whose memory was written once
@@ -243,6 +245,7 @@ impl FusionEngine {
             reset_run: None,
             nis_hist: VecDeque::with_capacity(cfg_nis_capacity),
             nis_bad: 0,
+            epoch_phase_ns: 0,
         }
     }
 
@@ -466,9 +469,21 @@ impl FusionEngine {
         self.last_nav = Some(*n);
     }
 
+    fn epoch_period_ns(&self) -> u64 {
+        (self.cfg.tdoa_epoch_s * 1e9).max(1.0) as u64
+    }
+
     fn epoch_of(&self, t_ns: u64) -> u64 {
-        let p = (self.cfg.tdoa_epoch_s * 1e9).max(1.0) as u64;
-        t_ns.div_ceil(p)
+        t_ns.saturating_sub(self.epoch_phase_ns)
+            .div_ceil(self.epoch_period_ns())
+    }
+
+    /// Aligns the tight coupling's correction epochs to a recording replayed
+    /// from `epoch_ns` (measurement times `epoch_ns + t`), as
+    /// `insuwb_uwb::fix::FixBuilder::align_to` does the fix epochs: the same
+    /// measurements share an epoch as for the recording's own times.
+    pub fn align_to(&mut self, epoch_ns: u64) {
+        self.epoch_phase_ns = epoch_ns % self.epoch_period_ns();
     }
 
     fn process(&mut self, out: &mut Outputs) {
@@ -867,6 +882,36 @@ mod tests {
         };
         let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
         (FusionEngine::new(cfg, est), Outputs::default())
+    }
+
+    /// Aligned to a replay's epoch, the correction epochs hold the same
+    /// measurement times as the recording's own times; the epoch length
+    /// is `tdoa_epoch_s` (0.1 s by default).
+    #[test]
+    fn correction_epochs_follow_the_replay_epoch() {
+        let (mut e, _) = kf_from_first_fix();
+        let p = e.epoch_period_ns();
+        assert_eq!(p, 100_000_000);
+        let epoch = 31_360_002_500_000; // a whole second plus 2.5 ms
+        let ts = [
+            1,
+            97_500_000,
+            99_999_999,
+            100_000_000,
+            100_000_001,
+            250_000_000,
+        ];
+        let plain: Vec<u64> = ts.iter().map(|&t| e.epoch_of(t)).collect();
+        assert_eq!(plain, [1, 1, 1, 1, 2, 3]);
+        // Unaligned, the windows end 2.5 ms early: 97.5 ms and 99.999999 ms
+        // fall apart.
+        let late: Vec<u64> = ts.iter().map(|&t| e.epoch_of(epoch + t)).collect();
+        assert_eq!(late[2] - late[1], 1);
+        e.align_to(epoch);
+        let aligned: Vec<u64> = ts.iter().map(|&t| e.epoch_of(epoch + t)).collect();
+        let base = aligned[0] - plain[0];
+        let rel: Vec<u64> = aligned.iter().map(|k| k - base).collect();
+        assert_eq!(rel, plain);
     }
 
     /// Initialisation waits for three consecutive fixes within 0.3 m of each

@@ -72,6 +72,7 @@ pub mod anticipate;
 pub mod cleanup;
 mod config;
 pub mod drain;
+pub mod epoch;
 mod health;
 pub mod perm;
 mod port;

@@ -40,8 +40,9 @@ pub struct StageArgs {
     /// time) or `max` (lockstep with the consumers, never dropping a sample).
     #[arg(long, value_parser = parse_speed)]
     pub speed: Option<f64>,
-    /// Start epoch (CLOCK_MONOTONIC ns) shared by the drivers; default: the
-    /// launcher's (INSUWB_START_EPOCH_NS) or the next whole second.
+    /// Start epoch (CLOCK_MONOTONIC ns) shared by the drivers and fusion;
+    /// default: the launcher's (INSUWB_START_EPOCH_NS) or the next whole
+    /// second plus 2.5 ms (off the kernel's tick).
     #[arg(long)]
     pub start_epoch_ns: Option<u64>,
 }
@@ -100,7 +101,7 @@ fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
             crate::driver::run(Want::Uwb, &cfg, &src, speed, epoch)
         }
         StageKind::Ins => crate::ins::run(&cfg),
-        StageKind::Fusion => crate::fusion::run(&cfg),
+        StageKind::Fusion => crate::fusion::run(&cfg, epoch),
         StageKind::Logger => crate::logger::run(&cfg),
     };
     match result {

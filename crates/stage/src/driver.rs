@@ -3,8 +3,10 @@
 //!
 //! Recorded times are mapped onto CLOCK_MONOTONIC as `start_epoch + t`
 //! (an offset, never a scale: every interval the algorithms see is the
-//! recorded one, and the start epoch is a whole second so the fix epochs fall
-//! as in the recording); a sample is published at `start_epoch + t / speed`.
+//! recorded one); a sample is published at `start_epoch + t / speed`. The
+//! chosen epoch is a whole second plus 2.5 ms, off the kernel's tick
+//! ([`insuwb_runtime::epoch`]); the fix builder aligns its epoch windows to
+//! it, so the fix epochs fall as in the recording.
 //! At speed 1 the measurement times are real monotonic times, so ages and
 //! latencies are meaningful. A restarted driver resumes at the sample the
 //! recording has reached, so its consumers see a sequence gap.
@@ -135,6 +137,8 @@ pub fn run(
         ),
     };
     let mut fixes = insuwb_uwb::fix::FixBuilder::new(fcfg.fix.clone())?;
+    // Samples are stamped `epoch + t`: the fix epochs fall as for `t`.
+    fixes.align_to(epoch_ns);
     let mut health = stage.health_reporter()?;
     // `--speed max`: publish as fast as the consumers keep up, never further
     // ahead than their buffers hold (lockstep: nothing is ever dropped).

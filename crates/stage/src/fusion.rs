@@ -59,8 +59,9 @@ fn read_checkpoint(path: &Path) -> Option<Checkpoint> {
     toml::from_str(&text).ok()
 }
 
-/// Runs the fusion stage until SIGINT/SIGTERM.
-pub fn run(cfg: &RobotConfig) -> Result<()> {
+/// Runs the fusion stage until SIGINT/SIGTERM; `epoch_ns` is the group's
+/// start epoch (the drivers stamp samples `epoch + t`).
+pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     let stage = Stage::new(cfg.runtime("fusion"))?;
     let fcfg = cfg.fusion_config()?;
     let kind = cfg.filter_kind();
@@ -72,6 +73,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     ecfg.eager_lag_s = (cfg.fusion.eager_lag_s >= 0.0 && cfg.sources.speed.is_finite())
         .then_some(cfg.fusion.eager_lag_s);
     let mut engine = FusionEngine::new(ecfg, est);
+    engine.align_to(epoch_ns);
     std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
         format!(
             "{}: cannot create the run directory",

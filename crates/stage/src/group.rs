@@ -535,9 +535,9 @@ fn check_path(origin: &str, key: &str, p: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The start epoch from the environment, or one chosen now: the next whole
-/// second at least 0.5 s ahead (a multiple of every fix period, so fix
-/// epochs fall as in the recording).
+/// The start epoch from the environment, or one chosen now: the next epoch
+/// ([`insuwb_runtime::epoch`]: a whole second plus 2.5 ms, off the kernel's
+/// tick) at least 0.5 s ahead.
 #[must_use]
 pub fn start_epoch_ns() -> u64 {
     if let Some(v) = std::env::var(START_EPOCH_ENV)
@@ -549,8 +549,8 @@ pub fn start_epoch_ns() -> u64 {
     choose_start_epoch(insuwb_runtime::monotonic_ns())
 }
 
-/// The next whole second at least 0.5 s after `now_ns`.
+/// The first epoch ([`insuwb_runtime::epoch`]) at least 0.5 s after `now_ns`.
 #[must_use]
 pub fn choose_start_epoch(now_ns: u64) -> u64 {
-    (now_ns + 500_000_000).div_ceil(1_000_000_000) * 1_000_000_000
+    insuwb_runtime::epoch::epoch_at_or_after(now_ns.saturating_add(500_000_000))
 }

@@ -105,7 +105,7 @@ fn stages_do_not_allocate_per_sample_in_the_steady_state() {
                 "imu" => insuwb_stage::driver::run(Want::Imu, &cfg, "sim", 1.0, epoch),
                 "uwb" => insuwb_stage::driver::run(Want::Uwb, &cfg, "sim", 1.0, epoch),
                 "ins" => insuwb_stage::ins::run(&cfg),
-                "fusion" => insuwb_stage::fusion::run(&cfg),
+                "fusion" => insuwb_stage::fusion::run(&cfg, epoch),
                 _ => insuwb_stage::logger::run(&cfg),
             };
             (name, r.map_err(|e| format!("{e:#}")))

@@ -295,6 +295,9 @@ pub enum PushError {
 pub struct FixBuilder {
     cfg: FixConfig,
     period_ns: u64,
+    /// Where the epoch windows start: `phase_ns + k * period_ns`
+    /// ([`FixBuilder::align_to`]; 0 by default).
+    phase_ns: u64,
     /// Unordered pair keys `(min id, max id)` of the open epoch.
     keys: Vec<(u32, u32)>,
     /// Observations of the open epoch, oriented A = min id, B = max id.
@@ -321,6 +324,7 @@ impl FixBuilder {
         let velocity = VelocityEstimator::new(cfg.velocity.clone())?;
         Ok(Self {
             period_ns: cfg.period_ns(),
+            phase_ns: 0,
             keys: Vec::with_capacity(cfg.max_pairs),
             obs: Vec::with_capacity(cfg.max_pairs),
             epoch: None,
@@ -390,7 +394,7 @@ impl FixBuilder {
             return Err(e);
         }
         let t = m.header.meas_time_ns;
-        let k = t.div_ceil(self.period_ns);
+        let k = self.window_of(t);
         let mut out = None;
         if self.epoch.is_some_and(|e| k > e) {
             out = self.close();
@@ -423,6 +427,21 @@ impl FixBuilder {
         Ok(out)
     }
 
+    /// Aligns the epoch windows to a recording replayed from `epoch_ns`
+    /// (measurement times `epoch_ns + t`): the windows then hold the same
+    /// measurements as for the recording's own times `t`, whatever the
+    /// epoch (`insuwb_runtime::epoch` puts it 2.5 ms after a whole second).
+    /// Call before the first push.
+    pub fn align_to(&mut self, epoch_ns: u64) {
+        self.phase_ns = epoch_ns % self.period_ns.max(1);
+    }
+
+    /// The index of the epoch window `(phase + (k-1) P, phase + k P]` holding `t`.
+    fn window_of(&self, t_ns: u64) -> u64 {
+        t_ns.saturating_sub(self.phase_ns)
+            .div_ceil(self.period_ns.max(1))
+    }
+
     /// Closes the open epoch now; returns its fix if it gave one.
     pub fn flush(&mut self) -> Option<UwbFix> {
         self.close()
@@ -453,7 +472,7 @@ impl FixBuilder {
                 last_ns,
             });
         }
-        let k = t.div_ceil(self.period_ns);
+        let k = self.window_of(t);
         let same_epoch = self.epoch.is_some_and(|e| e == k);
         let key = (m.anchor_a.min(m.anchor_b), m.anchor_a.max(m.anchor_b));
         if same_epoch && self.keys.len() >= self.cfg.max_pairs && !self.keys.contains(&key) {

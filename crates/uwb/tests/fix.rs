@@ -99,6 +99,53 @@ fn output_does_not_depend_on_flushes_at_epoch_boundaries() {
 }
 
 #[test]
+fn a_replay_from_any_epoch_gives_the_recordings_fixes_once_aligned() {
+    // One pair every 20 ms from 7 ms: the epoch windows (100 ms) hold five
+    // measurements each. Replayed from an epoch 15 ms after a whole second
+    // (more than the 13 ms from the last measurement of a window to its
+    // end, so unaligned windows would group them otherwise), every time
+    // moves by that epoch.
+    let (stream, _) = circle_stream(600, 5);
+    let cfg = cfg_2d(0.3);
+    let none = vec![false; stream.len()];
+    let (reference, ref_stats) = run(&cfg, &stream, &none);
+    assert!(reference.len() >= 110, "{} fixes", reference.len());
+    let epoch = 7_015 * MS;
+    let shifted: Vec<UwbTdoa> = stream
+        .iter()
+        .map(|m| {
+            let mut m = *m;
+            m.header.meas_time_ns += epoch;
+            m
+        })
+        .collect();
+    let replay = |align: bool| {
+        let mut b = FixBuilder::new(cfg.clone()).unwrap();
+        if align {
+            b.align_to(epoch);
+        }
+        let mut fixes: Vec<UwbFix> = shifted.iter().filter_map(|m| b.push(m).unwrap()).collect();
+        fixes.extend(b.flush());
+        (fixes, *b.stats())
+    };
+    let (aligned, aligned_stats) = replay(true);
+    assert_eq!(aligned_stats, ref_stats);
+    assert_eq!(aligned.len(), reference.len());
+    for (a, r) in aligned.iter().zip(&reference) {
+        assert_eq!(a.header.meas_time_ns, r.header.meas_time_ns + epoch);
+        assert_eq!(a.n_meas, r.n_meas);
+        assert_eq!(a.pos_m, r.pos_m);
+    }
+    // Not aligned, the windows cut the stream 2.5 ms later: other groups.
+    let (unaligned, _) = replay(false);
+    let moved = unaligned
+        .iter()
+        .zip(&reference)
+        .any(|(u, r)| u.header.meas_time_ns != r.header.meas_time_ns + epoch || u.pos_m != r.pos_m);
+    assert!(moved || unaligned.len() != reference.len());
+}
+
+#[test]
 fn epoch_is_closed_on_the_right_and_stamped_with_the_latest_measurement() {
     let anchors = paper_square(2.0);
     let p = [1.0, -2.0, 0.0];
