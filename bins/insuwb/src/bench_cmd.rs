@@ -253,7 +253,8 @@ fn group_round(
         run_dir.display()
     );
     if let Some(p) = fifo_priority {
-        for stage in ["imu", "uwb", "ins", "fusion", "logger"] {
+        // The floor's roles are the stages, by the same names.
+        for stage in insuwb_bench::floor::Role::ALL.map(|r| r.name()) {
             if let Some(q) = insuwb_bench::graph::fifo_ladder(stage, p) {
                 text.push_str(&format!("[realtime.{stage}]\nfifo_priority = {q}\n"));
             }

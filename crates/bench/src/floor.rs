@@ -121,8 +121,10 @@ pub struct FloorConfig {
     /// counted and dropped. Default 65 536 (about 160 s of the graph's
     /// ~400 samples/s).
     pub max_records: usize,
-    /// SCHED_FIFO priority of every role (1-99), as the pipeline's
-    /// `[realtime.*] fifo_priority`; `None` (default): the normal scheduler.
+    /// SCHED_FIFO priority (1-99) of the role run with this configuration,
+    /// as a stage's `[realtime.*] fifo_priority` (the bench gives each role
+    /// its own, [`crate::graph::fifo_ladder`]); `None` (default): the normal
+    /// scheduler.
     pub fifo_priority: Option<i32>,
 }
 

@@ -149,7 +149,6 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
         trace_dir.display().to_string(),
         epoch.to_string(),
     );
-
     let specs: Vec<StageSpec> = Role::ALL
         .iter()
         .map(|r| {
