@@ -4,8 +4,8 @@
 //! forwarding processes: same payloads, rates, wake-ups and waiting rule at
 //! the fusion node, no maths, no logging) and the real group on simulated
 //! sensors (scenario nlos-long, real time), alternating in `--rounds`
-//! rounds, the floor first in each, so that both meet the same spells of
-//! machine noise; then the per-hop analysis of every recording
+//! rounds (by default ten of 3 s for `--duration 30`), the floor first in
+//! every other round, so that both meet the same spells of machine noise; then the per-hop analysis of every recording
 //! (`insuwb_bench::analysis`), pooled per graph over the rounds, the CPU
 //! time of every process over the steady windows, and the ratios of the
 //! group's end-to-end percentiles over the floor's. With `--json` standard
@@ -43,12 +43,15 @@ pub struct LatencyArgs {
     /// allowance of 3 s (process start, first fused state, 1 s warm-up).
     #[arg(long, default_value_t = 30.0)]
     pub duration: f64,
-    /// Rounds: the floor and then the group run this many times, in turn,
-    /// and their samples are pooled (1: the floor once, then the group once).
-    /// `duration / rounds` must be in [3, 50] s (the simulated scenario lasts
-    /// 60 s).
-    #[arg(long, default_value_t = 3)]
-    pub rounds: u32,
+    /// Rounds: both graphs run this many times, in turn (the floor first in
+    /// odd rounds, the group first in even ones), and their samples are
+    /// pooled (1: the floor once, then the group once). `duration / rounds`
+    /// must be in [3, 50] s (the simulated scenario lasts 60 s). Default: as
+    /// many 3 s rounds as `duration` holds, at most 10 (a round's median
+    /// depends on how the stages happen to share the CPUs from the start:
+    /// many short rounds average that out in both graphs).
+    #[arg(long)]
+    pub rounds: Option<u32>,
     /// Print the report as one JSON object on standard output.
     #[arg(long)]
     pub json: bool,
@@ -148,23 +151,43 @@ fn program_beside(name: &str) -> Result<PathBuf> {
     Ok(dir.join(name))
 }
 
+/// Shortest and longest share of `--duration` one round of a graph runs, s.
+const ROUND_S: (f64, f64) = (3.0, 50.0);
+/// Most rounds.
+const MAX_ROUNDS: u32 = 10;
+
+/// The rounds of a run: `--rounds`, else as many rounds of the shortest
+/// length as `duration_s` holds, between 1 and [`MAX_ROUNDS`].
+fn rounds_for(rounds: Option<u32>, duration_s: f64) -> u32 {
+    rounds.unwrap_or_else(|| {
+        let fit = (duration_s / ROUND_S.0).floor();
+        if fit.is_finite() && fit >= 1.0 {
+            (fit as u32).min(MAX_ROUNDS)
+        } else {
+            1
+        }
+    })
+}
+
 fn latency(a: &LatencyArgs) -> Result<()> {
-    if !(1..=10).contains(&a.rounds) {
-        bail!("--rounds must be in [1, 10], got {}", a.rounds);
+    let rounds = rounds_for(a.rounds, a.duration);
+    if !(1..=MAX_ROUNDS).contains(&rounds) {
+        bail!("--rounds must be in [1, {MAX_ROUNDS}], got {rounds}");
     }
-    let per_round = a.duration / f64::from(a.rounds);
-    if !(a.duration.is_finite() && (3.0..=50.0).contains(&per_round)) {
+    let per_round = a.duration / f64::from(rounds);
+    if !(a.duration.is_finite() && (ROUND_S.0..=ROUND_S.1).contains(&per_round)) {
         bail!(
-            "--duration / --rounds must be in [3, 50] s, got {} / {} = {per_round} s",
+            "--duration / --rounds must be in [{}, {}] s, got {} / {rounds} = {per_round} s",
+            ROUND_S.0,
+            ROUND_S.1,
             a.duration,
-            a.rounds
         );
     }
     let duration = Duration::from_secs_f64(per_round) + START_ALLOWANCE;
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
     let base = std::env::temp_dir().join(format!("insuwb-bench-{id}"));
     private_dir(&base)?;
-    let result = measure(a, duration, &id, &base);
+    let result = measure(a, rounds, duration, &id, &base);
     let _ = std::fs::remove_dir_all(&base);
     let report = result?;
     if a.json {
@@ -177,11 +200,16 @@ fn latency(a: &LatencyArgs) -> Result<()> {
     Ok(())
 }
 
-fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result<LatencyReport> {
+fn measure(
+    a: &LatencyArgs,
+    rounds: u32,
+    duration: Duration,
+    id: &str,
+    base: &Path,
+) -> Result<LatencyReport> {
     let acfg = AnalysisConfig::default();
     eprintln!(
-        "insuwb bench latency: {} round(s) of the floor graph then the group, {:.1} s each",
-        a.rounds,
+        "insuwb bench latency: {rounds} round(s) of the floor graph and the group in turn, {:.1} s each",
         duration.as_secs_f64()
     );
     let (mut fl, mut gr) = (LatencySamples::default(), LatencySamples::default());
@@ -190,26 +218,34 @@ fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the samples folder", dir.display()))?;
     }
-    for round in 0..a.rounds {
-        // 1. The floor.
-        let floor = run_floor_graph(&FloorGraphOptions {
-            program: program_beside("insuwb-floor")?,
-            run_dir: base.join(format!("floor{round}")),
-            prefix: format!("insuwb_bfl{id}r{round}_"),
-            duration,
-            cpu_from: CPU_FROM,
-            fifo_priority: a.fifo_priority,
-        })?;
-        let s = samples(&floor.records, &floor.recv, &acfg)
-            .with_context(|| format!("the floor run of round {}", round + 1))?;
-        write_cycles(a.samples.as_deref(), &format!("floor{round}.csv"), &s)?;
-        fl.extend(&s);
-        fl_cpu.push(floor.cpu_percent);
-        // 2. The group on simulated sensors, its logger noting fused receive times.
-        let (s, cpu) = group_round(round, duration, id, base, &acfg, a.fifo_priority)?;
-        write_cycles(a.samples.as_deref(), &format!("group{round}.csv"), &s)?;
-        gr.extend(&s);
-        gr_cpu.push(cpu);
+    for round in 0..rounds {
+        // The floor first in rounds 1, 3, ..., the group first in 2, 4, ...:
+        // a drift of the machine over the run then meets both graphs alike.
+        let floor_first = round % 2 == 0;
+        for floor_turn in [floor_first, !floor_first] {
+            if floor_turn {
+                // The floor: bare forwarding processes.
+                let floor = run_floor_graph(&FloorGraphOptions {
+                    program: program_beside("insuwb-floor")?,
+                    run_dir: base.join(format!("floor{round}")),
+                    prefix: format!("insuwb_bfl{id}r{round}_"),
+                    duration,
+                    cpu_from: CPU_FROM,
+                    fifo_priority: a.fifo_priority,
+                })?;
+                let s = samples(&floor.records, &floor.recv, &acfg)
+                    .with_context(|| format!("the floor run of round {}", round + 1))?;
+                write_cycles(a.samples.as_deref(), &format!("floor{round}.csv"), &s)?;
+                fl.extend(&s);
+                fl_cpu.push(floor.cpu_percent);
+            } else {
+                // The group on simulated sensors, its logger noting fused receive times.
+                let (s, cpu) = group_round(round, duration, id, base, &acfg, a.fifo_priority)?;
+                write_cycles(a.samples.as_deref(), &format!("group{round}.csv"), &s)?;
+                gr.extend(&s);
+                gr_cpu.push(cpu);
+            }
+        }
     }
     let (fl_cpu, gr_cpu) = (mean_cpu(&fl_cpu), mean_cpu(&gr_cpu));
     let (fl, gr) = (fl.summary(), gr.summary());
@@ -230,7 +266,7 @@ fn measure(a: &LatencyArgs, duration: Duration, id: &str, base: &Path) -> Result
         cpu_percent: CpuPercent::from_named(&gr_cpu),
         ratio_p50: ratio(gr.e2e_uwb_fused.p50_us, fl.e2e_uwb_fused.p50_us),
         ratio_p99: ratio(gr.e2e_uwb_fused.p99_us, fl.e2e_uwb_fused.p99_us),
-        rounds: a.rounds,
+        rounds,
     })
 }
 
@@ -383,4 +419,20 @@ fn print_table(what: &str, r: &RunLatency, cpu: &[(String, f64)]) {
     row("period - 100 ms", &r.jitter);
     let cpu: Vec<String> = cpu.iter().map(|(n, p)| format!("{n} {p:.2} %")).collect();
     eprintln!("  cpu (one core): {}", cpu.join(", "));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_rounds_are_the_3_s_rounds_the_duration_holds() {
+        assert_eq!(rounds_for(None, 30.0), 10);
+        assert_eq!(rounds_for(None, 20.0), 6);
+        assert_eq!(rounds_for(None, 300.0), MAX_ROUNDS);
+        // Too short for one round: one round, which `latency` then refuses.
+        assert_eq!(rounds_for(None, 2.0), 1);
+        assert_eq!(rounds_for(None, f64::NAN), 1);
+        assert_eq!(rounds_for(Some(3), 30.0), 3, "--rounds wins");
+    }
 }

@@ -341,6 +341,10 @@ fn run_uwb(cfg: &FloorConfig) -> Result<(), FloorError> {
     let mut k = monotonic_ns().saturating_sub(epoch).div_ceil(period);
     loop {
         let now = monotonic_ns();
+        if epoch + k * period <= now {
+            // Gives way to an IMU driver woken with it, as the UWB driver.
+            std::thread::yield_now();
+        }
         while epoch + k * period <= now {
             let t = epoch + k * period;
             for i in 0..n {

@@ -198,6 +198,17 @@ pub fn run(
                 })?,
             };
         }
+        // A fix epoch is also an IMU sample's instant (both sources count
+        // from the start epoch), so both drivers' timers expire together.
+        // The fused state needs the INS state of that instant, and the IMU
+        // driver can only wait while this one runs (the kernel preempts
+        // neither): give way once first.
+        if want == Want::Uwb
+            && !lockstep
+            && pending.is_some_and(|i| epoch_ns + (i.time_ns() as f64 / speed) as u64 <= now)
+        {
+            std::thread::yield_now();
+        }
         while let Some(item) = pending {
             let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
             if due > now {
