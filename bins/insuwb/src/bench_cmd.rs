@@ -5,7 +5,8 @@
 //! the fusion node, no maths, no logging) and the real group on simulated
 //! sensors (scenario nlos-long, real time), alternating in `--rounds`
 //! rounds (by default ten of 3 s for `--duration 30`), the floor first in
-//! every other round, so that both meet the same spells of machine noise; then the per-hop analysis of every recording
+//! every other round, so that both meet the same spells of machine noise;
+//! then the per-hop analysis of every recording
 //! (`insuwb_bench::analysis`), pooled per graph over the rounds, the CPU
 //! time of every process over the steady windows, and the ratios of the
 //! group's end-to-end percentiles over the floor's. With `--json` standard

@@ -17,10 +17,43 @@
 //! consumer that bins times by multiples of a period aligns its bins to the
 //! epoch (`insuwb_uwb::fix::FixBuilder::align_to`,
 //! `insuwb_fusion::engine::FusionEngine::align_to`).
+//!
+//! The module also places the stages' periodic housekeeping (heartbeats,
+//! ticks) between the sample instants: [`housekeeping_due`].
 
 /// Offset of every chosen epoch from a whole second, ns (see the module
 /// documentation).
 pub const EPOCH_PHASE_NS: u64 = 2_500_000;
+
+/// Phase of every interval of a [`crate::Waiter`] (heartbeats, ticks), ns:
+/// an interval of period `p` fires at the instants `t` with `t mod p ==
+/// HOUSEKEEPING_PHASE_NS mod p`. Sample instants of a group (epoch plus
+/// whole 10 ms: every IMU sample at 100 Hz, every fix epoch at 10 Hz) are
+/// whole seconds plus [`EPOCH_PHASE_NS`] plus whole 10 ms; for periods that
+/// divide a second (the 200 ms heartbeat, the 50 ms fusion tick) the
+/// housekeeping instants lie 5 ms from every sample instant and 55 ms after
+/// a fix epoch, so a heartbeat (a page-in scan takes 90-130 us, see
+/// `crate::prefault`) never runs just before a sample its stage must handle
+/// (BENCHMARKS.md, session 7).
+pub const HOUSEKEEPING_PHASE_NS: u64 = EPOCH_PHASE_NS + 55_000_000;
+
+/// The first housekeeping instant ([`HOUSEKEEPING_PHASE_NS`]) of period
+/// `period_ns` at least one period after `now_ns` (so before two periods
+/// have passed). `period_ns` 0 gives `now_ns`.
+#[must_use]
+pub fn housekeeping_due(now_ns: u64, period_ns: u64) -> u64 {
+    if period_ns == 0 {
+        return now_ns;
+    }
+    let earliest = now_ns.saturating_add(period_ns);
+    let phase = HOUSEKEEPING_PHASE_NS % period_ns;
+    let due = earliest - earliest % period_ns + phase;
+    if due < earliest {
+        due.saturating_add(period_ns)
+    } else {
+        due
+    }
+}
 
 /// The first epoch at or after `t_ns`: a whole second plus [`EPOCH_PHASE_NS`].
 #[must_use]
@@ -58,5 +91,25 @@ mod tests {
         }
         assert_eq!(epoch_at_or_after(1_002_500_000), 1_002_500_000);
         assert_eq!(epoch_at_or_after(1_002_500_001), 2_002_500_000);
+    }
+
+    #[test]
+    fn housekeeping_falls_between_the_sample_instants() {
+        const MS: u64 = 1_000_000;
+        for period in [200 * MS, 50 * MS, 7 * MS, 1_500 * MS] {
+            for now in [0, 1, 57 * MS, 123_456_789_012, 1_002_500_000] {
+                let due = housekeeping_due(now, period);
+                assert!(due >= now + period, "{now} + {period} -> {due}");
+                assert!(due < now + 2 * period, "{now} + {period} -> {due}");
+                assert_eq!(due % period, HOUSEKEEPING_PHASE_NS % period);
+                if (1_000 * MS).is_multiple_of(period) && period.is_multiple_of(10 * MS) {
+                    // 5 ms from every IMU sample, 55 ms after a fix epoch.
+                    let since_epoch = (due - EPOCH_PHASE_NS) % (100 * MS);
+                    assert_eq!(since_epoch % (10 * MS), 5 * MS, "{due}");
+                    assert_eq!(since_epoch % (50 * MS), 5 * MS, "{due}");
+                }
+            }
+        }
+        assert_eq!(housekeeping_due(5, 0), 5);
     }
 }

@@ -13,9 +13,8 @@
 //! processes' segments) once each, before the samples need them. A scan
 //! allocates nothing: the maps are read into a buffer made at construction.
 //! The heartbeat drives it ([`crate::HealthReporter`]): every heartbeat for
-//! the first seconds, while the neighbours' segments are being mapped (until
-//! a few scans in a row find nothing new), then every few seconds (a
-//! restarted neighbour's new segment).
+//! the first seconds (while the neighbours' segments are being mapped), then
+//! every few seconds (a restarted neighbour's new segment).
 
 use crate::monotonic_ns;
 
@@ -26,14 +25,8 @@ pub const MAPS_BUFFER: usize = 256 * 1024;
 /// Mappings remembered as populated (more are populated again when seen).
 const DONE_SLOTS: usize = 256;
 
-/// Scans in the first [`EARLY_NS`] after construction: at every call, until
-/// [`QUIET_SCANS`] scans in a row found nothing new (the neighbours' ports
-/// are up). A scan takes 90-130 us at a phase of its own (measured with a
-/// scratch timing loop over `ShmPrefault::run`, session 7): at every
-/// heartbeat for 5 s it sometimes met a fix epoch in every other cycle.
+/// Scans in the first [`EARLY_NS`] after construction: at every call.
 const EARLY_NS: u64 = 5_000_000_000;
-/// Scans in a row that populated nothing, after which the early scans end.
-const QUIET_SCANS: u32 = 3;
 /// Later, at most one scan per this period.
 const LATE_PERIOD_NS: u64 = 5_000_000_000;
 
@@ -73,8 +66,6 @@ pub struct ShmPrefault {
     next_slot: usize,
     created_ns: u64,
     next_ns: u64,
-    /// Scans in a row that populated nothing.
-    quiet_scans: u32,
     disabled: bool,
 }
 
@@ -93,32 +84,23 @@ impl ShmPrefault {
             next_slot: 0,
             created_ns: now,
             next_ns: now,
-            quiet_scans: 0,
             disabled: false,
         }
     }
 
-    /// Scans when one is due (every call in the first seconds until a few
-    /// scans in a row found nothing new, then every few seconds);
-    /// `Ok(None)` when none was due. After [`PrefaultError::Unsupported`]
-    /// it never scans again.
+    /// Scans when one is due (every call in the first seconds, then every
+    /// few seconds); `Ok(None)` when none was due. After
+    /// [`PrefaultError::Unsupported`] it never scans again.
     pub fn run_if_due(&mut self, now_ns: u64) -> Result<Option<PrefaultReport>, PrefaultError> {
         if self.disabled || now_ns < self.next_ns {
             return Ok(None);
         }
-        let report = self.run()?;
-        self.quiet_scans = if report.populated == 0 {
-            self.quiet_scans.saturating_add(1)
-        } else {
-            0
-        };
-        let early = now_ns.saturating_sub(self.created_ns) < EARLY_NS;
-        self.next_ns = if early && self.quiet_scans < QUIET_SCANS {
+        self.next_ns = if now_ns.saturating_sub(self.created_ns) < EARLY_NS {
             now_ns
         } else {
             now_ns.saturating_add(LATE_PERIOD_NS)
         };
-        Ok(Some(report))
+        self.run().map(Some)
     }
 
     /// Populates every mapping of the deployment's files not populated yet.
@@ -292,17 +274,6 @@ mod tests {
         assert_eq!(parse_line(b"55d0-55e0 r-xp 0 08:01 5 /usr/bin/x", p), None);
         assert_eq!(parse_line(b"garbage", p), None);
         assert_eq!(parse_line(b"", p), None);
-    }
-
-    #[test]
-    fn early_scans_end_after_a_few_that_find_nothing_new() {
-        let mut pf = ShmPrefault::new(&format!("insuwb_prefault_none{}_", std::process::id()));
-        let t = monotonic_ns();
-        for i in 0..u64::from(QUIET_SCANS) {
-            assert!(pf.run_if_due(t + i).unwrap().is_some(), "early scan {i}");
-        }
-        assert!(pf.run_if_due(t + 10).unwrap().is_none(), "early scans over");
-        assert!(pf.run_if_due(t + 2 + LATE_PERIOD_NS).unwrap().is_some());
     }
 
     #[test]

@@ -336,7 +336,9 @@ impl Waiter {
     }
 
     /// Wakes the waiter every `period` (heartbeat, coasting tick), the first
-    /// time one period from now.
+    /// time between one and two periods from now, at the instants of
+    /// [`crate::epoch::housekeeping_due`]: half way between the sample
+    /// instants of a group, never just before one.
     pub fn attach_interval(&self, period: Duration) -> Result<Attachment<'_, 'static>, WaitError> {
         if period.is_zero() {
             return Err(WaitError::ZeroInterval(period));
@@ -346,7 +348,7 @@ impl Waiter {
             format!("interval {period:?}"),
             Slot::Interval {
                 period_ns,
-                due_ns: monotonic_ns().saturating_add(period_ns),
+                due_ns: crate::epoch::housekeeping_due(monotonic_ns(), period_ns),
             },
         )
     }
