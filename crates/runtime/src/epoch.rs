@@ -47,7 +47,7 @@ pub fn housekeeping_due(now_ns: u64, period_ns: u64) -> u64 {
     }
     let earliest = now_ns.saturating_add(period_ns);
     let phase = HOUSEKEEPING_PHASE_NS % period_ns;
-    let due = earliest - earliest % period_ns + phase;
+    let due = (earliest - earliest % period_ns).saturating_add(phase);
     if due < earliest {
         due.saturating_add(period_ns)
     } else {
