@@ -177,6 +177,8 @@ pub fn run(
     let mut skips_logged = 0u64;
     let mut skip_logged_at = 0u64;
     let mut pending = src.next_item();
+    // When a sample is due: `start_epoch + t / speed`.
+    let due_of = |i: &Item| epoch_ns + (i.time_ns() as f64 / speed) as u64;
     let source_id = stage.source_id();
     tracing::info!(
         "{name} driver: source {source_spec}, speed {speed}, epoch {epoch_ns} ns, generation {gen}"
@@ -203,14 +205,11 @@ pub fn run(
         // The fused state needs the INS state of that instant, and the IMU
         // driver can only wait while this one runs (the kernel preempts
         // neither): give way once first.
-        if want == Want::Uwb
-            && !lockstep
-            && pending.is_some_and(|i| epoch_ns + (i.time_ns() as f64 / speed) as u64 <= now)
-        {
+        if want == Want::Uwb && !lockstep && pending.is_some_and(|i| due_of(&i) <= now) {
             std::thread::yield_now();
         }
         while let Some(item) = pending {
-            let due = epoch_ns + (item.time_ns() as f64 / speed) as u64;
+            let due = due_of(&item);
             if due > now {
                 break;
             }
@@ -300,9 +299,7 @@ pub fn run(
         let now = monotonic_ns();
         let deadline = match pending {
             Some(_) if lockstep => now + 20_000_000,
-            Some(item) => {
-                (epoch_ns + (item.time_ns() as f64 / speed) as u64).min(now + 200_000_000)
-            }
+            Some(item) => due_of(&item).min(now + 200_000_000),
             None => now + 200_000_000,
         };
         match waiter.wait_deadline(deadline)? {
