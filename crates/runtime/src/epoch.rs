@@ -45,24 +45,26 @@ pub fn housekeeping_due(now_ns: u64, period_ns: u64) -> u64 {
     if period_ns == 0 {
         return now_ns;
     }
-    let earliest = now_ns.saturating_add(period_ns);
-    let phase = HOUSEKEEPING_PHASE_NS % period_ns;
-    let due = (earliest - earliest % period_ns).saturating_add(phase);
-    if due < earliest {
-        due.saturating_add(period_ns)
-    } else {
-        due
-    }
+    grid_at_or_after(
+        now_ns.saturating_add(period_ns),
+        period_ns,
+        HOUSEKEEPING_PHASE_NS % period_ns,
+    )
 }
 
 /// The first epoch at or after `t_ns`: a whole second plus [`EPOCH_PHASE_NS`].
 #[must_use]
 pub fn epoch_at_or_after(t_ns: u64) -> u64 {
-    const SECOND: u64 = 1_000_000_000;
-    let t = t_ns.saturating_sub(EPOCH_PHASE_NS);
-    t.div_ceil(SECOND)
-        .saturating_mul(SECOND)
-        .saturating_add(EPOCH_PHASE_NS)
+    grid_at_or_after(t_ns, 1_000_000_000, EPOCH_PHASE_NS)
+}
+
+/// The first instant at or after `t_ns` of the grid `phase_ns + k *
+/// period_ns` (`period_ns` > 0, `phase_ns` < `period_ns`).
+fn grid_at_or_after(t_ns: u64, period_ns: u64, phase_ns: u64) -> u64 {
+    t_ns.saturating_sub(phase_ns)
+        .div_ceil(period_ns)
+        .saturating_mul(period_ns)
+        .saturating_add(phase_ns)
 }
 
 #[cfg(test)]
