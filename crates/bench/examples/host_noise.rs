@@ -17,7 +17,8 @@
 //!
 //! A gap of a few milliseconds that lands in the ~0.2 ms of a fix's path
 //! makes one outlier of the 300 cycles `insuwb bench latency` measures per
-//! graph; three of them set its p99 (BENCHMARKS.md).
+//! graph; three of them set its p99 (BENCHMARKS.md, "How much the host
+//! disturbs a loop").
 
 // clock_nanosleep and sched_setaffinity have no safe wrapper in std.
 #![allow(unsafe_code)]

@@ -8,10 +8,10 @@
 //! fix epoch (whole 100 ms) and every other IMU sample would land on a tick
 //! and race that work for the CPUs: on the project's VM a DAMON thread woken
 //! every 512 ms by the tick ran up to 5.6 ms without yielding, and caught
-//! one fix epoch every 12.8 s (BENCHMARKS.md, session 6). 2.5 ms after a
-//! whole millisecond count of 2.5 is half a millisecond from the nearest
-//! tick at HZ 1000, and 1.5-2.5 ms from it at HZ 250 and 100, for every fix
-//! epoch and IMU sample.
+//! one fix epoch every 12.8 s (BENCHMARKS.md, "The kernel tick"). 2.5 ms
+//! after a whole millisecond count of 2.5 is half a millisecond from the
+//! nearest tick at HZ 1000, and 1.5-2.5 ms from it at HZ 250 and 100, for
+//! every fix epoch and IMU sample.
 //!
 //! Measurements are still grouped into fix epochs as in the recording: a
 //! consumer that bins times by multiples of a period aligns its bins to the
@@ -34,7 +34,7 @@ pub const EPOCH_PHASE_NS: u64 = 2_500_000;
 /// housekeeping instants lie 5 ms from every sample instant and 55 ms after
 /// a fix epoch, so a heartbeat (a page-in scan takes 90-130 us, see
 /// `crate::prefault`) never runs just before a sample its stage must handle
-/// (BENCHMARKS.md, session 7).
+/// (BENCHMARKS.md, "Housekeeping between the samples").
 pub const HOUSEKEEPING_PHASE_NS: u64 = EPOCH_PHASE_NS + 55_000_000;
 
 /// The first housekeeping instant ([`HOUSEKEEPING_PHASE_NS`]) of period
