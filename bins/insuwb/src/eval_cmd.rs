@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use insuwb_eval::metrics::Metrics;
-use insuwb_eval::run::{evaluate, filter_key, parse_filter};
+use insuwb_eval::run::{evaluate, filter_key, parse_filter, EvalReport};
 use insuwb_eval::scenario::{monte_carlo, ScenarioFile};
 use insuwb_log::{LogWriter, Metadata, Record};
 use insuwb_msg::FilterKind;
@@ -41,6 +41,15 @@ pub fn parse_filters(list: Option<&str>, default: &[FilterKind]) -> Result<Vec<F
 pub struct EvalArgs {
     /// A log to evaluate: an insuwb log or a UTIL Crazyflie log (detected from its content).
     pub file: Option<PathBuf>,
+    /// Evaluate every flight of a manifest instead, in parallel: a CSV file
+    /// with `file` and `anchors` columns (paths relative to it); every other
+    /// column whose name ends in `_m` is a reference horizontal RMSE (m),
+    /// printed beside and summarised as ratios.
+    #[arg(long, conflicts_with_all = ["file", "scenario", "anchors"])]
+    pub flights: Option<PathBuf>,
+    /// Threads for --flights (default: the available cores).
+    #[arg(long, requires = "flights")]
+    pub jobs: Option<std::num::NonZeroUsize>,
     /// Simulate a scenario instead: a built-in name (paper-3.4, paper-4.3-static,
     /// paper-4.4-dynamic, nlos-long) or a TOML file; `model-true` runs the
     /// consistency check on data drawn from the filter's own model.
@@ -77,6 +86,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     if a.scenario.as_deref() == Some("model-true") {
         return model_true(a);
     }
+    if let Some(manifest) = &a.flights {
+        return crate::batch_cmd::eval_flights(a, manifest);
+    }
     let (rows, title): (Vec<(String, Metrics)>, String) = if let Some(name) = &a.scenario {
         let mut file = ScenarioFile::load(name)?;
         if let Some(c) = &a.config {
@@ -88,7 +100,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             let data = file.dataset(seed)?;
             let cfg = file.fusion_for_seed(seed)?;
             let rep = evaluate(&data, &cfg, &filters)?;
-            write_plots(&rep, &data.truth, dir)?;
+            write_plots(&rep, &data, dir)?;
         }
         let rows = monte_carlo(&file, &filters, a.runs, seed)?;
         (
@@ -100,31 +112,15 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             ),
         )
     } else if let Some(path) = &a.file {
-        let loaded = dataset::load(path, a.anchors.as_ref(), a.config.as_deref(), a.ignore_crc)?;
-        tracing::info!("config: {}", loaded.config_origin);
-        let default = parse_filters(
-            Some(&loaded.config.eval.filters.join(",")),
-            &DEFAULT_FILTERS,
-        )
-        .context("[eval] filters")?;
-        let filters = parse_filters(a.filters.as_deref(), &default)?;
-        let t0 = std::time::Instant::now();
-        let rep = evaluate(&loaded.data, &loaded.config.fusion, &filters)?;
-        let elapsed = t0.elapsed();
-        let dur_s = loaded
-            .data
-            .imu
-            .last()
-            .map_or(0.0, |s| s.header.meas_time_ns as f64 * 1e-9);
-        tracing::info!(
-            "evaluated {} solutions on {:.1} s of data in {:.3} s ({:.4} of real time)",
-            rep.solutions.len(),
-            dur_s,
-            elapsed.as_secs_f64(),
-            elapsed.as_secs_f64() / dur_s.max(1e-9)
-        );
+        let (loaded, rep) = evaluate_file(
+            path,
+            a.anchors.as_ref(),
+            a.config.as_deref(),
+            a.ignore_crc,
+            a.filters.as_deref(),
+        )?;
         if let Some(dir) = &a.plot {
-            write_plots(&rep, &loaded.data.truth, dir)?;
+            write_plots(&rep, &loaded.data, dir)?;
         }
         let rows = rep
             .solutions
@@ -133,12 +129,24 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             .collect();
         (rows, format!("{}", path.display()))
     } else {
-        bail!("give a FILE or --scenario NAME (see insuwb eval --help)");
+        bail!("give a FILE, --flights MANIFEST.csv or --scenario NAME (see insuwb eval --help)");
     };
     let table = format_table(&title, &rows);
-    if a.json {
+    print_result(a.json, &table, || {
+        insuwb_eval::run::to_json(&rows).map_err(|e| anyhow::anyhow!("{e}"))
+    })
+}
+
+/// Prints `table` on standard output; with `json`, the table goes to
+/// standard error and the JSON object that `value` makes to standard output.
+pub fn print_result(
+    json: bool,
+    table: &str,
+    value: impl FnOnce() -> Result<serde_json::Value>,
+) -> Result<()> {
+    if json {
         eprint!("{table}");
-        let v = insuwb_eval::run::to_json(&rows).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let v = value()?;
         let mut out = std::io::stdout().lock();
         serde_json::to_writer(&mut out, &v)?;
         writeln!(out)?;
@@ -204,36 +212,57 @@ fn model_true(a: &EvalArgs) -> Result<()> {
             }),
         );
     }
-    if a.json {
-        eprint!("{table}");
-        let mut out = std::io::stdout().lock();
-        serde_json::to_writer(&mut out, &serde_json::Value::Object(map))?;
-        writeln!(out)?;
-    } else {
-        print!("{table}");
-    }
-    Ok(())
+    print_result(a.json, &table, || Ok(serde_json::Value::Object(map)))
 }
 
-#[allow(clippy::unnecessary_wraps)]
-fn write_plots(
+/// Loads a log (`dataset::load`: `config` if given, else the log's own
+/// settings or its format's preset) and evaluates it with `filters`, else
+/// the filters its config names; logs the config and the run time.
+pub fn evaluate_file(
+    path: &Path,
+    anchors: Option<&PathBuf>,
+    config: Option<&str>,
+    ignore_crc: bool,
+    filters: Option<&str>,
+) -> Result<(dataset::Loaded, EvalReport)> {
+    let loaded = dataset::load(path, anchors, config, ignore_crc)?;
+    tracing::info!("config: {}", loaded.config_origin);
+    let default = parse_filters(
+        Some(&loaded.config.eval.filters.join(",")),
+        &DEFAULT_FILTERS,
+    )
+    .context("[eval] filters")?;
+    let filters = parse_filters(filters, &default)?;
+    let t0 = std::time::Instant::now();
+    let rep = evaluate(&loaded.data, &loaded.config.fusion, &filters)?;
+    let elapsed = t0.elapsed();
+    let dur_s = loaded
+        .data
+        .imu
+        .last()
+        .map_or(0.0, |s| s.header.meas_time_ns as f64 * 1e-9);
+    tracing::info!(
+        "evaluated {} solutions on {:.1} s of data in {:.3} s ({:.4} of real time)",
+        rep.solutions.len(),
+        dur_s,
+        elapsed.as_secs_f64(),
+        elapsed.as_secs_f64() / dur_s.max(1e-9)
+    );
+    Ok((loaded, rep))
+}
+
+/// Writes the figures of one evaluation into `dir`, anchors taken from the TDOA stream.
+pub fn write_plots(
     rep: &insuwb_eval::run::EvalReport,
-    truth: &[insuwb_msg::GroundTruth],
+    data: &insuwb_eval::run::Dataset,
     dir: &Path,
 ) -> Result<()> {
-    let files = insuwb_eval::plot::write_figures(rep, truth, dir)?;
+    let anchors = insuwb_eval::plot::anchor_positions(&data.tdoa);
+    let files = insuwb_eval::plot::write_figures(rep, &data.truth, &anchors, dir)?;
     for f in files {
         tracing::info!("wrote {}", f.display());
     }
     Ok(())
-}
-
-fn row_name(key: &str) -> String {
-    match key {
-        "ins" => "INS-only".into(),
-        "uwb" => "UWB".into(),
-        k => k.to_uppercase(),
-    }
 }
 
 /// The table of Table 1's shape, plus horizontal RMS, max distance, NEES and NIS.
@@ -261,7 +290,7 @@ pub fn format_table(title: &str, rows: &[(String, Metrics)]) -> String {
         let _ = writeln!(
             s,
             "{:<10} {:>8.4} {:>8.4} {:>8.4}  {:>8.4} ~ {:>8.4}  {:>8.4} ~ {:>8.4} {:>8.4} {:>8.4} {:>7} {:>7}",
-            row_name(k),
+            insuwb_eval::batch::solution_title(k),
             m.rmse_east,
             m.rmse_north,
             m.rmse_mean,

@@ -5,6 +5,7 @@
 //! Logs go to standard error (`RUST_LOG` sets the level); with `--json` a
 //! command prints exactly one JSON object on standard output.
 
+mod batch_cmd;
 mod bench_cmd;
 mod dataset;
 mod emulate_cmd;

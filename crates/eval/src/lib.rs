@@ -3,6 +3,7 @@
 //! tables and draws figures.
 #![warn(missing_docs)]
 
+pub mod batch;
 pub mod consistency;
 pub mod metrics;
 pub mod plot;

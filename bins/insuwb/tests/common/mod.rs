@@ -26,6 +26,21 @@ pub fn insuwb() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_insuwb"))
 }
 
+/// Runs `insuwb ARGS` to its end.
+pub fn run(args: &[&str]) -> std::process::Output {
+    Command::new(insuwb()).args(args).output().unwrap()
+}
+
+/// `out`, after checking that it exited 0 (its standard error otherwise).
+pub fn succeeded(out: &std::process::Output) -> &std::process::Output {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 /// A robot group of its own: config file, run directory, service prefix.
 pub struct Group {
     pub name: String,

@@ -1,0 +1,178 @@
+//! `insuwb eval --flights MANIFEST.csv`: every flight of a manifest,
+//! evaluated in parallel as `insuwb eval FILE --anchors A` evaluates one,
+//! then one row per flight and a summary per solution against the
+//! manifest's reference columns.
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use anyhow::{Context, Result};
+use insuwb_eval::batch::{self, FlightMetrics, Manifest, ManifestFlight};
+
+use crate::eval_cmd::{evaluate_file, print_result, write_plots, EvalArgs};
+
+/// Runs `insuwb eval --flights MANIFEST`.
+pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
+    let manifest = Manifest::load(manifest_path)?;
+    let jobs = a.jobs.map_or_else(
+        || std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get),
+        std::num::NonZeroUsize::get,
+    );
+    // Longest first: the file size stands for the flight's run time.
+    let costs: Vec<u64> = manifest
+        .flights
+        .iter()
+        .map(|f| std::fs::metadata(&f.file).map_or(0, |m| m.len()))
+        .collect();
+    let bar = std::io::stderr()
+        .is_terminal()
+        .then(|| Progress::new(manifest.flights.len()));
+    // With a progress bar, the flights' info messages would break it: keep
+    // warnings only on the worker threads.
+    let quiet = bar.as_ref().map(|_| {
+        tracing::Dispatch::new(
+            tracing_subscriber::fmt()
+                .with_writer(std::io::stderr)
+                .with_max_level(tracing::Level::WARN)
+                .finish(),
+        )
+    });
+    let t0 = std::time::Instant::now();
+    let results = batch::map_in_parallel(
+        &costs,
+        jobs,
+        |i| {
+            let f = &manifest.flights[i];
+            match &quiet {
+                Some(d) => tracing::dispatcher::with_default(d, || evaluate_flight(a, f)),
+                None => evaluate_flight(a, f),
+            }
+        },
+        |done, _| {
+            if let Some(b) = &bar {
+                b.show(done);
+            }
+        },
+    );
+    if let Some(b) = &bar {
+        b.finish();
+    }
+    let results = results.map_err(|e| {
+        let f = &manifest.flights[e.index];
+        e.error.context(format!(
+            "flight {} ({}, line {})",
+            f.name,
+            manifest.path.display(),
+            f.line
+        ))
+    })?;
+    tracing::info!(
+        "evaluated {} flights in {:.2} s on {} thread(s)",
+        results.len(),
+        t0.elapsed().as_secs_f64(),
+        jobs.min(results.len())
+    );
+    let summary = batch::summarize(&manifest, &results);
+    if let Some(dir) = &a.plot {
+        let file = insuwb_eval::plot::write_summary_figure(&manifest, &results, dir)?;
+        tracing::info!("wrote {}", file.display());
+    }
+    let table = format!(
+        "{}\n{}\n{}",
+        manifest.path.display(),
+        batch::format_flights(&manifest, &results, &summary),
+        batch::format_summary(&manifest, &summary)
+    );
+    print_result(a.json, &table, || {
+        batch::to_json(&manifest, &results, &summary)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", manifest.path.display()))
+    })
+}
+
+/// Evaluates one flight; with `--plot DIR`, its figures go to `DIR/<name>/`.
+fn evaluate_flight(a: &EvalArgs, f: &ManifestFlight) -> Result<FlightMetrics> {
+    let (loaded, rep) = evaluate_file(
+        &f.file,
+        f.anchors.as_ref(),
+        a.config.as_deref(),
+        a.ignore_crc,
+        a.filters.as_deref(),
+    )?;
+    if let Some(dir) = &a.plot {
+        write_plots(&rep, &loaded.data, &dir.join(figure_folder(&f.name)))
+            .context("writing the figures")?;
+    }
+    Ok(rep
+        .solutions
+        .into_iter()
+        .map(|s| (s.key, s.metrics))
+        .collect())
+}
+
+/// A flight's name as one folder name: path separators and dots that could
+/// leave the figure folder become `_`.
+fn figure_folder(name: &str) -> PathBuf {
+    let s: String = name
+        .chars()
+        .map(|c| if c == '/' || c == '\\' { '_' } else { c })
+        .collect();
+    PathBuf::from(if s.chars().all(|c| c == '.') {
+        s.replace('.', "_")
+    } else {
+        s
+    })
+}
+
+/// A one-line progress bar on standard error: `[#####     ] 7/23`.
+#[derive(Debug)]
+struct Progress {
+    total: usize,
+    lock: Mutex<()>,
+}
+
+impl Progress {
+    const WIDTH: usize = 30;
+
+    fn new(total: usize) -> Self {
+        let p = Self {
+            total,
+            lock: Mutex::new(()),
+        };
+        p.show(0);
+        p
+    }
+
+    fn show(&self, done: usize) {
+        let _guard = self.lock.lock();
+        let filled = (Self::WIDTH * done).checked_div(self.total).unwrap_or(0);
+        let mut err = std::io::stderr().lock();
+        let _ = write!(
+            err,
+            "\r[{}{}] {done}/{}",
+            "#".repeat(filled),
+            " ".repeat(Self::WIDTH - filled.min(Self::WIDTH)),
+            self.total
+        );
+        let _ = err.flush();
+    }
+
+    fn finish(&self) {
+        let _guard = self.lock.lock();
+        let _ = writeln!(std::io::stderr());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::figure_folder;
+    use std::path::Path;
+
+    #[test]
+    fn figure_folders_stay_inside_the_plot_folder() {
+        assert_eq!(figure_folder("cfBolt-log00"), Path::new("cfBolt-log00"));
+        assert_eq!(figure_folder("sub/log.bin"), Path::new("sub_log.bin"));
+        assert_eq!(figure_folder("../x"), Path::new(".._x"));
+        assert_eq!(figure_folder(".."), Path::new("__"));
+    }
+}
