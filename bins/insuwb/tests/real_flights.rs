@@ -1,0 +1,213 @@
+//! Every shared UTIL flight through the batch path, `insuwb eval --flights
+//! flights.csv --json`, held to the bounds of issue 16 (item 1) against the
+//! radio-alone reference `uwb_ls_ref_m`:
+//!
+//! - `iakf_tdoa`: ratio at most 1.0 on every flight and 0.75 at the median,
+//!   `max_dist` at most 1.0 m on every flight, `nees_mean` at most 20 on
+//!   every flight and between 2 and 8 at the median;
+//! - `iakf`: ratio at most 1.2 on every flight, median ratio no worse than
+//!   the KF's;
+//! - `uwb`: ratio at most 1.05 on every flight.
+//!
+//! Every failing flight and bound is reported in one message. The data are
+//! not part of the repository: they are looked for at `INSUWB_UTIL_DIR`,
+//! else at `<workspace>/../shared/data/util`. When they are absent the test
+//! says so and passes, unless the environment variable `CI` is set, where it
+//! fails. The 23 flights take a few seconds in release (`cargo test
+//! --release`), spread over all cores by the batch path itself.
+
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+/// The manifest of the shared flights.
+const MANIFEST: &str = "flights.csv";
+/// Flights the manifest lists.
+const FLIGHTS: usize = 23;
+/// The reference column the bounds are stated against.
+const REFERENCE: &str = "uwb_ls_ref_m";
+/// The batch is killed and the test fails after this long.
+const WATCHDOG: Duration = Duration::from_secs(900);
+
+/// The data folder, or `None` (after saying so) when it is absent outside CI.
+fn data_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("INSUWB_UTIL_DIR").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/util"),
+        PathBuf::from,
+    );
+    if dir.join(MANIFEST).is_file() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{} not found (set INSUWB_UTIL_DIR); CI is set, so this fails instead of skipping",
+        dir.join(MANIFEST).display()
+    );
+    eprintln!(
+        "SKIPPED: {} not found (set INSUWB_UTIL_DIR to run the real-flight test)",
+        dir.join(MANIFEST).display()
+    );
+    None
+}
+
+/// Runs the batch under a watchdog; its JSON output.
+fn run_batch(manifest: &std::path::Path) -> Value {
+    let tmp = std::env::temp_dir().join(format!("insuwb-real-flights-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp).unwrap();
+    let (out_path, err_path) = (tmp.join("stdout.json"), tmp.join("stderr.txt"));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_insuwb"))
+        .args(["eval", "--flights", manifest.to_str().unwrap(), "--json"])
+        // The tables only, not each flight's messages.
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::from(std::fs::File::create(&out_path).unwrap()))
+        .stderr(Stdio::from(std::fs::File::create(&err_path).unwrap()))
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if t0.elapsed() > WATCHDOG {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("insuwb eval --flights still running after {WATCHDOG:?}: killed");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let stderr = std::fs::read_to_string(&err_path).unwrap_or_default();
+    let stdout = std::fs::read(&out_path).unwrap();
+    let _ = std::fs::remove_dir_all(&tmp);
+    assert!(status.success(), "insuwb eval --flights failed:\n{stderr}");
+    // The per-flight table and the summary, for the test's log.
+    eprintln!("{stderr}");
+    serde_json::from_slice(&stdout).unwrap()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// The bounds' failures, one line each.
+fn failures(v: &Value) -> Vec<String> {
+    let mut fails = Vec::new();
+    let flights = v["flights"].as_array().map_or(&[][..], Vec::as_slice);
+    if flights.len() != FLIGHTS {
+        fails.push(format!(
+            "{} flights evaluated, {FLIGHTS} expected",
+            flights.len()
+        ));
+    }
+    let num = |f: &Value, sol: &str, key: &str| f[sol][key].as_f64();
+    // Per-flight ratios of each solution, for the medians.
+    let mut ratios: std::collections::BTreeMap<&str, Vec<f64>> = Default::default();
+    let mut nees = Vec::new();
+    for f in flights {
+        let name = f["file"].as_str().unwrap_or("?");
+        let Some(reference) = f[REFERENCE].as_f64() else {
+            fails.push(format!("{name}: no {REFERENCE}"));
+            continue;
+        };
+        for (sol, bound) in [
+            ("iakf_tdoa", 1.0),
+            ("iakf", 1.2),
+            ("kf", f64::INFINITY),
+            ("uwb", 1.05),
+        ] {
+            let Some(rmse) = num(f, sol, "rmse_horizontal") else {
+                fails.push(format!("{name}: {sol} missing"));
+                continue;
+            };
+            let ratio = rmse / reference;
+            ratios.entry(sol).or_default().push(ratio);
+            if ratio.is_nan() || ratio > bound {
+                fails.push(format!(
+                    "{name}: {sol} RMSE {rmse:.3} m is {ratio:.2}x {REFERENCE} ({reference:.3} m), bound {bound}x"
+                ));
+            }
+        }
+        match num(f, "iakf_tdoa", "max_dist") {
+            Some(d) if d <= 1.0 => {}
+            Some(d) => fails.push(format!("{name}: iakf_tdoa max_dist {d:.2} m, bound 1.0 m")),
+            None => fails.push(format!("{name}: iakf_tdoa max_dist missing")),
+        }
+        match num(f, "iakf_tdoa", "nees_mean") {
+            Some(n) => {
+                nees.push(n);
+                if n.is_nan() || n > 20.0 {
+                    fails.push(format!("{name}: iakf_tdoa nees_mean {n:.1}, bound 20"));
+                }
+            }
+            None => fails.push(format!("{name}: iakf_tdoa nees_mean missing")),
+        }
+    }
+    let med = |sol: &str| median(ratios.get(sol).cloned().unwrap_or_default());
+    let m = med("iakf_tdoa");
+    if m.is_nan() || m > 0.75 {
+        fails.push(format!("iakf_tdoa: median ratio {m:.2}, bound 0.75"));
+    }
+    let (mi, mk) = (med("iakf"), med("kf"));
+    if mi.is_nan() || mi > mk {
+        fails.push(format!("iakf: median ratio {mi:.2} above the KF's {mk:.2}"));
+    }
+    let mn = median(nees);
+    if !(2.0..=8.0).contains(&mn) {
+        fails.push(format!("iakf_tdoa: median nees_mean {mn:.1}, bound [2, 8]"));
+    }
+    fails
+}
+
+#[test]
+#[ignore] // enabled once the filters meet issue 16's bounds
+fn every_shared_flight_meets_the_bounds_of_issue_16() {
+    let Some(dir) = data_dir() else {
+        return;
+    };
+    let v = run_batch(&dir.join(MANIFEST));
+    let fails = failures(&v);
+    assert!(
+        fails.is_empty(),
+        "{} bound(s) not met over the shared UTIL flights:\n{}",
+        fails.len(),
+        fails.join("\n")
+    );
+}
+
+#[test]
+fn failures_are_all_reported() {
+    let flight = |name: &str, tdoa: f64, iakf: f64, uwb: f64, max: f64, nees: f64| {
+        serde_json::json!({
+            "file": name, REFERENCE: 0.1,
+            "iakf_tdoa": { "rmse_horizontal": tdoa, "max_dist": max, "nees_mean": nees },
+            "iakf": { "rmse_horizontal": iakf },
+            "kf": { "rmse_horizontal": 0.1 },
+            "uwb": { "rmse_horizontal": uwb },
+        })
+    };
+    let good: Vec<Value> = (0..FLIGHTS)
+        .map(|i| flight(&format!("f{i}"), 0.05, 0.09, 0.1, 0.3, 4.0))
+        .collect();
+    assert!(failures(&serde_json::json!({ "flights": good })).is_empty());
+    let mut bad = good.clone();
+    bad[3] = flight("f3", 0.2, 0.13, 0.11, 1.5, 30.0);
+    let fails = failures(&serde_json::json!({ "flights": bad }));
+    // Five bounds on f3; the medians still hold.
+    assert_eq!(fails.len(), 5, "{fails:#?}");
+    assert!(fails.iter().all(|f| f.starts_with("f3: ")), "{fails:#?}");
+    let fails = failures(&serde_json::json!({ "flights": &bad[..3] }));
+    assert!(fails[0].contains("3 flights evaluated"), "{fails:#?}");
+}
