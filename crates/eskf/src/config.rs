@@ -138,6 +138,26 @@ pub struct EskfConfig {
     /// 42 ms occur in the UTIL logs; longer gaps must be handled by the
     /// caller).
     pub max_dt_s: f64,
+    /// Time constant of the innovation-based process-noise scale, s; 0
+    /// (default) keeps the configured noise densities. When positive, every
+    /// applied TDOA update feeds exponentially weighted sums (this time
+    /// constant) of its clipped innovation energy beyond the measurement's
+    /// own variance, `min(v^2, kappa^2 S) / c(kappa) - sigma^2`, and of its
+    /// predicted part `H P H^T`; their ratio says how much larger the INS's
+    /// error growth is than the process noise claims, and the scale `alpha`
+    /// on `Q` follows it (`d ln alpha / dt = ln(ratio) / q_adapt_time_s`,
+    /// `alpha` in `[1, q_scale_max]`). The vibration-induced accelerometer
+    /// error differs about tenfold between vehicles of one fleet (UTIL: 0.04
+    /// to 0.7 m/s^2/sqrt(Hz) equivalent on 0.1-0.5 s scales), which no fixed
+    /// density serves.
+    pub q_adapt_time_s: f64,
+    /// How much slower the scale falls than it rises (its time constant
+    /// when the innovations say it is too high is `q_adapt_time_s` times
+    /// this). Default 20.
+    pub q_adapt_decay_factor: f64,
+    /// Largest process-noise scale `alpha` (multiplies every density's
+    /// square). Default 100 (densities up to tenfold).
+    pub q_scale_max: f64,
     /// Apply the reset Jacobian `G = I - [d_att / 2 x]` to the attitude block
     /// of `P` when a correction is taken (Sola 2017, eq. 287). Default true;
     /// false keeps `P` unchanged (identity Jacobian).
@@ -169,6 +189,9 @@ impl Default for EskfConfig {
             nis_threshold: 9.0,
             max_reject_run_s: 1.0,
             max_dt_s: 0.1,
+            q_adapt_time_s: 0.0,
+            q_adapt_decay_factor: 20.0,
+            q_scale_max: 100.0,
             reset_jacobian: true,
         }
     }
@@ -280,6 +303,14 @@ impl EskfConfig {
         check("nis_threshold", self.nis_threshold, "> 0", pos)?;
         check("max_reject_run_s", self.max_reject_run_s, "> 0", pos)?;
         check("max_dt_s", self.max_dt_s, "> 0", pos)?;
+        check("q_adapt_time_s", self.q_adapt_time_s, ">= 0", non_neg)?;
+        check("q_scale_max", self.q_scale_max, ">= 1", |v| v >= 1.0)?;
+        check(
+            "q_adapt_decay_factor",
+            self.q_adapt_decay_factor,
+            ">= 1",
+            |v| v >= 1.0,
+        )?;
         Ok(())
     }
 }

@@ -99,6 +99,8 @@ pub struct TdoaUpdateReport {
     pub rejected: bool,
     /// The divergence monitor asks for a reset (sticky until [`Eskf::reset`]).
     pub needs_reset: bool,
+    /// The process-noise scale after this update ([`Eskf::q_scale`]).
+    pub q_scale: f64,
 }
 
 impl TdoaUpdateReport {
@@ -483,6 +485,56 @@ pub struct Eskf {
     needs_reset: bool,
     pairs: [PairSlot; PAIR_SLOTS],
     stats: EskfStats,
+    q_adapt: QAdapt,
+}
+
+/// Updates the process-noise scale looks back over (median window).
+const Q_ADAPT_WINDOW: usize = 128;
+/// Fewest updates in the window before the scale moves.
+const Q_ADAPT_MIN: usize = 32;
+/// Median of a chi-square variable with one degree of freedom.
+const CHI2_1_MEDIAN: f64 = 0.454_936_4;
+/// Density of a chi-square variable with one degree of freedom at its median.
+const CHI2_1_MEDIAN_DENSITY: f64 = 0.471_1;
+
+/// State of the innovation-based process-noise scale
+/// ([`EskfConfig::q_adapt_time_s`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct QAdapt {
+    /// The scale on `Q`, in `[1, q_scale_max]`.
+    alpha: f64,
+    /// Squared innovations of the last updates, m^2 (ring).
+    v2: [f64; Q_ADAPT_WINDOW],
+    /// Their predicted parts `H P H^T`, m^2 (ring).
+    hph: [f64; Q_ADAPT_WINDOW],
+    len: usize,
+    next: usize,
+    /// Filter time of the last adaptation step, s.
+    last_s: Option<f64>,
+}
+
+impl QAdapt {
+    const fn new() -> Self {
+        Self {
+            alpha: 1.0,
+            v2: [0.0; Q_ADAPT_WINDOW],
+            hph: [0.0; Q_ADAPT_WINDOW],
+            len: 0,
+            next: 0,
+            last_s: None,
+        }
+    }
+}
+
+/// Median of the first `n` values of `vals` (copied; `None` when empty).
+fn median_of(vals: &[f64; Q_ADAPT_WINDOW], n: usize) -> Option<f64> {
+    let mut buf = *vals;
+    let work = buf.get_mut(..n)?;
+    if work.is_empty() {
+        return None;
+    }
+    let (_, m, _) = work.select_nth_unstable_by(n / 2, f64::total_cmp);
+    Some(*m)
 }
 
 impl Eskf {
@@ -507,6 +559,7 @@ impl Eskf {
             needs_reset: false,
             pairs: [PairSlot::default(); PAIR_SLOTS],
             stats: EskfStats::default(),
+            q_adapt: QAdapt::new(),
         })
     }
 
@@ -583,8 +636,13 @@ impl Eskf {
         let fpft = apply_f(&minus_f_skew, &rot, &fp.transpose());
         self.p += (fp + fp.transpose()) * dt_s + fpft * (dt_s * dt_s);
         let q = process_noise(&self.config, dt_s);
+        // The scale applies to the accelerometer's noise and bias walk: the
+        // position innovations it is read from measure the velocity drift.
+        let alpha = self.q_adapt.alpha;
         for i in 0..N_STATES {
-            self.p[(i, i)] += q[i];
+            let accel = (IDX_VEL..IDX_VEL + 3).contains(&i)
+                || (IDX_ACCEL_BIAS..IDX_ACCEL_BIAS + 3).contains(&i);
+            self.p[(i, i)] += if accel { alpha * q[i] } else { q[i] };
         }
         symmetrize(&mut self.p);
         if self.x.iter().any(|&v| v != 0.0) {
@@ -661,6 +719,7 @@ impl Eskf {
             nis,
             rejected: false,
             needs_reset: self.needs_reset,
+            q_scale: self.q_adapt.alpha,
         };
 
         let key = pair_key(&anchor_a_m, &anchor_b_m);
@@ -706,6 +765,7 @@ impl Eskf {
             RobustMode::Huber => (lambda * v, r_gain),
             RobustMode::InflateR => (v, r_gain / (lambda * lambda)),
         };
+        self.adapt_q(v, hph, sigma2);
         self.scalar_update(&c, hph, r_gain, v_used);
 
         self.touch_pair(slot, key);
@@ -719,6 +779,7 @@ impl Eskf {
         self.check_monitors();
         report.lambda = lambda;
         report.r_gain_m2 = r_gain;
+        report.q_scale = self.q_adapt.alpha;
         report.needs_reset = self.needs_reset;
         Ok(report)
     }
@@ -955,6 +1016,67 @@ impl Eskf {
                 Some(*m)
             }
         }
+    }
+
+    /// The innovation-based scale on the process noise (1 when
+    /// [`EskfConfig::q_adapt_time_s`] is 0).
+    #[must_use]
+    pub fn q_scale(&self) -> f64 {
+        self.q_adapt.alpha
+    }
+
+    /// One step of the process-noise scale from an applied TDOA update with
+    /// innovation `v`, predicted part `hph` and measurement variance
+    /// `sigma2` (see [`EskfConfig::q_adapt_time_s`]): the window's median
+    /// squared innovation, read as `CHI2_1_MEDIAN` times its variance, less
+    /// `sigma2`, against the median `H P H^T`. Medians, so that the NLOS
+    /// minority of the measurements (UTIL: 9-23 %) does not count as
+    /// process noise.
+    fn adapt_q(&mut self, v: f64, hph: f64, sigma2: f64) {
+        let tau = self.config.q_adapt_time_s;
+        if tau <= 0.0 {
+            return;
+        }
+        let a = &mut self.q_adapt;
+        if let (Some(x), Some(y)) = (a.v2.get_mut(a.next), a.hph.get_mut(a.next)) {
+            *x = v * v;
+            *y = hph;
+        }
+        a.next = (a.next + 1) % Q_ADAPT_WINDOW;
+        a.len = (a.len + 1).min(Q_ADAPT_WINDOW);
+        let dt = a.last_s.map_or(0.0, |t| (self.time_s - t).max(0.0));
+        a.last_s = Some(self.time_s);
+        if a.len < Q_ADAPT_MIN || dt <= 0.0 {
+            return;
+        }
+        let (Some(m_v2), Some(m_hph)) = (median_of(&a.v2, a.len), median_of(&a.hph, a.len)) else {
+            return;
+        };
+        if m_hph <= 0.0 {
+            return;
+        }
+        // The window's median squared innovation estimates its variance
+        // with a relative standard deviation of 1 / (2 f(m) m sqrt(n)) for
+        // chi-square(1) (m its median, f its density there): 21 % for 128
+        // updates. Only an excess beyond two of those raises the scale, so
+        // that the sampling noise of the median does not ratchet it up.
+        #[allow(clippy::cast_precision_loss)]
+        let n = a.len as f64;
+        let rel_sd = 1.0 / (2.0 * CHI2_1_MEDIAN_DENSITY * CHI2_1_MEDIAN * n.sqrt());
+        let observed = m_v2 / CHI2_1_MEDIAN;
+        let predicted = m_hph + sigma2;
+        let ratio = ((observed - sigma2) / m_hph).clamp(0.25, 4.0);
+        // Up fast, down slowly: the scale describes the vehicle (its
+        // vibration), which does not change from one manoeuvre to the next,
+        // while a consistent stretch only says the scale is high enough.
+        let tau = if observed > (1.0 + 2.0 * rel_sd) * predicted && ratio > 1.0 {
+            tau
+        } else if ratio < 1.0 {
+            tau * self.config.q_adapt_decay_factor
+        } else {
+            return;
+        };
+        a.alpha = (a.alpha * ratio.powf(dt / tau)).clamp(1.0, self.config.q_scale_max);
     }
 
     fn push_nis(&mut self, nis: f64) {

@@ -366,3 +366,56 @@ fn accessors_and_nav_state_helper() {
     assert_eq!(f.covariance()[(2, 2)], 0.09);
     assert_eq!(f.covariance()[(8, 8)], 1.8 * 1.8);
 }
+
+/// The process-noise scale: a vehicle whose INS drifts (the TDOA
+/// differences say it moves at 0.5 m/s while the INS holds still) raises
+/// it; a consistent one (truthful differences with their configured noise)
+/// keeps it near 1; with the adaptation off it stays at 1.
+#[test]
+fn process_noise_scale_follows_the_innovations() {
+    let adaptive = EskfConfig {
+        q_adapt_time_s: 0.2,
+        q_scale_max: 1000.0,
+        ..config()
+    };
+    let an = anchors();
+    let run = |cfg: &EskfConfig, drift_mps: f64, seed: u64| {
+        let mut f = Eskf::new(cfg.clone()).unwrap();
+        let mut rng = Rng::new(seed);
+        for k in 0..3000usize {
+            f.predict(1e-3, Q0, F_REST).unwrap();
+            if k % 2 == 1 {
+                let t = k as f64 * 1e-3;
+                let truth = [P_INS[0] + drift_mps * t, P_INS[1], P_INS[2]];
+                let (a, b) = (an[(k / 2) % 8], an[(k / 2 + 1) % 8]);
+                let z = tdoa_at(truth, &a, &b) + rng.normal() * 0.05;
+                // The INS keeps its position: the drift is never corrected.
+                f.update_tdoa(P_INS, Q0, [0.0; 3], a, b, z).unwrap();
+                f.take_correction();
+            }
+        }
+        f.q_scale()
+    };
+    let drifting = run(&adaptive, 0.5, 7);
+    assert!(drifting > 10.0, "{drifting}");
+    let consistent = run(&adaptive, 0.0, 7);
+    assert!(consistent < 2.0, "{consistent}");
+    assert_eq!(run(&config(), 0.5, 7), 1.0);
+    // Bounded by q_scale_max.
+    let capped = EskfConfig {
+        q_scale_max: 5.0,
+        ..adaptive.clone()
+    };
+    assert!(run(&capped, 0.5, 7) <= 5.0);
+    // Invalid settings name their key.
+    let bad = EskfConfig {
+        q_scale_max: 0.5,
+        ..adaptive.clone()
+    };
+    assert_eq!(bad.validate().unwrap_err().key, "q_scale_max");
+    let bad = EskfConfig {
+        q_adapt_decay_factor: 0.0,
+        ..adaptive
+    };
+    assert_eq!(bad.validate().unwrap_err().key, "q_adapt_decay_factor");
+}

@@ -61,6 +61,13 @@ pub struct FusionEngineConfig {
     /// for `reset_min_fixes`, m (the motion over one fix period included).
     /// Default 0.3.
     pub reset_gate_m: f64,
+    /// Take the velocity of an initialisation or reset from the fix's
+    /// regression velocity when it has one (else zero). Default true. The
+    /// regression over the last fixes is meaningless while UWB near the
+    /// floor jumps by metres (UTIL: -2.2 m/s vertical from fixes at
+    /// take-off); false starts from rest, with the filter's initial
+    /// velocity uncertainty.
+    pub reset_velocity_from_fix: bool,
     /// Predict through INS states as they arrive, keeping only the newest
     /// `eager_lag_s` of them buffered for measurements still on their way
     /// (None: predict only when a measurement needs it). The result is the
@@ -96,6 +103,7 @@ impl Default for FusionEngineConfig {
             reset_on_divergence: true,
             reset_min_fixes: 1,
             reset_gate_m: 0.3,
+            reset_velocity_from_fix: true,
             eager_lag_s: None,
             nis_window: 30,
             nis_gate_per_dim: 16.0,
@@ -684,11 +692,12 @@ impl FusionEngine {
         self.counters.resets += 1;
         self.est.reset();
         self.dirty = None;
-        let vel = if fix.header.flags & UwbFix::FLAG_VEL_VALID != 0 {
-            fix.vel_mps
-        } else {
-            [0.0; 3]
-        };
+        let vel =
+            if self.cfg.reset_velocity_from_fix && fix.header.flags & UwbFix::FLAG_VEL_VALID != 0 {
+                fix.vel_mps
+            } else {
+                [0.0; 3]
+            };
         // Position at the fix epoch, moved to the INS sample the reset applies at.
         let dt = (last.header.meas_time_ns.saturating_sub(ins.t_ns)) as f64 * 1e-9;
         let mut pos = fix.pos_m;
@@ -950,6 +959,33 @@ mod tests {
         assert!(c.header.flags & InsCorrection::FLAG_RESET != 0);
         assert_eq!(c.reset_pos_m, [5.2, 0.2, 0.0]);
         assert_eq!(out.fused.len(), 1);
+    }
+
+    /// The initialisation takes the fix's regression velocity only with
+    /// `reset_velocity_from_fix`; otherwise it starts from rest.
+    #[test]
+    fn initial_velocity_from_the_fix_only_when_configured() {
+        for from_fix in [true, false] {
+            let cfg = FusionEngineConfig {
+                init_from_first_fix: true,
+                reset_velocity_from_fix: from_fix,
+                ..FusionEngineConfig::default()
+            };
+            let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
+            let mut e = FusionEngine::new(cfg, est);
+            let mut out = Outputs::default();
+            for k in 0..=100 {
+                e.on_nav(&nav(k), &mut out);
+            }
+            let mut f = fix(100_000_000, [1.0, 2.0, 0.5]);
+            f.vel_mps = [0.0, 0.0, -2.2];
+            f.header.flags |= UwbFix::FLAG_VEL_VALID;
+            e.on_measurement(Measurement::Fix(f), &mut out);
+            let c = out.corrections.last().unwrap();
+            assert!(c.header.flags & InsCorrection::FLAG_RESET != 0);
+            let want = if from_fix { [0.0, 0.0, -2.2] } else { [0.0; 3] };
+            assert_eq!(c.reset_vel_mps, want);
+        }
     }
 
     /// A fix stamped inside the INS interval processed last is not late (the

@@ -54,6 +54,21 @@ pub struct InsInit {
     /// End the alignment window early when the specific-force norm departs
     /// from its running mean by more than this (m/s^2): motion started.
     pub motion_threshold_mps2: f64,
+    /// Length of the blocks whose mean specific-force norm is compared with
+    /// the running mean for `motion_threshold_mps2`, s; 0 (default) tests
+    /// every sample. Spinning motors shake a quadrotor's IMU by 0.3-2 m/s^2
+    /// RMS on the floor (UTIL), which a per-sample test reads as motion
+    /// within a few samples; block means keep the window open until
+    /// lift-off, when the thrust moves the mean.
+    pub motion_block_s: f64,
+    /// Take the gyro bias from the window (`gyro_bias_from_static`) only
+    /// when the rates' standard deviation over it (largest axis) is below
+    /// this, rad/s; otherwise the bias starts at zero. Default infinity
+    /// (always). With the motors spinning, the mean rate holds the
+    /// vehicle's real rotation as it slides on the floor (UTIL: -3 to +5
+    /// deg/s of yaw before lift-off) and is no bias; the IMU at rest shakes
+    /// by about 0.003 rad/s, with the motors on by 0.1-0.3 rad/s.
+    pub gyro_bias_max_sd_rps: f64,
 }
 
 impl Default for InsInit {
@@ -66,6 +81,8 @@ impl Default for InsInit {
             align_window_s: 0.0,
             gyro_bias_from_static: false,
             motion_threshold_mps2: 1.0,
+            motion_block_s: 0.0,
+            gyro_bias_max_sd_rps: f64::INFINITY,
         }
     }
 }
@@ -156,7 +173,14 @@ struct AlignAcc {
     t0: Option<u64>,
     acc_sum: [f64; 3],
     gyro_sum: [f64; 3],
+    gyro_sq_sum: [f64; 3],
     norm_mean: f64,
+    /// Samples folded into `norm_mean`.
+    norm_n: u64,
+    /// The open block of `motion_block_s`: start time, norm sum, samples.
+    block_t0: Option<u64>,
+    block_sum: f64,
+    block_n: u64,
 }
 
 impl InsEngine {
@@ -174,6 +198,18 @@ impl InsEngine {
             return Err(InsEngineError::Invalid {
                 key: "init.align_window_s",
                 message: format!("must be in [0, 60] s, got {}", i.align_window_s),
+            });
+        }
+        if !(i.motion_block_s.is_finite() && (0.0..=10.0).contains(&i.motion_block_s)) {
+            return Err(InsEngineError::Invalid {
+                key: "init.motion_block_s",
+                message: format!("must be in [0, 10] s, got {}", i.motion_block_s),
+            });
+        }
+        if i.gyro_bias_max_sd_rps.is_nan() || i.gyro_bias_max_sd_rps <= 0.0 {
+            return Err(InsEngineError::Invalid {
+                key: "init.gyro_bias_max_sd_rps",
+                message: format!("must be > 0 rad/s, got {}", i.gyro_bias_max_sd_rps),
             });
         }
         if !i.pos_m.iter().chain(&i.vel_mps).all(|v| v.is_finite()) || !i.yaw_rad.is_finite() {
@@ -362,7 +398,26 @@ impl InsEngine {
         let t0 = *a.t0.get_or_insert(t);
         let norm = s.accel_mps2.iter().map(|v| v * v).sum::<f64>().sqrt();
         if init.align_window_s > 0.0 {
-            let moving = a.n > 10 && (norm - a.norm_mean).abs() > init.motion_threshold_mps2;
+            let block_ns = (init.motion_block_s.max(0.0) * 1e9) as u64;
+            let moving = if block_ns == 0 {
+                a.n > 10 && (norm - a.norm_mean).abs() > init.motion_threshold_mps2
+            } else {
+                let b0 = *a.block_t0.get_or_insert(t);
+                a.block_sum += norm;
+                a.block_n += 1;
+                let mut moving = false;
+                if t.saturating_sub(b0) >= block_ns {
+                    let mean = a.block_sum / a.block_n as f64;
+                    moving =
+                        a.norm_n > 0 && (mean - a.norm_mean).abs() > init.motion_threshold_mps2;
+                    a.norm_n += a.block_n;
+                    a.norm_mean += (mean - a.norm_mean) * a.block_n as f64 / a.norm_n as f64;
+                    a.block_t0 = None;
+                    a.block_sum = 0.0;
+                    a.block_n = 0;
+                }
+                moving
+            };
             let elapsed_s = (t - t0) as f64 * 1e-9;
             let done = a.n > 0 && (elapsed_s >= init.align_window_s || moving);
             if !done {
@@ -370,14 +425,18 @@ impl InsEngine {
                 for i in 0..3 {
                     a.acc_sum[i] += s.accel_mps2[i];
                     a.gyro_sum[i] += s.gyro_rps[i];
+                    a.gyro_sq_sum[i] += s.gyro_rps[i] * s.gyro_rps[i];
                 }
-                a.norm_mean += (norm - a.norm_mean) / a.n as f64;
+                if block_ns == 0 {
+                    a.norm_mean += (norm - a.norm_mean) / a.n as f64;
+                }
                 return false;
             }
         } else if a.n == 0 {
             a.n = 1;
             a.acc_sum = s.accel_mps2;
             a.gyro_sum = s.gyro_rps;
+            a.gyro_sq_sum = s.gyro_rps.map(|g| g * g);
         }
         let n = a.n.max(1) as f64;
         let mean_acc = [a.acc_sum[0] / n, a.acc_sum[1] / n, a.acc_sum[2] / n];
@@ -387,7 +446,14 @@ impl InsEngine {
             AttitudeInit::Accel => level_from_accel(mean_acc, init.yaw_rad)
                 .unwrap_or_else(|_| UnitQuaternion::from_euler_angles(0.0, 0.0, init.yaw_rad)),
         };
-        let gyro_bias = if init.gyro_bias_from_static {
+        let gyro_sd = (0..3)
+            .map(|i| {
+                (a.gyro_sq_sum[i] / n - mean_gyro[i] * mean_gyro[i])
+                    .max(0.0)
+                    .sqrt()
+            })
+            .fold(0.0, f64::max);
+        let gyro_bias = if init.gyro_bias_from_static && gyro_sd <= init.gyro_bias_max_sd_rps {
             Vector3::from(mean_gyro)
         } else {
             Vector3::zeros()
@@ -487,5 +553,97 @@ impl InsEngine {
             c.d_gyro_bias_rps,
         )
         .map_err(|_| ())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+    use super::*;
+
+    const G: f64 = 9.80665;
+
+    /// A vehicle on the floor with its motors on for 2 s (1 kHz): the
+    /// specific force shakes by +-1.5 m/s^2 sample to sample and the rates
+    /// by +-0.2 rad/s around a real yaw rotation of 0.05 rad/s, then the
+    /// thrust rises by 3 m/s^2 (lift-off). Returns the time (s) of the first
+    /// navigation state, i.e. where the alignment ended, and its state.
+    fn align_on_shaking_floor(init: InsInit) -> (f64, NavState) {
+        let mut e = InsEngine::new(InsEngineConfig {
+            init,
+            ..InsEngineConfig::default()
+        })
+        .unwrap();
+        for k in 0..3000u64 {
+            let t = k as f64 * 1e-3;
+            let shake = if k % 2 == 0 { 1.5 } else { -1.5 };
+            let lift = if t >= 2.0 { 3.0 } else { 0.0 };
+            let s = ImuSample {
+                header: Header::new(k, k * 1_000_000),
+                accel_mps2: [0.0, 0.0, G + shake + lift],
+                gyro_rps: [shake * 0.13, -shake * 0.13, 0.05],
+            };
+            if let Some(n) = e.on_imu(&s) {
+                return (t, n);
+            }
+        }
+        panic!("never aligned");
+    }
+
+    #[test]
+    fn block_means_keep_the_alignment_open_until_lift_off() {
+        let init = InsInit {
+            attitude: AttitudeInit::Accel,
+            align_window_s: 10.0,
+            gyro_bias_from_static: true,
+            motion_threshold_mps2: 0.5,
+            ..InsInit::default()
+        };
+        // Per sample, the shaking ends the window at once.
+        let (t, _) = align_on_shaking_floor(init.clone());
+        assert!(t < 0.05, "{t}");
+        // 50 ms blocks: open until lift-off at 2 s.
+        let (t, nav) = align_on_shaking_floor(InsInit {
+            motion_block_s: 0.05,
+            ..init.clone()
+        });
+        assert!((2.0..2.1).contains(&t), "{t}");
+        // The window's mean rate holds the real yaw rotation: taken as a
+        // bias unless the rates' spread says the IMU was not still.
+        assert!((nav.gyro_bias_rps[2] - 0.05).abs() < 1e-6, "{nav:?}");
+        let (_, nav) = align_on_shaking_floor(InsInit {
+            motion_block_s: 0.05,
+            gyro_bias_max_sd_rps: 0.02,
+            ..init
+        });
+        assert_eq!(nav.gyro_bias_rps, [0.0; 3]);
+    }
+
+    #[test]
+    fn alignment_settings_are_checked() {
+        for (init, key) in [
+            (
+                InsInit {
+                    motion_block_s: -1.0,
+                    ..InsInit::default()
+                },
+                "init.motion_block_s",
+            ),
+            (
+                InsInit {
+                    gyro_bias_max_sd_rps: 0.0,
+                    ..InsInit::default()
+                },
+                "init.gyro_bias_max_sd_rps",
+            ),
+        ] {
+            let e = InsEngine::new(InsEngineConfig {
+                init,
+                ..InsEngineConfig::default()
+            })
+            .unwrap_err();
+            assert!(e.to_string().contains(key), "{e}");
+        }
     }
 }

@@ -117,6 +117,15 @@ pub struct FixConfig {
     /// Multilateration settings; `solver.tdoa_sigma_m` is the TDOA sigma of
     /// the fix covariance.
     pub solver: SolverConfig,
+    /// Solve each epoch from the mean of every measurement of a pair in it
+    /// instead of the pair's latest one. Default false. At 50 Hz per pair
+    /// (UTIL TDOA2) a 0.1 s epoch holds about five measurements of each
+    /// pair, whose independent part the mean averages; a difference more
+    /// than `average_gate_m` from the pair's mean so far in the epoch is
+    /// left out of it (an NLOS jump), and counted as superseded.
+    pub average_pairs: bool,
+    /// See `average_pairs`, m. Default 1.0.
+    pub average_gate_m: f64,
 }
 
 impl Default for FixConfig {
@@ -128,6 +137,8 @@ impl Default for FixConfig {
             max_pairs: 64,
             velocity: VelocityConfig::default(),
             solver: SolverConfig::default(),
+            average_pairs: false,
+            average_gate_m: 1.0,
         }
     }
 }
@@ -188,6 +199,9 @@ impl FixConfig {
                 ">= 3 (3D) and <= max_pairs"
             };
             return fail("min_pairs", req, self.min_pairs as f64);
+        }
+        if !(self.average_gate_m.is_finite() && self.average_gate_m > 0.0) {
+            return fail("average_gate_m", "finite and > 0", self.average_gate_m);
         }
         self.velocity.validate()?;
         self.solver.validate()?;
@@ -302,6 +316,9 @@ pub struct FixBuilder {
     keys: Vec<(u32, u32)>,
     /// Observations of the open epoch, oriented A = min id, B = max id.
     obs: Vec<TdoaObs>,
+    /// Per pair of the open epoch: the differences averaged so far (sum,
+    /// count), oriented as `obs` (`average_pairs`).
+    sums: Vec<(f64, u32)>,
     /// Epoch index of the open group.
     epoch: Option<u64>,
     /// Time of the latest accepted measurement.
@@ -327,6 +344,7 @@ impl FixBuilder {
             phase_ns: 0,
             keys: Vec::with_capacity(cfg.max_pairs),
             obs: Vec::with_capacity(cfg.max_pairs),
+            sums: Vec::with_capacity(cfg.max_pairs),
             epoch: None,
             last_time_ns: None,
             prev_pos_m: None,
@@ -367,6 +385,7 @@ impl FixBuilder {
     pub fn reset(&mut self) {
         self.keys.clear();
         self.obs.clear();
+        self.sums.clear();
         self.epoch = None;
         self.last_time_ns = None;
         self.prev_pos_m = None;
@@ -406,14 +425,22 @@ impl FixBuilder {
         };
         match self.keys.iter().position(|q| *q == key) {
             Some(i) => {
-                if let Some(slot) = self.obs.get_mut(i) {
-                    *slot = o;
+                let (avg, gate) = (self.cfg.average_pairs, self.cfg.average_gate_m);
+                if let (Some(slot), Some(sum)) = (self.obs.get_mut(i), self.sums.get_mut(i)) {
+                    if !avg {
+                        *slot = o;
+                    } else if sum.1 > 0 && (o.diff_m - sum.0 / f64::from(sum.1)).abs() <= gate {
+                        sum.0 += o.diff_m;
+                        sum.1 += 1;
+                        slot.diff_m = sum.0 / f64::from(sum.1);
+                    }
                 }
                 self.stats.superseded += 1;
             }
             None => {
                 // Capacity was checked in `check` (or the table was just emptied).
                 self.keys.push(key);
+                self.sums.push((o.diff_m, 1));
                 self.obs.push(o);
             }
         }
@@ -495,6 +522,7 @@ impl FixBuilder {
         let result = self.solve_group();
         self.keys.clear();
         self.obs.clear();
+        self.sums.clear();
         match result {
             Ok((fix, seed)) => {
                 if seed != Seed::Init && self.prev_pos_m.is_some() {
