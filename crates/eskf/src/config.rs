@@ -158,6 +158,14 @@ pub struct EskfConfig {
     /// Largest process-noise scale `alpha` (multiplies every density's
     /// square). Default 100 (densities up to tenfold).
     pub q_scale_max: f64,
+    /// Horizontal specific force below which the TDOA updates leave the yaw
+    /// and the yaw-rate bias alone, m/s^2; 0 (default) always updates them.
+    /// Without a magnetometer the yaw is observable only through horizontal
+    /// acceleration; near hover, velocity errors from an accelerometer bias
+    /// not yet learnt (vibration rectification, UTIL: up to 3.6 m/s^2 at
+    /// lift-off) would otherwise be read as a heading error, tens of degrees
+    /// of it.
+    pub yaw_min_excitation_mps2: f64,
     /// Apply the reset Jacobian `G = I - [d_att / 2 x]` to the attitude block
     /// of `P` when a correction is taken (Sola 2017, eq. 287). Default true;
     /// false keeps `P` unchanged (identity Jacobian).
@@ -192,6 +200,7 @@ impl Default for EskfConfig {
             q_adapt_time_s: 0.0,
             q_adapt_decay_factor: 20.0,
             q_scale_max: 100.0,
+            yaw_min_excitation_mps2: 0.0,
             reset_jacobian: true,
         }
     }
@@ -305,6 +314,12 @@ impl EskfConfig {
         check("max_dt_s", self.max_dt_s, "> 0", pos)?;
         check("q_adapt_time_s", self.q_adapt_time_s, ">= 0", non_neg)?;
         check("q_scale_max", self.q_scale_max, ">= 1", |v| v >= 1.0)?;
+        check(
+            "yaw_min_excitation_mps2",
+            self.yaw_min_excitation_mps2,
+            ">= 0",
+            non_neg,
+        )?;
         check(
             "q_adapt_decay_factor",
             self.q_adapt_decay_factor,

@@ -486,6 +486,8 @@ pub struct Eskf {
     pairs: [PairSlot; PAIR_SLOTS],
     stats: EskfStats,
     q_adapt: QAdapt,
+    /// The specific force of the last prediction step, ENU, m/s^2.
+    f_last: [f64; 3],
 }
 
 /// Updates the process-noise scale looks back over (median window).
@@ -560,6 +562,7 @@ impl Eskf {
             pairs: [PairSlot::default(); PAIR_SLOTS],
             stats: EskfStats::default(),
             q_adapt: QAdapt::new(),
+            f_last: [0.0; 3],
         })
     }
 
@@ -630,6 +633,7 @@ impl Eskf {
         if dt_s == 0.0 {
             return Ok(());
         }
+        self.f_last = f_nav_mps2;
         let minus_f_skew = -skew(&Vector3::from(f_nav_mps2));
         // Φ P Φ^T = P + dt (F P + P F^T) + dt^2 F P F^T, with F P F^T = F (F P)^T.
         let fp = apply_f(&minus_f_skew, &rot, &self.p);
@@ -1018,6 +1022,16 @@ impl Eskf {
         }
     }
 
+    /// The yaw is held out of the updates: the last specific force given to
+    /// [`Eskf::predict`] has a horizontal part below
+    /// [`EskfConfig::yaw_min_excitation_mps2`].
+    #[must_use]
+    pub fn yaw_frozen(&self) -> bool {
+        let f = self.f_last;
+        self.config.yaw_min_excitation_mps2 > 0.0
+            && f[0].hypot(f[1]) < self.config.yaw_min_excitation_mps2
+    }
+
     /// The innovation-based scale on the process noise (1 when
     /// [`EskfConfig::q_adapt_time_s`] is 0).
     #[must_use]
@@ -1123,9 +1137,18 @@ impl Eskf {
     /// Scalar update with gain `K = c / (hph + r)`, `c = P h`:
     /// `δx += K v`, Joseph form `P <- (I - K h^T) P (I - K h^T)^T + K r K^T
     /// = P - K c^T - c K^T + (hph + r) K K^T`.
+    ///
+    /// While the yaw is unobservable (horizontal specific force below
+    /// [`EskfConfig::yaw_min_excitation_mps2`]) the gain's yaw and yaw-rate
+    /// bias entries are zero (a consider update: the Joseph form keeps `P`
+    /// consistent for any gain).
     fn scalar_update(&mut self, c: &StateVector, hph: f64, r: f64, v: f64) {
         let s = hph + r;
-        let k = c / s;
+        let mut k = c / s;
+        if self.yaw_frozen() {
+            k[IDX_ATT + 2] = 0.0;
+            k[IDX_GYRO_BIAS + 2] = 0.0;
+        }
         self.x += k * v;
         let kc = k * c.transpose();
         self.p += k * k.transpose() * s - kc - kc.transpose();

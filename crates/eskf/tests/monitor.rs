@@ -419,3 +419,31 @@ fn process_noise_scale_follows_the_innovations() {
     };
     assert_eq!(bad.validate().unwrap_err().key, "q_adapt_decay_factor");
 }
+
+/// Below `yaw_min_excitation_mps2` of horizontal specific force the
+/// updates leave the yaw and the yaw-rate bias alone (the other states are
+/// updated as before); above it, or with the setting at 0, they move.
+#[test]
+fn yaw_is_held_while_unobservable() {
+    let an = anchors();
+    let lever = [0.3, 0.0, 0.1];
+    let yaw_after = |excitation: f64, f_h: f64| {
+        let mut f = Eskf::new(EskfConfig {
+            yaw_min_excitation_mps2: excitation,
+            ..config()
+        })
+        .unwrap();
+        f.predict(1e-3, Q0, [f_h, 0.0, G_MPS2]).unwrap();
+        let truth = [P_INS[0] + 0.1, P_INS[1], P_INS[2]];
+        let z = tdoa_at(truth, &an[0], &an[2]);
+        f.update_tdoa(P_INS, Q0, lever, an[0], an[2], z).unwrap();
+        let x = *f.state();
+        assert!(x[IDX_POS].abs() > 1e-3, "{x:?}");
+        (x[IDX_ATT + 2], x[14], f.yaw_frozen())
+    };
+    assert_eq!(yaw_after(1.0, 0.2), (0.0, 0.0, true));
+    let (yaw, _, frozen) = yaw_after(1.0, 2.0);
+    assert!(yaw.abs() > 1e-6 && !frozen);
+    let (yaw, _, frozen) = yaw_after(0.0, 0.0);
+    assert!(yaw.abs() > 1e-6 && !frozen);
+}
