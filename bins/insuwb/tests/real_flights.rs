@@ -9,7 +9,9 @@
 //!   the KF's;
 //! - `uwb`: ratio at most 1.05 on every flight.
 //!
-//! Every failing flight and bound is reported in one message. The data are
+//! Those do not hold yet, so that test is ignored; a second one, run in CI,
+//! holds the flights to today's figures with margin ([`TODAY`]) so that a
+//! regression shows. Every failing flight and bound is reported in one message. The data are
 //! not part of the repository: they are looked for at `INSUWB_UTIL_DIR`,
 //! else at `<workspace>/../shared/data/util`. When they are absent the test
 //! says so and passes, unless the environment variable `CI` is set, where it
@@ -102,8 +104,54 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
+/// Bounds against the reference: per-flight ratio limits, the tight
+/// filter's median ratio, `max_dist` and NEES limits.
+struct Bounds {
+    tight: f64,
+    tight_median: f64,
+    iakf: f64,
+    uwb: f64,
+    /// The IAKF's median ratio may not exceed the KF's.
+    iakf_vs_kf: bool,
+    max_dist_m: f64,
+    nees: f64,
+    nees_median: (f64, f64),
+}
+
+/// Issue 16, item 1.
+const ISSUE_16: Bounds = Bounds {
+    tight: 1.0,
+    tight_median: 0.75,
+    iakf: 1.2,
+    uwb: 1.05,
+    iakf_vs_kf: true,
+    max_dist_m: 1.0,
+    nees: 20.0,
+    nees_median: (2.0, 8.0),
+};
+
+/// What the shared flights give today (docs/REAL_FLIGHTS.md), with margin:
+/// a guard against regressions while issue 16's bounds do not hold. Today:
+/// `iakf_tdoa` worst 1.35, median 1.07, `max_dist` 0.82 m, NEES median 5.5
+/// and worst 12.1; `iakf` worst 3.2; `uwb` worst 1.89.
+const TODAY: Bounds = Bounds {
+    tight: 1.5,
+    tight_median: 1.15,
+    iakf: 4.0,
+    uwb: 2.0,
+    iakf_vs_kf: false,
+    max_dist_m: 1.0,
+    nees: 20.0,
+    nees_median: (2.0, 8.0),
+};
+
 /// The bounds' failures, one line each.
 fn failures(v: &Value) -> Vec<String> {
+    failures_against(v, &ISSUE_16)
+}
+
+/// The failures against `b`, one line each.
+fn failures_against(v: &Value, b: &Bounds) -> Vec<String> {
     let mut fails = Vec::new();
     let flights = v["flights"].as_array().map_or(&[][..], Vec::as_slice);
     if flights.len() != FLIGHTS {
@@ -123,10 +171,10 @@ fn failures(v: &Value) -> Vec<String> {
             continue;
         };
         for (sol, bound) in [
-            ("iakf_tdoa", 1.0),
-            ("iakf", 1.2),
+            ("iakf_tdoa", b.tight),
+            ("iakf", b.iakf),
             ("kf", f64::INFINITY),
-            ("uwb", 1.05),
+            ("uwb", b.uwb),
         ] {
             let Some(rmse) = num(f, sol, "rmse_horizontal") else {
                 fails.push(format!("{name}: {sol} missing"));
@@ -141,15 +189,21 @@ fn failures(v: &Value) -> Vec<String> {
             }
         }
         match num(f, "iakf_tdoa", "max_dist") {
-            Some(d) if d <= 1.0 => {}
-            Some(d) => fails.push(format!("{name}: iakf_tdoa max_dist {d:.2} m, bound 1.0 m")),
+            Some(d) if d <= b.max_dist_m => {}
+            Some(d) => fails.push(format!(
+                "{name}: iakf_tdoa max_dist {d:.2} m, bound {} m",
+                b.max_dist_m
+            )),
             None => fails.push(format!("{name}: iakf_tdoa max_dist missing")),
         }
         match num(f, "iakf_tdoa", "nees_mean") {
             Some(n) => {
                 nees.push(n);
-                if n.is_nan() || n > 20.0 {
-                    fails.push(format!("{name}: iakf_tdoa nees_mean {n:.1}, bound 20"));
+                if n.is_nan() || n > b.nees {
+                    fails.push(format!(
+                        "{name}: iakf_tdoa nees_mean {n:.1}, bound {}",
+                        b.nees
+                    ));
                 }
             }
             None => fails.push(format!("{name}: iakf_tdoa nees_mean missing")),
@@ -157,16 +211,22 @@ fn failures(v: &Value) -> Vec<String> {
     }
     let med = |sol: &str| median(ratios.get(sol).cloned().unwrap_or_default());
     let m = med("iakf_tdoa");
-    if m.is_nan() || m > 0.75 {
-        fails.push(format!("iakf_tdoa: median ratio {m:.2}, bound 0.75"));
+    if m.is_nan() || m > b.tight_median {
+        fails.push(format!(
+            "iakf_tdoa: median ratio {m:.2}, bound {}",
+            b.tight_median
+        ));
     }
     let (mi, mk) = (med("iakf"), med("kf"));
-    if mi.is_nan() || mi > mk {
+    if b.iakf_vs_kf && (mi.is_nan() || mi > mk) {
         fails.push(format!("iakf: median ratio {mi:.2} above the KF's {mk:.2}"));
     }
     let mn = median(nees);
-    if !(2.0..=8.0).contains(&mn) {
-        fails.push(format!("iakf_tdoa: median nees_mean {mn:.1}, bound [2, 8]"));
+    let (lo, hi) = b.nees_median;
+    if !(lo..=hi).contains(&mn) {
+        fails.push(format!(
+            "iakf_tdoa: median nees_mean {mn:.1}, bound [{lo}, {hi}]"
+        ));
     }
     fails
 }
@@ -179,6 +239,22 @@ fn every_shared_flight_meets_the_bounds_of_issue_16() {
     };
     let v = run_batch(&dir.join(MANIFEST));
     let fails = failures(&v);
+    assert!(
+        fails.is_empty(),
+        "{} bound(s) not met over the shared UTIL flights:\n{}",
+        fails.len(),
+        fails.join("\n")
+    );
+}
+
+/// Today's figures with margin (see [`TODAY`]); runs in CI.
+#[test]
+fn every_shared_flight_holds_todays_figures() {
+    let Some(dir) = data_dir() else {
+        return;
+    };
+    let v = run_batch(&dir.join(MANIFEST));
+    let fails = failures_against(&v, &TODAY);
     assert!(
         fails.is_empty(),
         "{} bound(s) not met over the shared UTIL flights:\n{}",
