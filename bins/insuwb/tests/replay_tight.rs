@@ -1,0 +1,135 @@
+//! The real-flight default through the processes: a UTIL flight imported
+//! with `insuwb import util`, replayed through the five stages with the
+//! tight filter (`iakf_tdoa`, 1 kHz IMU), gives the fused states of
+//! `insuwb eval`'s in-process code path, epoch by epoch, within 1 mm; the
+//! fusion stage drops no TDOA difference as late.
+//!
+//! Needs the shared UTIL data (`INSUWB_UTIL_DIR`, else
+//! `<workspace>/../shared/data/util`); without them the test says so and
+//! passes, unless the environment variable `CI` is set, where it fails.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+
+use std::path::PathBuf;
+
+use common::{f, one_at_a_time, records, run, succeeded, Group};
+use insuwb_log::Record;
+
+fn data_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("INSUWB_UTIL_DIR").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/util"),
+        PathBuf::from,
+    );
+    if dir.join("cfBolt-log00").is_file() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "UTIL data not found at {}; CI is set, so this fails instead of skipping",
+        dir.display()
+    );
+    eprintln!("SKIPPED: UTIL data not found at {}", dir.display());
+    None
+}
+
+#[test]
+fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
+    let Some(data) = data_dir() else {
+        return;
+    };
+    let _lock = one_at_a_time();
+    let tmp = std::env::temp_dir().join(format!("insuwb-test-tight-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).unwrap();
+    let log = tmp.join("cf.iulog");
+    succeeded(&run(&[
+        "import",
+        "util",
+        data.join("cfBolt-log00").to_str().unwrap(),
+        "--anchors",
+        data.join("anchors-const3.txt").to_str().unwrap(),
+        "--out",
+        log.to_str().unwrap(),
+    ]));
+    let g = Group::new(
+        "tight",
+        &format!(
+            "imu = \"replay:{0}\"\nuwb = \"replay:{0}\"\nspeed = 10.0",
+            log.display()
+        ),
+        "iakf_tdoa",
+    );
+    // 51 s of data at 10x, and the start.
+    let report = g.launch(8.0, &[]);
+    assert_eq!(
+        f(&report["stages"]["fusion"], "dropped_time"),
+        0.0,
+        "{report}"
+    );
+    let piped: Vec<insuwb_msg::FusedState> = records(&g.log_dir())
+        .into_iter()
+        .filter_map(|r| match r {
+            Record::Fused(s) if s.header.flags & insuwb_msg::FusedState::FLAG_DEGRADED == 0 => {
+                Some(s)
+            }
+            _ => None,
+        })
+        .collect();
+
+    // The same log through the in-process code path of `insuwb eval`.
+    let (recs, _, header) = insuwb_log::read_all(&log).unwrap();
+    let (mut imu, mut tdoa) = (Vec::new(), Vec::new());
+    for r in recs {
+        match r {
+            Record::Imu(s) => imu.push(s),
+            Record::Tdoa(s) => tdoa.push(s),
+            _ => {}
+        }
+    }
+    #[derive(serde::Deserialize)]
+    struct Wrap {
+        fusion: insuwb_fusion::offline::FusionConfig,
+    }
+    let table: toml::Table = toml::from_str(&header.meta.entries["fusion_config"]).unwrap();
+    let mut only = toml::Table::new();
+    only.insert("fusion".into(), table["fusion"].clone());
+    let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
+    let out = insuwb_fusion::offline::run(
+        &imu,
+        &tdoa,
+        &w.fusion,
+        insuwb_msg::FilterKind::IakfTdoa,
+    )
+    .unwrap();
+    assert!(out.fused.len() > 400, "{} fused in process", out.fused.len());
+
+    // Matched by epoch: the piped state's time is the recording's plus the
+    // replay's start epoch, the same offset for all.
+    let first = piped.first().expect("no fused state recorded");
+    let offset = first
+        .header
+        .meas_time_ns
+        .checked_sub(out.fused[0].header.meas_time_ns)
+        .unwrap();
+    let (mut matched, mut worst) = (0usize, 0.0f64);
+    for p in &piped {
+        let t = p.header.meas_time_ns - offset;
+        if let Some(o) = out.fused.iter().rev().find(|o| o.header.meas_time_ns == t) {
+            let d = (0..3)
+                .map(|i| (p.pos_m[i] - o.pos_m[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            worst = worst.max(d);
+            matched += 1;
+        }
+    }
+    assert!(
+        matched + 2 >= out.fused.len(),
+        "matched {matched} of {} (piped {})",
+        out.fused.len(),
+        piped.len()
+    );
+    assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
+    let _ = std::fs::remove_dir_all(&tmp);
+}
