@@ -254,7 +254,7 @@ fn deadlines_end_a_wait_never_early_and_without_millisecond_rounding() {
         let w = st.waiter().unwrap();
         let a_imu = w.attach(&s_imu).unwrap();
         // 40 deadlines 2.3 ms ahead: epoll's millisecond timeout would end
-        // each wait at 3 ms, 700 us late.
+        // every wait at 3 ms or later, at least 700 us late.
         let mut late_us = Vec::new();
         for _ in 0..40 {
             let due = insuwb_runtime::monotonic_ns() + 2_300_000;
@@ -266,8 +266,16 @@ fn deadlines_end_a_wait_never_early_and_without_millisecond_rounding() {
         late_us.sort_unstable();
         let median = late_us[late_us.len() / 2];
         eprintln!("deadline lateness: median {median} us, all {late_us:?}");
-        // Generous (2 loaded cores): well under the 700 us of epoll rounding.
-        assert!(median < 400, "median lateness {median} us: {late_us:?}");
+        // Millisecond rounding makes every wait at least 700 us late; one
+        // wait that ended sooner shows that it is not rounded. The best of
+        // 40 and not the median: on a busy machine the scheduler delays
+        // most wake-ups by any amount (the median is a figure, in
+        // BENCHMARKS.md "IPC: one-way latency and timer wake-ups").
+        let best = late_us[0];
+        assert!(
+            best < 700,
+            "every wait ended at least {best} us late: {late_us:?}"
+        );
 
         // A deadline already passed returns at once; a publication before
         // the deadline wakes the waiter for it, and the timer armed for that
