@@ -95,14 +95,13 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
     let mut only = toml::Table::new();
     only.insert("fusion".into(), table["fusion"].clone());
     let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
-    let out = insuwb_fusion::offline::run(
-        &imu,
-        &tdoa,
-        &w.fusion,
-        insuwb_msg::FilterKind::IakfTdoa,
-    )
-    .unwrap();
-    assert!(out.fused.len() > 400, "{} fused in process", out.fused.len());
+    let out = insuwb_fusion::offline::run(&imu, &tdoa, &w.fusion, insuwb_msg::FilterKind::IakfTdoa)
+        .unwrap();
+    assert!(
+        out.fused.len() > 400,
+        "{} fused in process",
+        out.fused.len()
+    );
 
     // Matched by epoch: the piped state's time is the recording's plus the
     // replay's start epoch, the same offset for all.
