@@ -50,6 +50,13 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             }
         }
         if let Some(f) = last {
+            // The fusion stage sends no correction while no INS state comes,
+            // so a restarted INS may not learn the last id (it reads 0 from a
+            // history that holds none): it starts above any id of an earlier
+            // generation instead (2^32 corrections apart, 13 years at 10 Hz),
+            // which the fusion stage adopts as a restart's, rather than
+            // dropping every state as stale.
+            let max_id = max_id.max(u64::from(stage.generation()) << 32);
             ins.reinit_from(f.pos_m, f.vel_mps, f.quat, max_id);
             min_imu_t = f.header.meas_time_ns;
             tracing::warn!(
