@@ -19,7 +19,7 @@ use std::process::Command;
 use insuwb_log::Record;
 
 mod common;
-use common::{f, insuwb, one_at_a_time as lock, records, Group};
+use common::{f, insuwb, offline_run, one_at_a_time as lock, records, undegraded_fused, Group};
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 3";
 
@@ -179,38 +179,9 @@ fn replay_at_10x_through_the_processes_equals_eval() {
     );
     // 18 s of data at 10x.
     g.launch(4.0, &[]);
-    let piped: Vec<insuwb_msg::FusedState> = records(&g.log_dir())
-        .into_iter()
-        .filter_map(|r| match r {
-            Record::Fused(s) if s.header.flags & insuwb_msg::FusedState::FLAG_DEGRADED == 0 => {
-                Some(s)
-            }
-            _ => None,
-        })
-        .collect();
-
+    let piped = undegraded_fused(&g.log_dir());
     // The same log through the in-process code path of `insuwb eval`.
-    let (recs, _, header) = insuwb_log::read_all(&log).unwrap();
-    let mut imu = Vec::new();
-    let mut tdoa = Vec::new();
-    for r in recs {
-        match r {
-            Record::Imu(s) => imu.push(s),
-            Record::Tdoa(s) => tdoa.push(s),
-            _ => {}
-        }
-    }
-    #[derive(serde::Deserialize)]
-    struct Wrap {
-        fusion: insuwb_fusion::offline::FusionConfig,
-    }
-    let text = &header.meta.entries["fusion_config"];
-    let table: toml::Table = toml::from_str(text).unwrap();
-    let mut only = toml::Table::new();
-    only.insert("fusion".into(), table["fusion"].clone());
-    let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
-    let out =
-        insuwb_fusion::offline::run(&imu, &tdoa, &w.fusion, insuwb_msg::FilterKind::Iakf).unwrap();
+    let out = offline_run(&log, insuwb_msg::FilterKind::Iakf);
 
     assert!(
         out.fused.len() > 150,

@@ -12,31 +12,13 @@
 
 mod common;
 
-use std::path::PathBuf;
-
-use common::{f, one_at_a_time, records, run, succeeded, Group};
-use insuwb_log::Record;
-
-fn data_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("INSUWB_UTIL_DIR").map_or_else(
-        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/util"),
-        PathBuf::from,
-    );
-    if dir.join("cfBolt-log00").is_file() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "UTIL data not found at {}; CI is set, so this fails instead of skipping",
-        dir.display()
-    );
-    eprintln!("SKIPPED: UTIL data not found at {}", dir.display());
-    None
-}
+use common::{
+    f, offline_run, one_at_a_time, run, succeeded, undegraded_fused, util_data_dir, Group,
+};
 
 #[test]
 fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
-    let Some(data) = data_dir() else {
+    let Some(data) = util_data_dir("cfBolt-log00") else {
         return;
     };
     let _lock = one_at_a_time();
@@ -75,36 +57,9 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
     let dropped = f(&report["stages"]["fusion"], "dropped_time");
     let published = f(&report["stages"]["uwb"], "published");
     assert!(dropped < 0.05 * published, "{report}");
-    let piped: Vec<insuwb_msg::FusedState> = records(&g.log_dir())
-        .into_iter()
-        .filter_map(|r| match r {
-            Record::Fused(s) if s.header.flags & insuwb_msg::FusedState::FLAG_DEGRADED == 0 => {
-                Some(s)
-            }
-            _ => None,
-        })
-        .collect();
-
+    let piped = undegraded_fused(&g.log_dir());
     // The same log through the in-process code path of `insuwb eval`.
-    let (recs, _, header) = insuwb_log::read_all(&log).unwrap();
-    let (mut imu, mut tdoa) = (Vec::new(), Vec::new());
-    for r in recs {
-        match r {
-            Record::Imu(s) => imu.push(s),
-            Record::Tdoa(s) => tdoa.push(s),
-            _ => {}
-        }
-    }
-    #[derive(serde::Deserialize)]
-    struct Wrap {
-        fusion: insuwb_fusion::offline::FusionConfig,
-    }
-    let table: toml::Table = toml::from_str(&header.meta.entries["fusion_config"]).unwrap();
-    let mut only = toml::Table::new();
-    only.insert("fusion".into(), table["fusion"].clone());
-    let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
-    let out = insuwb_fusion::offline::run(&imu, &tdoa, &w.fusion, insuwb_msg::FilterKind::IakfTdoa)
-        .unwrap();
+    let out = offline_run(&log, insuwb_msg::FilterKind::IakfTdoa);
     assert!(
         out.fused.len() > 400,
         "{} fused in process",

@@ -144,3 +144,63 @@ pub fn f(v: &serde_json::Value, key: &str) -> f64 {
 pub fn records(dir: &Path) -> Vec<Record> {
     insuwb_log::read_segments(dir).unwrap().records
 }
+
+/// The shared UTIL data folder (`INSUWB_UTIL_DIR`, else
+/// `<workspace>/../shared/data/util`) when it holds `probe`; otherwise
+/// `None` after saying so, or a failure when the environment variable `CI`
+/// is set.
+pub fn util_data_dir(probe: &str) -> Option<PathBuf> {
+    let dir = std::env::var_os("INSUWB_UTIL_DIR").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/util"),
+        PathBuf::from,
+    );
+    if dir.join(probe).is_file() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{} not found (set INSUWB_UTIL_DIR); CI is set, so this fails instead of skipping",
+        dir.join(probe).display()
+    );
+    eprintln!(
+        "SKIPPED: {} not found (set INSUWB_UTIL_DIR)",
+        dir.join(probe).display()
+    );
+    None
+}
+
+/// The recording's fused states that are not degraded (coasting).
+pub fn undegraded_fused(log_dir: &Path) -> Vec<insuwb_msg::FusedState> {
+    records(log_dir)
+        .into_iter()
+        .filter_map(|r| match r {
+            Record::Fused(s) if s.header.flags & insuwb_msg::FusedState::FLAG_DEGRADED == 0 => {
+                Some(s)
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// A project log through `insuwb eval`'s in-process code path, with the
+/// fusion settings the log carries and filter `kind`.
+pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::offline::RunOutput {
+    let (recs, _, header) = insuwb_log::read_all(log).unwrap();
+    let (mut imu, mut tdoa) = (Vec::new(), Vec::new());
+    for r in recs {
+        match r {
+            Record::Imu(s) => imu.push(s),
+            Record::Tdoa(s) => tdoa.push(s),
+            _ => {}
+        }
+    }
+    #[derive(serde::Deserialize)]
+    struct Wrap {
+        fusion: insuwb_fusion::offline::FusionConfig,
+    }
+    let table: toml::Table = toml::from_str(&header.meta.entries["fusion_config"]).unwrap();
+    let mut only = toml::Table::new();
+    only.insert("fusion".into(), table["fusion"].clone());
+    let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
+    insuwb_fusion::offline::run(&imu, &tdoa, &w.fusion, kind).unwrap()
+}
