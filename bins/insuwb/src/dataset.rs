@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use insuwb_data::cflog::Integrity;
 use insuwb_eval::run::Dataset;
 use insuwb_fusion::offline::FusionConfig;
 use insuwb_log::Record;
@@ -123,8 +124,8 @@ pub fn load(
 }
 
 fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
-    let (records, tail, header) = insuwb_log::read_all(path)
-        .with_context(|| format!("{}: cannot read the log", path.display()))?;
+    // The error names the file and its cause.
+    let (records, tail, header) = insuwb_log::read_all(path)?;
     if let Some(t) = tail {
         tracing::warn!(
             "{}: {t}; using the {} records before it",
@@ -198,12 +199,6 @@ fn load_util(
         Some(c) => (ConfigFile::load(c)?, c.to_owned()),
         None => (ConfigFile::load("util")?, "built-in preset util".to_owned()),
     };
-    if ignore_crc {
-        tracing::warn!(
-            "{}: --ignore-crc: reading it even if its CRC does not match",
-            path.display()
-        );
-    }
     let flight = insuwb_data::util::load_util_flight(
         path,
         anchors,
@@ -211,6 +206,20 @@ fn load_util(
         &config.import,
     )?;
     let s = &flight.stats;
+    match &flight.integrity {
+        Integrity::CrcOk => {}
+        Integrity::CrcMismatch { stored, computed } => tracing::warn!(
+            "{}: CRC mismatch: stored {stored:#010x}, computed {computed:#010x}; \
+             reading its {} records anyway (--ignore-crc)",
+            path.display(),
+            s.records
+        ),
+        Integrity::Cut(cut) => tracing::warn!(
+            "{}: {cut}; using the {} records before it",
+            path.display(),
+            s.records
+        ),
+    }
     tracing::info!(
         "{}: {} IMU, {} TDOA, {} truth samples; skipped: {} unknown-anchor TDOA, {} backwards, {} non-finite",
         path.display(),

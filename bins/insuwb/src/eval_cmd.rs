@@ -70,7 +70,7 @@ pub struct EvalArgs {
     /// Config file ([fusion], [import], [eval]) or built-in preset name; overrides the default.
     #[arg(long)]
     pub config: Option<String>,
-    /// Read a Crazyflie log even if its CRC does not match.
+    /// Read a Crazyflie log even if its CRC does not match (a log cut short is read up to its last whole record without it).
     #[arg(long)]
     pub ignore_crc: bool,
     /// Print one JSON object on standard output (tables go to standard error).
@@ -336,8 +336,8 @@ pub fn sim(a: &SimArgs) -> Result<()> {
         .with("scenario", file.sim.name.clone())
         .with("seed", seed.to_string())
         .with(META_FUSION_CONFIG, cfg_text);
-    let mut w = LogWriter::create(&a.out, &meta, 0)
-        .with_context(|| format!("{}: cannot create the log", a.out.display()))?;
+    // The error names the file and the cause.
+    let mut w = LogWriter::create(&a.out, &meta, 0)?;
     let mut n = 0u64;
     for r in out.merged() {
         let rec = match r {
@@ -448,7 +448,7 @@ pub struct ImportUtilArgs {
     /// Config file or preset whose [fusion] settings go into the log (default: util).
     #[arg(long)]
     pub config: Option<String>,
-    /// Read the log even if its CRC does not match.
+    /// Read the log even if its CRC does not match (a log cut short is read up to its last whole record without it).
     #[arg(long)]
     pub ignore_crc: bool,
 }
@@ -463,8 +463,8 @@ pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
     cfg.eval.min_height_m = insuwb_data::segment::DEFAULT_MIN_HEIGHT_M;
     let meta = Metadata::new(format!("insuwb import util {}", a.log.display()))
         .with(META_FUSION_CONFIG, toml::to_string(&cfg)?);
-    let mut w = LogWriter::create(&a.out, &meta, 0)
-        .with_context(|| format!("{}: cannot create the log", a.out.display()))?;
+    // The error names the file and the cause.
+    let mut w = LogWriter::create(&a.out, &meta, 0)?;
     let d = &loaded.data;
     // Merge by time: truth, IMU, TDOA at equal times.
     let mut recs: Vec<(u64, u8, Record)> =

@@ -21,7 +21,9 @@ pub enum LogCmd {
         /// Only this topic (imu, uwb_tdoa, uwb_fix, nav, correction, fused, diag, truth, health).
         #[arg(long)]
         topic: Option<String>,
-        /// CSV instead of debug text.
+        /// CSV instead of debug text: topic, seq, generation, meas_time_ns,
+        /// pub_time_ns, then the sample's fields (diag: nis, fading, dim, then
+        /// dim each of innovation, innovation variance, outlier weight, R in use).
         #[arg(long)]
         csv: bool,
     },
@@ -37,8 +39,8 @@ pub fn run(c: &LogCmd) -> Result<()> {
 
 fn files_of(path: &PathBuf) -> Result<Vec<PathBuf>> {
     if path.is_dir() {
-        let segs = insuwb_log::list_segments(path)
-            .with_context(|| format!("{}: cannot list segments", path.display()))?;
+        // The errors of the log reader name the file and the cause.
+        let segs = insuwb_log::list_segments(path)?;
         if segs.is_empty() {
             bail!(
                 "{}: no seg-*.iulog segment in this directory",
@@ -54,7 +56,7 @@ fn files_of(path: &PathBuf) -> Result<Vec<PathBuf>> {
 fn info(path: &PathBuf) -> Result<()> {
     let mut out = std::io::stdout().lock();
     for f in files_of(path)? {
-        let mut r = LogReader::open(&f).with_context(|| format!("{}", f.display()))?;
+        let mut r = LogReader::open(&f)?;
         let h = r.header().clone();
         let mut counts = [0u64; Record::TOPICS.len()];
         let mut span: Option<(u64, u64)> = None;
@@ -141,12 +143,19 @@ fn csv_line(rec: &Record) -> String {
             s.yaw_rad,
             s.header.flags
         ),
-        Record::Diag(s) => format!(
-            "{head},{},{},{}",
-            s.nis,
-            s.fading,
-            f(&s.lambda[..s.dim.min(8) as usize])
-        ),
+        Record::Diag(s) => {
+            let n = s.dim.min(8) as usize;
+            format!(
+                "{head},{},{},{},{},{},{},{}",
+                s.nis,
+                s.fading,
+                n,
+                f(&s.innovation[..n]),
+                f(&s.innovation_var[..n]),
+                f(&s.lambda[..n]),
+                f(&s.r_diag[..n])
+            )
+        }
         Record::Truth(s) => format!("{head},{},{},{}", f(&s.pos_m), f(&s.vel_mps), f(&s.quat)),
         Record::Health(s) => format!(
             "{head},{},{},{},{}",
@@ -169,7 +178,7 @@ fn cat(path: &PathBuf, topic: Option<&str>, csv: bool) -> Result<()> {
     }
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     for f in files_of(path)? {
-        let mut r = LogReader::open(&f).with_context(|| format!("{}", f.display()))?;
+        let mut r = LogReader::open(&f)?;
         for rec in r.by_ref() {
             let rec = rec?;
             if topic.is_some_and(|t| t != rec.topic()) {

@@ -23,15 +23,19 @@ use std::path::{Path, PathBuf};
 use serde::de::DeserializeOwned;
 
 /// Why a configuration could not be loaded.
+///
+/// Each message is whole (file, key, cause) and no variant exposes its
+/// cause as [`std::error::Error::source`]: a report that prints the chain
+/// (`anyhow`'s `{:#}`) shows each cause once.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     /// The file could not be read.
-    #[error("{path}: cannot read: {source}")]
+    #[error("{path}: cannot read: {error}")]
     Read {
         /// The file.
         path: PathBuf,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The TOML is malformed or a key has the wrong type, an unknown name or is missing.
     #[error("{origin}: key '{key}': {message}")]
@@ -90,9 +94,9 @@ pub fn load_str<T: DeserializeOwned>(text: &str, origin: &str) -> Result<T, Conf
 /// # Errors
 /// [`ConfigError::Read`] when the file cannot be read, else as [`load_str`].
 pub fn load_file<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+    let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
         path: path.to_owned(),
-        source,
+        error,
     })?;
     load_str(&text, &path.display().to_string())
 }

@@ -15,6 +15,11 @@
 //!   variable types;
 //! - last 4 bytes: u32 CRC-32 (zlib polynomial) of every byte before it.
 //!
+//! A log cut short (the logger lost power mid-write) has no CRC and usually
+//! ends inside a record: it is read up to its last whole record, and
+//! [`CfLog::integrity`] says where it stopped ([`CutReport`]). A whole log
+//! whose CRC does not match is refused unless [`ParseOptions::ignore_crc`].
+//!
 //! The parser never panics and allocates at most in proportion to the input:
 //! every count read from the file is bounded by the bytes that remain.
 
@@ -46,9 +51,101 @@ const MAX_QUOTED_SPEC: usize = 64;
 /// How [`CfLog::parse`] treats the input.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ParseOptions {
-    /// Read the records even when the trailing CRC-32 does not match (for
-    /// logs cut short by a power loss). Default `false`: a mismatch is an error.
+    /// Read the records of a whole log even when its trailing CRC-32 does not
+    /// match. Default `false`: a mismatch is an error. A log cut short has no
+    /// CRC to check and is read up to its last whole record either way.
     pub ignore_crc: bool,
+}
+
+/// What follows the last whole record of a log cut short.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CutKind {
+    /// Nothing: the file ends right after a whole record (or the header),
+    /// without its trailing CRC-32.
+    MissingCrc,
+    /// The start of a record of a declared event, shorter than a whole record.
+    Record {
+        /// The record's event id.
+        event: u16,
+        /// The event's name.
+        name: String,
+        /// Bytes of the record in the file.
+        have: usize,
+        /// Length of a whole record of this event.
+        len: usize,
+    },
+    /// One to three bytes that do not start a record of a declared event:
+    /// the first bytes of the trailing CRC-32 (or, for a single byte, possibly
+    /// half a record's event id).
+    PartialCrc {
+        /// Bytes present.
+        have: usize,
+    },
+}
+
+impl std::fmt::Display for CutKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::MissingCrc => f.write_str("the file ends after a whole record, without its CRC-32"),
+            Self::Record {
+                event,
+                name,
+                have,
+                len,
+            } => write!(
+                f,
+                "the file ends inside a record of event {event} ({name}): {have} of its {len} bytes"
+            ),
+            Self::PartialCrc { have: 1 } => f.write_str(
+                "the file ends 1 byte after the last whole record (part of the CRC-32 or of an event id)",
+            ),
+            Self::PartialCrc { have } => write!(
+                f,
+                "the file ends inside the trailing CRC-32: {have} of its {CRC_LEN} bytes"
+            ),
+        }
+    }
+}
+
+/// Where and why reading a log cut short stopped.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CutReport {
+    /// Byte offset just after the last whole record (the end of the header
+    /// when there is none): every record before it was read, and the file
+    /// can be truncated there.
+    pub offset: usize,
+    /// Bytes from `offset` to the end of the file, not read.
+    pub bytes_ignored: usize,
+    /// What those bytes are.
+    pub kind: CutKind,
+}
+
+impl std::fmt::Display for CutReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "cut short at byte {}: {}; {} byte(s) ignored, no CRC to check",
+            self.offset, self.kind, self.bytes_ignored
+        )
+    }
+}
+
+/// How a parsed log ends: what its CRC-32 says about the records read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Integrity {
+    /// The trailing CRC-32 matches every byte before it.
+    CrcOk,
+    /// The log is whole but its CRC-32 does not match: some byte is wrong.
+    /// Only returned with [`ParseOptions::ignore_crc`].
+    CrcMismatch {
+        /// CRC stored in the last 4 bytes.
+        stored: u32,
+        /// CRC computed over the bytes before it.
+        computed: u32,
+    },
+    /// The log was cut short: every whole record was read, nothing checked
+    /// them.
+    Cut(CutReport),
 }
 
 /// Type of one logged variable, from the letter in its `name(T)` spec.
@@ -314,6 +411,213 @@ struct RawRecord {
     first_value: usize,
 }
 
+/// The header of a log, as needed to walk its records (internal).
+struct Layout<'a> {
+    /// Format version (1: u32 ms timestamps, 2: u64 us).
+    version: u16,
+    /// Byte offset of the first record: the end of the header.
+    records_at: usize,
+    /// The event descriptors.
+    events: &'a [EventDescriptor],
+    /// Event id to index into `events`.
+    index_of: &'a HashMap<u16, usize>,
+}
+
+/// Where a walk over the records stopped (internal).
+#[derive(Debug, Clone, Copy)]
+enum Stop {
+    /// At the end of the input, after a whole record (or the header).
+    End,
+    /// One byte left: not even an event id.
+    ShortId,
+    /// A record of an event id the header does not declare.
+    Unknown {
+        /// The id.
+        id: u16,
+    },
+    /// A record of a declared event that runs past the end of the input.
+    Partial {
+        /// Index into the descriptors.
+        event: usize,
+        /// The event id.
+        id: u16,
+        /// Length of a whole record of this event.
+        len: usize,
+    },
+}
+
+/// The whole records found from the header's end, and why the walk stopped (internal).
+struct Walk {
+    records: Vec<RawRecord>,
+    values: Vec<Value>,
+    /// Byte offset just after the last whole record: where the walk stopped.
+    end: usize,
+    /// The input's length.
+    input_len: usize,
+    stop: Stop,
+}
+
+impl Layout<'_> {
+    /// Length of one record of the event `desc`: id, timestamp, payload.
+    fn record_len(&self, desc: &EventDescriptor) -> usize {
+        let time_len = if self.version == 1 { 4 } else { 8 };
+        2 + time_len + desc.payload_len()
+    }
+
+    /// Reads the records of a whole log or of one cut short (see [`CfLog::parse`]).
+    fn read(&self, bytes: &[u8], opts: &ParseOptions) -> Result<(Walk, Integrity), CfLogError> {
+        // A whole log: records, then the CRC-32 of every byte before them.
+        let crc = bytes
+            .len()
+            .checked_sub(CRC_LEN)
+            .filter(|&n| n >= self.records_at)
+            .and_then(|n| {
+                let (body, tail) = bytes.split_at(n);
+                let stored = u32::from_le_bytes(tail.try_into().ok()?);
+                Some((body, stored, crc32fast::hash(body)))
+            });
+        if let Some((body, stored, computed)) = crc {
+            if stored == computed {
+                let walk = self.walk(body);
+                walk.check_whole()?;
+                return Ok((walk, Integrity::CrcOk));
+            }
+        }
+        // No CRC that matches: a log cut short runs its records to its end.
+        let walk = self.walk(bytes);
+        if let Some(cut) = walk.cut_report(self.events) {
+            return Ok((walk, Integrity::Cut(cut)));
+        }
+        // Not cut: a whole log with a wrong byte, or garbled records.
+        let Some((body, stored, computed)) = crc else {
+            // Not reached: with no room for a CRC, fewer than 4 bytes follow
+            // the last whole record, which reads as a cut.
+            walk.check_whole()?;
+            return Err(CfLogError::TruncatedHeader {
+                offset: bytes.len(),
+                what: "CRC-32",
+            });
+        };
+        if !opts.ignore_crc {
+            return Err(CfLogError::CrcMismatch { stored, computed });
+        }
+        let walk = self.walk(body);
+        walk.check_whole()?;
+        Ok((walk, Integrity::CrcMismatch { stored, computed }))
+    }
+
+    /// Decodes the records of `buf` from the header's end while they are whole
+    /// and declared. Never fails: [`Walk::stop`] says why it ended.
+    fn walk(&self, buf: &[u8]) -> Walk {
+        let mut cur = Cursor {
+            buf,
+            pos: self.records_at,
+        };
+        let mut records = Vec::new();
+        let mut values = Vec::new();
+        let mut end = self.records_at;
+        let stop = loop {
+            let offset = cur.pos;
+            if cur.remaining() == 0 {
+                break Stop::End;
+            }
+            let Some(id) = cur.u16() else {
+                break Stop::ShortId;
+            };
+            let Some(event) = self.index_of.get(&id).copied() else {
+                break Stop::Unknown { id };
+            };
+            let Some(desc) = self.events.get(event) else {
+                break Stop::Unknown { id };
+            };
+            let len = self.record_len(desc);
+            let time_us = if self.version == 1 {
+                cur.u32().map(|ms| u64::from(ms) * 1000)
+            } else {
+                cur.u64()
+            };
+            let payload = cur.take(desc.payload_len());
+            let partial = Stop::Partial { event, id, len };
+            let (Some(time_us), Some(payload)) = (time_us, payload) else {
+                break partial;
+            };
+            let first_value = values.len();
+            let mut at = 0usize;
+            for var in &desc.variables {
+                let size = var.ty.size();
+                // Always decodes: the payload holds exactly the variables' sizes.
+                let Some(value) = payload.get(at..at + size).and_then(|b| var.ty.decode(b)) else {
+                    break;
+                };
+                values.push(value);
+                at += size;
+            }
+            if values.len() - first_value != desc.variables.len() {
+                values.truncate(first_value);
+                break partial;
+            }
+            records.push(RawRecord {
+                event,
+                time_us,
+                offset,
+                first_value,
+            });
+            end = cur.pos;
+        };
+        Walk {
+            records,
+            values,
+            end,
+            input_len: buf.len(),
+            stop,
+        }
+    }
+}
+
+impl Walk {
+    /// The error of a walk over a log that should be whole up to the CRC:
+    /// anything but [`Stop::End`].
+    fn check_whole(&self) -> Result<(), CfLogError> {
+        let offset = self.end;
+        match self.stop {
+            Stop::End => Ok(()),
+            Stop::ShortId => Err(CfLogError::TrailingBytes {
+                offset,
+                len: self.input_len - offset,
+            }),
+            Stop::Unknown { id } => Err(CfLogError::UnknownEventId { id, offset }),
+            Stop::Partial { id, .. } => Err(CfLogError::TruncatedRecord { offset, event: id }),
+        }
+    }
+
+    /// The report of a log cut short, if the walk over the whole file reads
+    /// as one: it ran to the end of the file, or stopped at its last bytes,
+    /// fewer than a whole record (of a declared event) or than a CRC.
+    fn cut_report(&self, events: &[EventDescriptor]) -> Option<CutReport> {
+        let have = self.input_len - self.end;
+        let kind = match self.stop {
+            Stop::End => CutKind::MissingCrc,
+            Stop::Partial { event, len, .. } => {
+                let desc = events.get(event)?;
+                CutKind::Record {
+                    event: desc.id,
+                    name: desc.name.clone(),
+                    have,
+                    len,
+                }
+            }
+            Stop::ShortId => CutKind::PartialCrc { have },
+            Stop::Unknown { .. } if have < CRC_LEN => CutKind::PartialCrc { have },
+            Stop::Unknown { .. } => return None,
+        };
+        Some(CutReport {
+            offset: self.end,
+            bytes_ignored: have,
+            kind,
+        })
+    }
+}
+
 /// A parsed Crazyflie event log: descriptors and every record, in file order.
 #[derive(Debug, Clone)]
 pub struct CfLog {
@@ -321,8 +625,7 @@ pub struct CfLog {
     events: Vec<EventDescriptor>,
     records: Vec<RawRecord>,
     values: Vec<Value>,
-    crc_stored: u32,
-    crc_computed: u32,
+    integrity: Integrity,
 }
 
 /// One record of a [`CfLog`].
@@ -445,15 +748,29 @@ pub fn is_cflog(bytes: &[u8]) -> bool {
 }
 
 impl CfLog {
-    /// Parses a whole log file.
+    /// Parses a log file: a whole one, or one cut short.
     ///
-    /// Checks, in order: the magic, the version, the CRC (unless
-    /// `opts.ignore_crc`), the event descriptors (unique ids, UTF-8 names,
-    /// `name(T)` specs with known type letters) and every record (declared
-    /// event id, complete timestamp and payload).
+    /// Checks, in order: the magic, the version, the event descriptors
+    /// (unique ids, UTF-8 names, `name(T)` specs with known type letters),
+    /// then the records and the CRC:
+    /// - when the last 4 bytes are the CRC-32 of the bytes before them, every
+    ///   record up to them must be whole and declared ([`Integrity::CrcOk`]);
+    /// - otherwise, when the records run to the end of the file and only the
+    ///   last one (or the CRC) is incomplete, the log was cut short: its whole
+    ///   records are returned with a [`CutReport`] ([`Integrity::Cut`]),
+    ///   whatever `opts.ignore_crc`;
+    /// - otherwise the log is whole with a wrong byte somewhere: an error
+    ///   unless `opts.ignore_crc`, which reads its records anyway
+    ///   ([`Integrity::CrcMismatch`]).
+    ///
+    /// A whole log whose CRC is wrong and starts with a declared event id
+    /// reads the same as a log cut 4 bytes into a record: it is returned as
+    /// cut (the same records, with a report), a chance of about one in
+    /// 65536 / (number of event types) for a damaged file.
     ///
     /// # Errors
-    /// A [`CfLogError`] naming the first problem found and its byte offset.
+    /// A [`CfLogError`] naming the first problem found and its byte offset:
+    /// a damaged header, a record of an undeclared event id, a CRC mismatch.
     pub fn parse(bytes: &[u8], opts: &ParseOptions) -> Result<Self, CfLogError> {
         let magic = *bytes.first().ok_or(CfLogError::TruncatedHeader {
             offset: 0,
@@ -462,57 +779,32 @@ impl CfLog {
         if magic != MAGIC {
             return Err(CfLogError::BadMagic { found: magic });
         }
-        let mut head = Cursor { buf: bytes, pos: 1 };
-        let version = head.u16().ok_or(CfLogError::TruncatedHeader {
+        let mut cur = Cursor { buf: bytes, pos: 1 };
+        let version = cur.u16().ok_or(CfLogError::TruncatedHeader {
             offset: 1,
             what: "version",
         })?;
         if version != 1 && version != 2 {
             return Err(CfLogError::UnsupportedVersion { version });
         }
-        let n_events = head.u16().ok_or(CfLogError::TruncatedHeader {
+        let n_events = cur.u16().ok_or(CfLogError::TruncatedHeader {
             offset: 3,
             what: "event count",
         })?;
-        let body_len = bytes
-            .len()
-            .checked_sub(CRC_LEN)
-            .filter(|&n| n >= HEADER_LEN)
-            .ok_or(CfLogError::TruncatedHeader {
-                offset: bytes.len(),
-                what: "CRC-32",
-            })?;
-        let (body, crc_bytes) = bytes.split_at(body_len);
-        let crc_stored =
-            u32::from_le_bytes(
-                crc_bytes
-                    .try_into()
-                    .map_err(|_| CfLogError::TruncatedHeader {
-                        offset: body_len,
-                        what: "CRC-32",
-                    })?,
-            );
-        let crc_computed = crc32fast::hash(body);
-        if !opts.ignore_crc && crc_stored != crc_computed {
-            return Err(CfLogError::CrcMismatch {
-                stored: crc_stored,
-                computed: crc_computed,
-            });
-        }
-
-        let mut cur = Cursor {
-            buf: body,
-            pos: HEADER_LEN,
-        };
         let (events, index_of) = Self::parse_descriptors(&mut cur, n_events)?;
-        let (records, values) = Self::parse_records(&mut cur, version, &events, &index_of)?;
+        let layout = Layout {
+            version,
+            records_at: cur.pos,
+            events: &events,
+            index_of: &index_of,
+        };
+        let (walk, integrity) = layout.read(bytes, opts)?;
         Ok(Self {
             version,
             events,
-            records,
-            values,
-            crc_stored,
-            crc_computed,
+            records: walk.records,
+            values: walk.values,
+            integrity,
         })
     }
 
@@ -568,53 +860,6 @@ impl CfLog {
         Ok((events, index_of))
     }
 
-    /// Parses the records from the cursor to the end of the body.
-    fn parse_records(
-        cur: &mut Cursor<'_>,
-        version: u16,
-        events: &[EventDescriptor],
-        index_of: &HashMap<u16, usize>,
-    ) -> Result<(Vec<RawRecord>, Vec<Value>), CfLogError> {
-        let mut records = Vec::new();
-        let mut values = Vec::new();
-        while cur.remaining() > 0 {
-            let offset = cur.pos;
-            let id = cur.u16().ok_or(CfLogError::TrailingBytes {
-                offset,
-                len: cur.remaining(),
-            })?;
-            let event = *index_of
-                .get(&id)
-                .ok_or(CfLogError::UnknownEventId { id, offset })?;
-            let truncated = CfLogError::TruncatedRecord { offset, event: id };
-            let time_us = if version == 1 {
-                u64::from(cur.u32().ok_or_else(|| truncated.clone())?) * 1000
-            } else {
-                cur.u64().ok_or_else(|| truncated.clone())?
-            };
-            let desc = events.get(event).ok_or_else(|| truncated.clone())?;
-            let payload = cur.take(desc.payload_len()).ok_or(truncated)?;
-            let first_value = values.len();
-            let mut at = 0usize;
-            for var in &desc.variables {
-                let size = var.ty.size();
-                let value = payload
-                    .get(at..at + size)
-                    .and_then(|b| var.ty.decode(b))
-                    .ok_or(CfLogError::TruncatedRecord { offset, event: id })?;
-                values.push(value);
-                at += size;
-            }
-            records.push(RawRecord {
-                event,
-                time_us,
-                offset,
-                first_value,
-            });
-        }
-        Ok((records, values))
-    }
-
     /// Format version of the log (1: u32 ms timestamps, 2: u64 us).
     #[must_use]
     pub fn version(&self) -> u16 {
@@ -645,23 +890,27 @@ impl CfLog {
         self.records.is_empty()
     }
 
-    /// CRC-32 stored in the last 4 bytes.
+    /// What the CRC-32 says: it matches, it does not (read because of
+    /// [`ParseOptions::ignore_crc`]), or the log was cut short.
     #[must_use]
-    pub fn crc_stored(&self) -> u32 {
-        self.crc_stored
+    pub fn integrity(&self) -> &Integrity {
+        &self.integrity
     }
 
-    /// CRC-32 computed over the bytes before it.
+    /// Where the log was cut short, if it was.
     #[must_use]
-    pub fn crc_computed(&self) -> u32 {
-        self.crc_computed
+    pub fn cut(&self) -> Option<&CutReport> {
+        match &self.integrity {
+            Integrity::Cut(cut) => Some(cut),
+            Integrity::CrcOk | Integrity::CrcMismatch { .. } => None,
+        }
     }
 
-    /// Whether the stored and computed CRCs agree (false is only possible
-    /// with [`ParseOptions::ignore_crc`]).
+    /// Whether the trailing CRC-32 matches (false for a log cut short, or
+    /// one read with [`ParseOptions::ignore_crc`] whose CRC does not match).
     #[must_use]
     pub fn crc_ok(&self) -> bool {
-        self.crc_stored == self.crc_computed
+        self.integrity == Integrity::CrcOk
     }
 
     /// The record at index `i` (file order).
@@ -796,6 +1045,11 @@ mod tests {
         assert!(err.to_string().contains("CRC mismatch"));
         let log = CfLog::parse(&bytes, &ParseOptions { ignore_crc: true }).unwrap();
         assert!(!log.crc_ok());
+        assert!(log.cut().is_none());
+        assert_eq!(
+            log.integrity(),
+            &Integrity::CrcMismatch { stored, computed }
+        );
         assert_eq!(log.len(), 4);
     }
 
@@ -899,27 +1153,169 @@ mod tests {
         );
     }
 
+    /// Offsets of the records of a whole log and of its CRC: record `i`
+    /// spans `bounds[i]..bounds[i + 1]`, the CRC starts at the last one.
+    fn record_bounds(full: &[u8]) -> Vec<usize> {
+        let whole = CfLog::parse(full, &ParseOptions::default()).unwrap();
+        let mut bounds: Vec<usize> = whole.records().map(|r| r.offset).collect();
+        bounds.push(full.len() - CRC_LEN);
+        bounds
+    }
+
     #[test]
-    fn every_truncation_is_an_error_or_a_prefix() {
+    fn every_cut_reads_the_whole_records_before_it() {
         for version in [1, 2] {
             let full = sample(version);
-            let reference = CfLog::parse(&full, &ParseOptions::default()).unwrap();
+            let whole = CfLog::parse(&full, &ParseOptions::default()).unwrap();
+            assert_eq!(whole.integrity(), &Integrity::CrcOk);
+            assert!(whole.cut().is_none());
+            let bounds = record_bounds(&full);
+            let (header_end, crc_at) = (bounds[0], full.len() - CRC_LEN);
+            // The CRC's first bytes do not name a declared event (7, 2, 300).
+            let crc_id = u16::from_le_bytes([full[crc_at], full[crc_at + 1]]);
+            assert!(![7, 2, 300].contains(&crc_id), "pick another sample");
             for cut in 0..full.len() {
-                let part = &full[..cut];
-                assert!(
-                    CfLog::parse(part, &ParseOptions::default()).is_err(),
-                    "cut at {cut} accepted with CRC check"
-                );
-                if let Ok(log) = CfLog::parse(part, &ParseOptions { ignore_crc: true }) {
-                    assert!(log.len() < reference.len(), "cut {cut}");
-                    for (a, b) in log.records().zip(reference.records()) {
-                        assert_eq!(a.time_us, b.time_us);
-                        assert_eq!(a.values, b.values);
+                for ignore_crc in [false, true] {
+                    let res = CfLog::parse(&full[..cut], &ParseOptions { ignore_crc });
+                    if cut < header_end {
+                        assert!(
+                            matches!(res, Err(CfLogError::TruncatedHeader { .. })),
+                            "v{version} cut at {cut}: {res:?}"
+                        );
+                        continue;
                     }
+                    let log = res.unwrap_or_else(|e| panic!("v{version} cut at {cut}: {e}"));
+                    // Whole records: those that end at or before the cut.
+                    let n = bounds[1..].iter().filter(|&&end| end <= cut).count();
+                    let stop = bounds[n];
+                    assert_eq!(log.len(), n, "v{version} cut at {cut}");
+                    for (a, b) in log.records().zip(whole.records()) {
+                        assert_eq!(
+                            (a.offset, a.time_us, a.values, &a.event.name),
+                            (b.offset, b.time_us, b.values, &b.event.name)
+                        );
+                    }
+                    assert!(!log.crc_ok());
+                    let report = log.cut().expect("a cut log has a report");
+                    let have = cut - stop;
+                    let kind = if have == 0 {
+                        CutKind::MissingCrc
+                    } else if stop == crc_at || have == 1 {
+                        CutKind::PartialCrc { have }
+                    } else {
+                        let next = whole.record(n).unwrap();
+                        CutKind::Record {
+                            event: next.event.id,
+                            name: next.event.name.clone(),
+                            have,
+                            len: bounds[n + 1] - stop,
+                        }
+                    };
+                    assert_eq!(
+                        report,
+                        &CutReport {
+                            offset: stop,
+                            bytes_ignored: have,
+                            kind
+                        },
+                        "v{version} cut at {cut}"
+                    );
+                    let msg = report.to_string();
+                    assert!(
+                        msg.starts_with(&format!("cut short at byte {stop}: ")),
+                        "{msg}"
+                    );
                 }
-                let _ = is_cflog(part);
             }
         }
+    }
+
+    #[test]
+    fn cut_reports_say_what_was_cut() {
+        let full = sample(2);
+        let bounds = record_bounds(&full);
+        let opts = ParseOptions::default();
+        // Inside record 3 (event 7 "all", 28 bytes): 5 of its bytes.
+        let log = CfLog::parse(&full[..bounds[3] + 5], &opts).unwrap();
+        assert_eq!(log.len(), 3);
+        assert_eq!(
+            log.cut().unwrap().to_string(),
+            format!(
+                "cut short at byte {}: the file ends inside a record of event 7 (all): \
+                 5 of its 28 bytes; 5 byte(s) ignored, no CRC to check",
+                bounds[3]
+            )
+        );
+        // At a record boundary: only the CRC is missing.
+        let log = CfLog::parse(&full[..bounds[2]], &opts).unwrap();
+        assert_eq!(log.len(), 2);
+        assert_eq!(
+            log.cut().unwrap().to_string(),
+            format!(
+                "cut short at byte {}: the file ends after a whole record, without its CRC-32; \
+                 0 byte(s) ignored, no CRC to check",
+                bounds[2]
+            )
+        );
+        // Inside the CRC: every record is there.
+        let log = CfLog::parse(&full[..full.len() - 1], &opts).unwrap();
+        assert_eq!(log.len(), 4);
+        assert_eq!(
+            log.cut().unwrap().kind,
+            CutKind::PartialCrc { have: CRC_LEN - 1 }
+        );
+        assert!(log
+            .cut()
+            .unwrap()
+            .to_string()
+            .contains("inside the trailing CRC-32: 3 of its 4 bytes"));
+    }
+
+    #[test]
+    fn garbled_records_are_not_a_cut() {
+        // An undeclared event id in the middle: a CRC mismatch, not a cut.
+        let mut b = sample(2);
+        let bounds = record_bounds(&b);
+        b[bounds[1]] = 99;
+        let err = CfLog::parse(&b, &ParseOptions::default()).unwrap_err();
+        assert!(matches!(err, CfLogError::CrcMismatch { .. }), "{err:?}");
+        assert_eq!(
+            CfLog::parse(&b, &ParseOptions { ignore_crc: true }).unwrap_err(),
+            CfLogError::UnknownEventId {
+                id: 99,
+                offset: bounds[1]
+            }
+        );
+        // Cut short after the garbled record: still garbled, not a cut.
+        let err = CfLog::parse(&b[..bounds[3] + 3], &ParseOptions { ignore_crc: true });
+        assert_eq!(
+            err.unwrap_err(),
+            CfLogError::UnknownEventId {
+                id: 99,
+                offset: bounds[1]
+            }
+        );
+    }
+
+    #[test]
+    fn a_wrong_crc_that_starts_like_a_record_reads_as_a_cut() {
+        // The ambiguous case: 4 bytes after the last whole record, starting
+        // with a declared event id, are a cut record or a wrong CRC. Read as
+        // a cut: the same records, with a report instead of an error.
+        let mut b = sample(2);
+        let n = b.len();
+        b[n - 4..n - 2].copy_from_slice(&300u16.to_le_bytes());
+        let log = CfLog::parse(&b, &ParseOptions::default()).unwrap();
+        assert_eq!(log.len(), 4);
+        assert_eq!(
+            log.cut().unwrap().kind,
+            CutKind::Record {
+                event: 300,
+                name: "one".into(),
+                have: 4,
+                len: 14
+            }
+        );
     }
 
     #[test]

@@ -28,7 +28,7 @@ mod testlog;
 pub mod util;
 
 pub use anchors::{AnchorError, Anchors};
-pub use cflog::{is_cflog, CfLog, CfLogError, ParseOptions};
+pub use cflog::{is_cflog, CfLog, CfLogError, CutKind, CutReport, Integrity, ParseOptions};
 pub use segment::{flight_segment, interpolate_truth, interpolate_truth_within};
 pub use util::{
     load_util_flight, ImportError, ImportOptions, ImportStats, LoadError, UtilFlight,

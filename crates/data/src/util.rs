@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::anchors::{AnchorError, Anchors};
-use crate::cflog::{CfLog, CfLogError, ParseOptions, Record};
+use crate::cflog::{CfLog, CfLogError, Integrity, ParseOptions, Record};
 
 /// Standard gravity, m/s^2: the Crazyflie firmware converts its accelerometer
 /// to g with this value, so g are turned back into m/s^2 with it.
@@ -208,15 +208,19 @@ pub enum ImportError {
 }
 
 /// Why [`load_util_flight`] failed; names the file.
+///
+/// Each message is whole (file and cause), and no variant exposes its cause
+/// as [`std::error::Error::source`]: a report that prints the chain
+/// (`anyhow`'s `{:#}`) shows every cause once.
 #[derive(Debug, Error)]
 pub enum LoadError {
     /// The file could not be read.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}: {error}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The OS error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The file is larger than the limit.
     #[error("{path} is {len} bytes, more than the {max} bytes allowed")]
@@ -235,23 +239,23 @@ pub enum LoadError {
         path: PathBuf,
     },
     /// The log is malformed.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Log {
         /// The file.
         path: PathBuf,
         /// The format error.
-        source: CfLogError,
+        error: CfLogError,
     },
     /// The anchor file is malformed (the error names the file).
     #[error(transparent)]
     Anchors(#[from] AnchorError),
     /// The import failed.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Import {
         /// The log file.
         path: PathBuf,
         /// The import error.
-        source: ImportError,
+        error: ImportError,
     },
 }
 
@@ -269,6 +273,9 @@ pub struct UtilFlight {
     pub start_time_us: u64,
     /// What was read and skipped.
     pub stats: ImportStats,
+    /// How the log ended: CRC checked, CRC mismatch read anyway, or cut
+    /// short (where: warn the user, the samples stop there).
+    pub integrity: Integrity,
 }
 
 /// Column indices of one event's variables, resolved once.
@@ -492,6 +499,7 @@ impl UtilFlight {
             truth,
             start_time_us,
             stats,
+            integrity: log.integrity().clone(),
         })
     }
 
@@ -508,9 +516,9 @@ impl UtilFlight {
 
 /// Reads a whole file of at most `max` bytes.
 fn read_bounded(path: &Path, max: u64) -> Result<Vec<u8>, LoadError> {
-    let io = |source| LoadError::Io {
+    let io = |error| LoadError::Io {
         path: path.to_owned(),
-        source,
+        error,
     };
     let len = std::fs::metadata(path).map_err(io)?.len();
     if len > max {
@@ -539,13 +547,13 @@ pub fn load_util_flight(
     })?;
     let anchors = Anchors::parse(&text, &anchors_path.display().to_string())?;
     let bytes = read_bounded(log_path, MAX_LOG_BYTES)?;
-    let log = CfLog::parse(&bytes, parse).map_err(|source| LoadError::Log {
+    let log = CfLog::parse(&bytes, parse).map_err(|error| LoadError::Log {
         path: log_path.to_owned(),
-        source,
+        error,
     })?;
-    UtilFlight::from_cflog_with(&log, &anchors, import).map_err(|source| LoadError::Import {
+    UtilFlight::from_cflog_with(&log, &anchors, import).map_err(|error| LoadError::Import {
         path: log_path.to_owned(),
-        source,
+        error,
     })
 }
 
@@ -718,6 +726,51 @@ mod tests {
         assert_eq!(f.imu[0].header.meas_time_ns, 1_000_000);
         assert_eq!(f.tdoa[0].header.meas_time_ns, 5_000_000);
         assert!(f.truth.is_empty());
+    }
+
+    #[test]
+    fn loads_a_cut_log_and_names_each_cause_once() {
+        let dir = std::env::temp_dir().join(format!("insuwb-data-util-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let anchors = dir.join("anchors.txt");
+        std::fs::write(&anchors, "an0_p,0,0,0\nan1_p,4,0,0\n").unwrap();
+        let recs: Vec<(u16, u64, Vec<u8>)> = (0..6)
+            .map(|k| (ACC, 1000 * (k + 1), f32s(&[0.0, 0.0, 1.0])))
+            .collect();
+        let bytes = build(2, &events(), &recs);
+        let load = |bytes: &[u8]| {
+            let path = dir.join("log");
+            std::fs::write(&path, bytes).unwrap();
+            load_util_flight(
+                &path,
+                &anchors,
+                &ParseOptions::default(),
+                &ImportOptions::default(),
+            )
+        };
+        // Cut 7 bytes into the sixth record (22 bytes each): five read.
+        let cut_at = bytes.len() - 4 - 22 + 7;
+        let f = load(&bytes[..cut_at]).unwrap();
+        assert_eq!(f.stats.accel_records, 5);
+        let Integrity::Cut(cut) = &f.integrity else {
+            panic!("{:?}", f.integrity);
+        };
+        assert_eq!((cut.offset, cut.bytes_ignored), (cut_at - 7, 7));
+        assert_eq!(load(&bytes).unwrap().integrity, Integrity::CrcOk);
+        // A wrong byte: the message names the file and the cause, once, and
+        // exposes no source that a chain would print again.
+        let mut bad = bytes.clone();
+        bad[cut_at - 10] ^= 0x40;
+        let err = load(&bad).unwrap_err();
+        let msg = err.to_string();
+        assert!(matches!(err, LoadError::Log { .. }), "{msg}");
+        assert_eq!(msg.matches("CRC mismatch").count(), 1, "{msg}");
+        assert!(
+            msg.starts_with(&dir.join("log").display().to_string()),
+            "{msg}"
+        );
+        assert!(std::error::Error::source(&err).is_none());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -49,12 +49,12 @@ pub const REFERENCE_SUFFIX: &str = "_m";
 #[derive(Debug, thiserror::Error)]
 pub enum ManifestError {
     /// The manifest could not be read.
-    #[error("{}: cannot read the manifest: {source}", path.display())]
+    #[error("{}: cannot read the manifest: {error}", path.display())]
     Read {
         /// The manifest.
         path: PathBuf,
-        /// Why.
-        source: std::io::Error,
+        /// Why (shown in the message, not exposed as the source: once in a chain).
+        error: std::io::Error,
     },
     /// The manifest has no header line.
     #[error("{}: the manifest is empty (a header line with `file` and `anchors` is needed)", path.display())]
@@ -169,9 +169,9 @@ impl Manifest {
     /// # Errors
     /// [`ManifestError`] naming the manifest, and the line and column at fault.
     pub fn load(path: &Path) -> Result<Self, ManifestError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Read {
+        let text = std::fs::read_to_string(path).map_err(|error| ManifestError::Read {
             path: path.to_owned(),
-            source,
+            error,
         })?;
         let m = Self::parse(&text, path)?;
         m.check_files()?;

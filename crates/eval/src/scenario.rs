@@ -63,10 +63,10 @@ impl ScenarioFile {
     pub fn load(name_or_path: &str) -> Result<Self, ScenarioRunError> {
         let path = std::path::Path::new(name_or_path);
         if path.extension().is_some_and(|e| e == "toml") || path.exists() {
-            let text = std::fs::read_to_string(path).map_err(|source| {
+            let text = std::fs::read_to_string(path).map_err(|error| {
                 insuwb_config::ConfigError::Read {
                     path: path.to_owned(),
-                    source,
+                    error,
                 }
             })?;
             return Self::from_str(&text, name_or_path);

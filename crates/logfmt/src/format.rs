@@ -137,7 +137,15 @@ pub enum HeaderError {
     MetaDecode(postcard::Error),
     /// Reading the header failed.
     #[error("I/O error reading the log header: {0}")]
-    Io(#[from] io::Error),
+    Io(io::Error),
+}
+
+/// Not `#[from]`: that would also expose the I/O error as the source, and a
+/// report printing the chain would show it twice (see the crate doc on errors).
+impl From<io::Error> for HeaderError {
+    fn from(e: io::Error) -> Self {
+        Self::Io(e)
+    }
 }
 
 /// Hex + escaped-ASCII rendering of a few bytes, for error messages.

@@ -26,6 +26,12 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
+//! Errors: every message is whole (what failed, the file, the cause), and
+//! no error exposes its cause as [`std::error::Error::source`], so a report
+//! that prints the chain (`anyhow`'s `{:#}`) shows each cause once, and
+//! `to_string()` loses nothing. The I/O errors stay in the variants' `error`
+//! fields (see `io_kind`).
+//!
 //! The byte-level specification follows (the same text as `docs/LOG_FORMAT.md`).
 //!
 #![doc = include_str!("../../../docs/LOG_FORMAT.md")]

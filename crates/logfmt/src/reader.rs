@@ -105,12 +105,12 @@ impl fmt::Display for TailReport {
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {
     /// The underlying read failed.
-    #[error("I/O error reading the log at byte {offset}: {source}")]
+    #[error("I/O error reading the log at byte {offset}: {error}")]
     Io {
         /// Offset of the record being read.
         offset: u64,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
 }
 
@@ -126,28 +126,28 @@ pub enum OpenError {
         reason: &'static str,
     },
     /// The file cannot be opened.
-    #[error("cannot open log {path:?}: {source}")]
+    #[error("cannot open log {path:?}: {error}")]
     Open {
         /// The path given.
         path: PathBuf,
         /// The I/O error (its kind is kept: `NotFound`, `PermissionDenied`...).
-        source: io::Error,
+        error: io::Error,
     },
     /// The file header is invalid (not a log, unsupported version, truncated).
-    #[error("{path:?}: {source}")]
+    #[error("{path:?}: {error}")]
     Header {
         /// The path given.
         path: PathBuf,
         /// What is wrong with the header.
-        source: HeaderError,
+        error: HeaderError,
     },
     /// Reading a record failed ([`read_all`] only).
-    #[error("{path:?}: {source}")]
+    #[error("{path:?}: {error}")]
     Read {
         /// The path given.
         path: PathBuf,
         /// The read error.
-        source: ReadError,
+        error: ReadError,
     },
 }
 
@@ -198,14 +198,14 @@ impl LogReader<BufReader<File>> {
                 reason: "is a directory",
             });
         }
-        let file = File::open(path).map_err(|source| OpenError::Open {
+        let file = File::open(path).map_err(|error| OpenError::Open {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
-        Self::from_reader(BufReader::with_capacity(64 * 1024, file)).map_err(|source| {
+        Self::from_reader(BufReader::with_capacity(64 * 1024, file)).map_err(|error| {
             OpenError::Header {
                 path: path.to_path_buf(),
-                source,
+                error,
             }
         })
     }
@@ -275,19 +275,19 @@ impl<R: Read> LogReader<R> {
             bytes_ignored: ignored,
             reason,
         });
-        failure.map(|source| {
+        failure.map(|error| {
             Err(ReadError::Io {
                 offset: self.offset,
-                source,
+                error,
             })
         })
     }
 
-    fn io_error(&mut self, source: io::Error) -> Option<Result<Record, ReadError>> {
+    fn io_error(&mut self, error: io::Error) -> Option<Result<Record, ReadError>> {
         self.done = true;
         Some(Err(ReadError::Io {
             offset: self.offset,
-            source,
+            error,
         }))
     }
 }
@@ -368,9 +368,9 @@ pub fn read_all(
     let mut reader = LogReader::open(path)?;
     let mut records = Vec::new();
     for rec in reader.by_ref() {
-        records.push(rec.map_err(|source| OpenError::Read {
+        records.push(rec.map_err(|error| OpenError::Read {
             path: path.to_path_buf(),
-            source,
+            error,
         })?);
     }
     let tail = reader.tail.take();

@@ -172,9 +172,9 @@ fn list_segment_files(dir: &Path) -> io::Result<Vec<SegmentFile>> {
 /// [`ReadSegmentsError::ListDir`] when the directory cannot be read.
 pub fn list_segments(dir: impl AsRef<Path>) -> Result<Vec<SegmentFile>, ReadSegmentsError> {
     let dir = dir.as_ref();
-    list_segment_files(dir).map_err(|source| ReadSegmentsError::ListDir {
+    list_segment_files(dir).map_err(|error| ReadSegmentsError::ListDir {
         path: dir.to_path_buf(),
-        source,
+        error,
     })
 }
 
@@ -236,9 +236,9 @@ impl SegmentWriter {
         }
         builder
             .create(dir)
-            .map_err(|source| CreateError::CreateDir {
+            .map_err(|error| CreateError::CreateDir {
                 path: dir.to_path_buf(),
-                source,
+                error,
             })?;
         let mut w = Self {
             dir: dir.to_path_buf(),
@@ -259,9 +259,9 @@ impl SegmentWriter {
 
     /// Opens the segment after every existing one.
     fn open_next(&mut self, now_ns: u64) -> Result<(), CreateError> {
-        let existing = list_segment_files(&self.dir).map_err(|source| CreateError::ListDir {
+        let existing = list_segment_files(&self.dir).map_err(|error| CreateError::ListDir {
             path: self.dir.clone(),
-            source,
+            error,
         })?;
         let exhausted = || CreateError::BadPath {
             path: self.dir.clone(),
@@ -440,12 +440,12 @@ impl SegmentWriter {
 #[derive(Debug, thiserror::Error)]
 pub enum ReadSegmentsError {
     /// The directory cannot be listed.
-    #[error("cannot list log directory {path:?}: {source}")]
+    #[error("cannot list log directory {path:?}: {error}")]
     ListDir {
         /// The directory.
         path: PathBuf,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
     /// A segment cannot be opened or read (not a log, unsupported version, I/O).
     #[error(transparent)]
@@ -502,10 +502,10 @@ pub fn read_segments(dir: impl AsRef<Path>) -> Result<SegmentsRead, ReadSegments
     for seg in list_segments(dir)? {
         let mut reader = match LogReader::open(&seg.path) {
             Ok(r) => r,
-            Err(OpenError::Header { source, .. })
-                if matches!(source, HeaderError::Empty | HeaderError::Truncated { .. }) =>
+            Err(OpenError::Header { error, .. })
+                if matches!(error, HeaderError::Empty | HeaderError::Truncated { .. }) =>
             {
-                let have = match source {
+                let have = match error {
                     HeaderError::Truncated { have, .. } => have,
                     _ => 0,
                 };
@@ -527,10 +527,10 @@ pub fn read_segments(dir: impl AsRef<Path>) -> Result<SegmentsRead, ReadSegments
         for rec in reader.by_ref() {
             match rec {
                 Ok(r) => out.records.push(r),
-                Err(source) => {
+                Err(error) => {
                     return Err(OpenError::Read {
                         path: seg.path,
-                        source,
+                        error,
                     }
                     .into())
                 }

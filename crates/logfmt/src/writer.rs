@@ -27,36 +27,36 @@ pub enum CreateError {
         reason: &'static str,
     },
     /// The file cannot be created (its kind is kept: `AlreadyExists`, `NotFound`, `PermissionDenied`...).
-    #[error("cannot create log {path:?}: {source}")]
+    #[error("cannot create log {path:?}: {error}")]
     Open {
         /// The file.
         path: PathBuf,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
     /// The run directory cannot be created.
-    #[error("cannot create log directory {path:?}: {source}")]
+    #[error("cannot create log directory {path:?}: {error}")]
     CreateDir {
         /// The directory.
         path: PathBuf,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
     /// The run directory cannot be listed.
-    #[error("cannot list log directory {path:?}: {source}")]
+    #[error("cannot list log directory {path:?}: {error}")]
     ListDir {
         /// The directory.
         path: PathBuf,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
     /// Writing the file header failed (disk full shows as kind `StorageFull`).
-    #[error("cannot write the header of log {path:?}: {source}")]
+    #[error("cannot write the header of log {path:?}: {error}")]
     Write {
         /// The file.
         path: PathBuf,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
     /// The metadata cannot be encoded.
     #[error(transparent)]
@@ -71,10 +71,10 @@ impl CreateError {
     #[must_use]
     pub fn io_kind(&self) -> Option<io::ErrorKind> {
         match self {
-            Self::Open { source, .. }
-            | Self::CreateDir { source, .. }
-            | Self::ListDir { source, .. }
-            | Self::Write { source, .. } => Some(source.kind()),
+            Self::Open { error, .. }
+            | Self::CreateDir { error, .. }
+            | Self::ListDir { error, .. }
+            | Self::Write { error, .. } => Some(error.kind()),
             Self::BadPath { .. } | Self::Header(_) | Self::Config(_) => None,
         }
     }
@@ -84,27 +84,27 @@ impl CreateError {
 #[derive(Debug, thiserror::Error)]
 pub enum WriteError {
     /// Writing to the file failed (disk full shows as kind `StorageFull`, i.e. ENOSPC).
-    #[error("cannot write log {path:?}: {source}")]
+    #[error("cannot write log {path:?}: {error}")]
     Write {
         /// The file.
         path: PathBuf,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
     /// fsync failed.
-    #[error("cannot sync log {path:?}: {source}")]
+    #[error("cannot sync log {path:?}: {error}")]
     Sync {
         /// The file.
         path: PathBuf,
         /// The I/O error.
-        source: io::Error,
+        error: io::Error,
     },
     /// The record cannot be encoded.
     #[error(transparent)]
     Encode(#[from] EncodeError),
     /// Opening the next segment failed (rotation or restart after an error).
     #[error("cannot open the next log segment: {0}")]
-    Rotate(#[source] CreateError),
+    Rotate(CreateError),
 }
 
 impl WriteError {
@@ -112,7 +112,7 @@ impl WriteError {
     #[must_use]
     pub fn io_kind(&self) -> Option<io::ErrorKind> {
         match self {
-            Self::Write { source, .. } | Self::Sync { source, .. } => Some(source.kind()),
+            Self::Write { error, .. } | Self::Sync { error, .. } => Some(error.kind()),
             Self::Rotate(e) => e.io_kind(),
             Self::Encode(_) => None,
         }
@@ -142,9 +142,9 @@ pub struct LogWriter {
 }
 
 fn write_frame(out: &mut BufWriter<File>, path: &Path, frame: &[u8]) -> Result<(), WriteError> {
-    out.write_all(frame).map_err(|source| WriteError::Write {
+    out.write_all(frame).map_err(|error| WriteError::Write {
         path: path.to_path_buf(),
-        source,
+        error,
     })
 }
 
@@ -177,9 +177,9 @@ pub(crate) fn create_file(path: &Path) -> Result<File, CreateError> {
         use std::os::unix::fs::OpenOptionsExt;
         opts.mode(FILE_MODE);
     }
-    opts.open(path).map_err(|source| CreateError::Open {
+    opts.open(path).map_err(|error| CreateError::Open {
         path: path.to_path_buf(),
-        source,
+        error,
     })
 }
 
@@ -207,8 +207,8 @@ impl LogWriter {
     /// Writes the encoded `header` to `file` and flushes it.
     pub(crate) fn start(path: PathBuf, file: File, header: &[u8]) -> Result<Self, CreateError> {
         let mut out = BufWriter::with_capacity(WRITE_BUFFER, file);
-        if let Err(source) = out.write_all(header).and_then(|()| out.flush()) {
-            return Err(CreateError::Write { path, source });
+        if let Err(error) = out.write_all(header).and_then(|()| out.flush()) {
+            return Err(CreateError::Write { path, error });
         }
         Ok(Self {
             path,
@@ -246,9 +246,9 @@ impl LogWriter {
     /// # Errors
     /// [`WriteError::Write`] when the write fails (kind kept, e.g. `StorageFull`).
     pub fn flush(&mut self) -> Result<(), WriteError> {
-        self.out.flush().map_err(|source| WriteError::Write {
+        self.out.flush().map_err(|error| WriteError::Write {
             path: self.path.clone(),
-            source,
+            error,
         })
     }
 
@@ -261,9 +261,9 @@ impl LogWriter {
         self.out
             .get_ref()
             .sync_all()
-            .map_err(|source| WriteError::Sync {
+            .map_err(|error| WriteError::Sync {
                 path: self.path.clone(),
-                source,
+                error,
             })
     }
 

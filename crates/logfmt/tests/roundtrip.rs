@@ -256,7 +256,7 @@ fn path_errors_are_distinguished() {
     let e = LogWriter::create(dir.join("no/such/dir.iulog"), &meta, 0).unwrap_err();
     assert_eq!(e.io_kind(), Some(ErrorKind::NotFound), "{e}");
     let e = read_all(dir.join("missing.iulog")).unwrap_err();
-    assert!(matches!(&e, OpenError::Open { source, .. } if source.kind() == ErrorKind::NotFound));
+    assert!(matches!(&e, OpenError::Open { error, .. } if error.kind() == ErrorKind::NotFound));
     // An existing file is never overwritten.
     let p = dir.join("a.iulog");
     LogWriter::create(&p, &meta, 0).unwrap().finish().unwrap();
