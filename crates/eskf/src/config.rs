@@ -1,38 +1,33 @@
 //! Configuration of the error-state filter: noise densities, initial
-//! uncertainty, TDOA noise and correlation handling, robust weighting and the
-//! divergence monitor, with defaults for a Crazyflie-class MEMS IMU at 1 kHz
-//! and the UTIL UWB TDOA system.
+//! uncertainty, TDOA noise and correlation handling, and the robust
+//! weighting, with defaults for a Crazyflie-class MEMS IMU at 1 kHz and the
+//! UTIL UWB TDOA system. Its divergence is watched by the monitor every
+//! filter shares (`insuwb_filter::DivergenceMonitor`, run by the fusion
+//! engine), not here.
 
+use insuwb_filter::LimitMode;
 use serde::{Deserialize, Serialize};
 
-/// Largest NIS window the monitor can hold (the ring buffer is a fixed array).
-pub const MAX_NIS_WINDOW: usize = 256;
+/// Keys of earlier versions, refused with a message naming what replaces
+/// them (the configuration loader adds the file and the key).
+mod removed {
+    use serde::de::{Deserializer, Error};
 
-/// How a measurement whose normalised innovation exceeds `kappa` is limited.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RobustMode {
-    /// Scale the innovation by `lambda = kappa / r` (Huber clipping at
-    /// `kappa` sigma); the gain and covariance update are the nominal ones
-    /// (READING.md erratum 13, default).
-    #[default]
-    Huber,
-    /// Keep the innovation and inflate the gain's `R` by `1 / lambda^2 =
-    /// (r / kappa)^2`, which keeps `P` consistent (erratum 13, option).
-    InflateR,
-}
+    macro_rules! removed {
+        ($($name:ident => $msg:literal),* $(,)?) => {$(
+            pub(super) fn $name<'de, D: Deserializer<'de>>(_: D) -> Result<(), D::Error> {
+                Err(D::Error::custom($msg))
+            }
+        )*};
+    }
 
-/// Statistic of the divergence monitor over the last `nis_window` updates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum NisStatistic {
-    /// Median NIS of the window (robust to the 10-20 % NLOS outliers of real
-    /// data; about 0.45 for a consistent filter).
-    #[default]
-    Median,
-    /// Mean NIS of the window, each NIS clipped at `hard_gate_sigma^2`
-    /// (about 1 for a consistent filter without outliers).
-    Mean,
+    removed! {
+        robust_mode => "renamed eskf.limit_mode (\"scale_innovation\", also read as \"huber\", or \"inflate_r\"; the IAKF's filter.limit_mode takes the same values)",
+        nis_window => "moved to fusion.engine.monitor.window (the one divergence monitor of every filter; it counts TDOA differences for this one)",
+        nis_statistic => "removed: fusion.engine.monitor counts the fraction of its window above the gate (fusion.engine.monitor.fraction; 0.5 is the former median)",
+        nis_threshold => "moved to fusion.engine.monitor.gate_per_dim (the one divergence monitor of every filter)",
+        max_reject_run_s => "moved to fusion.engine.monitor.max_reject_run_s (the one divergence monitor of every filter)",
+    }
 }
 
 /// Everything the [`crate::Eskf`] needs, in physical units.
@@ -112,8 +107,12 @@ pub struct EskfConfig {
     /// and all measurements help average the white part and vote out
     /// outliers.
     pub min_interval_per_pair_s: f64,
-    /// How outliers beyond `kappa` are limited. Default Huber (erratum 13).
-    pub robust_mode: RobustMode,
+    /// How the weight `lambda = kappa / r` of a measurement beyond `kappa`
+    /// is applied (erratum 13): `scale_innovation` (default, Huber clipping
+    /// of the innovation; `huber` is read as this) or `inflate_r` (the
+    /// gain's `R` divided by `lambda^2`, which keeps `P` consistent). The
+    /// same vocabulary as the IAKF's `filter.limit_mode`.
+    pub limit_mode: LimitMode,
     /// Normalised innovation `|v| / sqrt(S)` above which a measurement is
     /// down-weighted. Default 3 (READING.md erratum 12).
     pub kappa: f64,
@@ -121,19 +120,6 @@ pub struct EskfConfig {
     /// counted. Default 8: the in-flight NLOS errors of 0.3-1 m stay below it
     /// (and are clipped at `kappa`), take-off errors of metres are rejected.
     pub hard_gate_sigma: f64,
-    /// Number of recent updates (decimated ones excluded) the divergence
-    /// monitor looks at, at most [`MAX_NIS_WINDOW`]. Default 200 (0.5 s of
-    /// TDOA2 data at 400 Hz).
-    pub nis_window: usize,
-    /// Statistic of the window compared with `nis_threshold`. Default median.
-    pub nis_statistic: NisStatistic,
-    /// Threshold on the window statistic above which `needs_reset` is raised.
-    /// Default 9 (for the median: half the measurements beyond 3 sigma; for
-    /// the mean a value near 9 also suits).
-    pub nis_threshold: f64,
-    /// Consecutive rejections lasting longer than this, s, raise
-    /// `needs_reset`. Default 1.0.
-    pub max_reject_run_s: f64,
     /// Largest accepted prediction step, s. Default 0.1 (IMU gaps of up to
     /// 42 ms occur in the UTIL logs; longer gaps must be handled by the
     /// caller).
@@ -170,6 +156,31 @@ pub struct EskfConfig {
     /// of `P` when a correction is taken (Sola 2017, eq. 287). Default true;
     /// false keeps `P` unchanged (identity Jacobian).
     pub reset_jacobian: bool,
+    /// Removed key (now `limit_mode`): reading it is an error naming its successor.
+    #[doc(hidden)]
+    #[serde(default, skip_serializing, deserialize_with = "removed::robust_mode")]
+    pub robust_mode: (),
+    /// Removed key (now `fusion.engine.monitor.window`).
+    #[doc(hidden)]
+    #[serde(default, skip_serializing, deserialize_with = "removed::nis_window")]
+    pub nis_window: (),
+    /// Removed key (the monitor counts the fraction of its window above
+    /// the gate, `fusion.engine.monitor.fraction`; 0.5 is the former median).
+    #[doc(hidden)]
+    #[serde(default, skip_serializing, deserialize_with = "removed::nis_statistic")]
+    pub nis_statistic: (),
+    /// Removed key (now `fusion.engine.monitor.gate_per_dim`).
+    #[doc(hidden)]
+    #[serde(default, skip_serializing, deserialize_with = "removed::nis_threshold")]
+    pub nis_threshold: (),
+    /// Removed key (now `fusion.engine.monitor.max_reject_run_s`).
+    #[doc(hidden)]
+    #[serde(
+        default,
+        skip_serializing,
+        deserialize_with = "removed::max_reject_run_s"
+    )]
+    pub max_reject_run_s: (),
 }
 
 impl Default for EskfConfig {
@@ -189,19 +200,20 @@ impl Default for EskfConfig {
             tdoa_corr_time_s: 0.25,
             tdoa_r_inflation: 1.0,
             min_interval_per_pair_s: 0.0,
-            robust_mode: RobustMode::Huber,
+            limit_mode: LimitMode::ScaleInnovation,
             kappa: 3.0,
             hard_gate_sigma: 8.0,
-            nis_window: 200,
-            nis_statistic: NisStatistic::Median,
-            nis_threshold: 9.0,
-            max_reject_run_s: 1.0,
             max_dt_s: 0.1,
             q_adapt_time_s: 0.0,
             q_adapt_decay_factor: 20.0,
             q_scale_max: 100.0,
             yaw_min_excitation_mps2: 0.0,
             reset_jacobian: true,
+            robust_mode: (),
+            nis_window: (),
+            nis_statistic: (),
+            nis_threshold: (),
+            max_reject_run_s: (),
         }
     }
 }
@@ -303,14 +315,6 @@ impl EskfConfig {
         check("hard_gate_sigma", self.hard_gate_sigma, "> kappa", |v| {
             v > self.kappa
         })?;
-        // usize -> f64 is exact for every window the check accepts.
-        #[allow(clippy::cast_precision_loss)]
-        let window = self.nis_window as f64;
-        check("nis_window", window, "in 1..=256", |v| {
-            (1.0..=MAX_NIS_WINDOW as f64).contains(&v)
-        })?;
-        check("nis_threshold", self.nis_threshold, "> 0", pos)?;
-        check("max_reject_run_s", self.max_reject_run_s, "> 0", pos)?;
         check("max_dt_s", self.max_dt_s, "> 0", pos)?;
         check("q_adapt_time_s", self.q_adapt_time_s, ">= 0", non_neg)?;
         check("q_scale_max", self.q_scale_max, ">= 1", |v| v >= 1.0)?;
@@ -354,14 +358,6 @@ mod tests {
         };
         assert_eq!(c.validate().unwrap_err().key, "init_yaw_sigma_rad");
         let c = EskfConfig {
-            nis_window: 1000,
-            ..EskfConfig::default()
-        };
-        assert_eq!(
-            c.validate().unwrap_err().to_string(),
-            "eskf.nis_window must be in 1..=256, got 1000"
-        );
-        let c = EskfConfig {
             tdoa_r_inflation: 0.5,
             ..EskfConfig::default()
         };
@@ -375,10 +371,38 @@ mod tests {
         let back: EskfConfig = serde_json::from_str(&s).unwrap();
         assert_eq!(back, c);
         let partial: EskfConfig =
-            serde_json::from_str(r#"{"kappa": 2.5, "robust_mode": "inflate_r"}"#).unwrap();
+            serde_json::from_str(r#"{"kappa": 2.5, "limit_mode": "inflate_r"}"#).unwrap();
         assert_eq!(partial.kappa, 2.5);
-        assert_eq!(partial.robust_mode, RobustMode::InflateR);
+        assert_eq!(partial.limit_mode, LimitMode::InflateR);
         assert_eq!(partial.tdoa_sigma_m, c.tdoa_sigma_m);
+        let huber: EskfConfig = serde_json::from_str(r#"{"limit_mode": "huber"}"#).unwrap();
+        assert_eq!(huber.limit_mode, LimitMode::ScaleInnovation);
         assert!(serde_json::from_str::<EskfConfig>(r#"{"kapa": 2.5}"#).is_err());
+        assert!(!s.contains("robust_mode") && !s.contains("nis_"), "{s}");
+    }
+
+    /// The keys of the former robust weighting and monitor are refused with
+    /// the key that replaces them.
+    #[test]
+    fn removed_keys_name_their_successor() {
+        let e = |j: &str| {
+            serde_json::from_str::<EskfConfig>(j)
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(
+            e(r#"{"robust_mode": "inflate_r"}"#).contains("renamed eskf.limit_mode"),
+            "{}",
+            e(r#"{"robust_mode": "inflate_r"}"#)
+        );
+        for key in [
+            "nis_window",
+            "nis_statistic",
+            "nis_threshold",
+            "max_reject_run_s",
+        ] {
+            let msg = e(&format!(r#"{{"{key}": 1}}"#));
+            assert!(msg.contains("fusion.engine.monitor"), "{key}: {msg}");
+        }
     }
 }

@@ -1,11 +1,12 @@
 //! The 15-state error-state Kalman filter: covariance propagation on the
 //! INS's nominal states, sequential robust TDOA updates, an optional 3D
-//! position update, the divergence monitor and the closed-loop correction.
+//! position update and the closed-loop correction.
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
-use crate::config::{EskfConfig, EskfConfigError, NisStatistic, RobustMode, MAX_NIS_WINDOW};
+use crate::config::{EskfConfig, EskfConfigError};
 use crate::math::{checked_rotation, finite, skew, InputFault};
+use insuwb_filter::LimitMode;
 
 /// Number of error states.
 pub const N_STATES: usize = 15;
@@ -93,11 +94,13 @@ pub struct TdoaUpdateReport {
     pub r_gain_m2: f64,
     /// Outlier weight: 1 accepted, `kappa / r` down-weighted, 0 rejected or decimated.
     pub lambda: f64,
-    /// Normalised innovation squared `v^2 / S`.
+    /// Normalised innovation squared `v^2 / S` (rejected measurements
+    /// included: what a divergence monitor reads).
     pub nis: f64,
     /// The measurement was rejected by the hard gate.
     pub rejected: bool,
-    /// The divergence monitor asks for a reset (sticky until [`Eskf::reset`]).
+    /// The covariance is no longer finite and the filter must be
+    /// re-initialised ([`Eskf::needs_reset`]; sticky until [`Eskf::reset`]).
     pub needs_reset: bool,
     /// The process-noise scale after this update ([`Eskf::q_scale`]).
     pub q_scale: f64,
@@ -451,7 +454,7 @@ pub fn tdoa_model(
 /// error estimate back with [`Eskf::take_correction`], after which the INS
 /// applies it and the error state is zero again. Time is the sum of the
 /// `dt_s` given to `predict` (used by the per-pair decimation, the
-/// correlation inflation and the rejection-run monitor).
+/// correlation inflation and the process-noise scale).
 ///
 /// ```
 /// use insuwb_eskf::{Eskf, EskfConfig, TdoaOutcome};
@@ -478,10 +481,6 @@ pub struct Eskf {
     p0: Covariance,
     time_s: f64,
     nis_last: Option<f64>,
-    nis_ring: [f64; MAX_NIS_WINDOW],
-    nis_len: usize,
-    nis_next: usize,
-    reject_run_start_s: Option<f64>,
     needs_reset: bool,
     pairs: [PairSlot; PAIR_SLOTS],
     stats: EskfStats,
@@ -554,10 +553,6 @@ impl Eskf {
             p0,
             time_s: 0.0,
             nis_last: None,
-            nis_ring: [0.0; MAX_NIS_WINDOW],
-            nis_len: 0,
-            nis_next: 0,
-            reject_run_start_s: None,
             needs_reset: false,
             pairs: [PairSlot::default(); PAIR_SLOTS],
             stats: EskfStats::default(),
@@ -681,13 +676,14 @@ impl Eskf {
     /// Steps: innovation `v = z - h(x_ins) - H δx` and marginal
     /// `S = H P H^T + tdoa_sigma^2`, `r = |v| / sqrt(S)`; the pair (unordered)
     /// is skipped if applied less than `min_interval_per_pair_s` ago; `r`
-    /// beyond `hard_gate_sigma` rejects (counted, feeds the rejection-run
-    /// monitor); beyond `kappa` the weight is `lambda = kappa / r` (Huber:
-    /// innovation scaled by `lambda`; InflateR: gain `R` divided by
-    /// `lambda^2`). The gain uses `R = tdoa_sigma^2 * tdoa_r_inflation *
+    /// beyond `hard_gate_sigma` rejects (counted); beyond `kappa` the weight
+    /// is `lambda = kappa / r` ([`LimitMode::ScaleInnovation`]: innovation
+    /// scaled by `lambda`, Huber; [`LimitMode::InflateR`]: gain `R` divided
+    /// by `lambda^2`). The gain uses `R = tdoa_sigma^2 * tdoa_r_inflation *
     /// max(1, 2 tdoa_corr_time_s / dt_pair)` for time-correlated errors (see
     /// [`EskfConfig::tdoa_corr_time_s`]); `P` gets the Joseph-form update.
-    /// Every non-decimated NIS feeds the divergence monitor. Pairs are told
+    /// The report's NIS is what the caller's divergence monitor reads
+    /// (the fusion engine's `insuwb_filter::DivergenceMonitor`). Pairs are told
     /// apart by their anchor positions (bit-exact), in either order. A
     /// non-zero error state (no correction taken since the last update) is
     /// accounted for in `v`.
@@ -740,14 +736,9 @@ impl Eskf {
         }
 
         self.nis_last = Some(nis);
-        self.push_nis(nis);
 
         if r > self.config.hard_gate_sigma {
             self.stats.rejected += 1;
-            if self.reject_run_start_s.is_none() {
-                self.reject_run_start_s = Some(self.time_s);
-            }
-            self.check_monitors();
             report.outcome = TdoaOutcome::Rejected;
             report.rejected = true;
             report.needs_reset = self.needs_reset;
@@ -765,22 +756,20 @@ impl Eskf {
             1.0
         };
         let r_gain = sigma2 * self.config.tdoa_r_inflation * corr;
-        let (v_used, r_gain) = match self.config.robust_mode {
-            RobustMode::Huber => (lambda * v, r_gain),
-            RobustMode::InflateR => (v, r_gain / (lambda * lambda)),
+        let (v_used, r_gain) = match self.config.limit_mode {
+            LimitMode::ScaleInnovation => (lambda * v, r_gain),
+            LimitMode::InflateR => (v, r_gain / (lambda * lambda)),
         };
         self.adapt_q(v, hph, sigma2);
         self.scalar_update(&c, hph, r_gain, v_used);
 
         self.touch_pair(slot, key);
-        self.reject_run_start_s = None;
         if lambda < 1.0 {
             self.stats.downweighted += 1;
             report.outcome = TdoaOutcome::Downweighted;
         } else {
             self.stats.accepted += 1;
         }
-        self.check_monitors();
         report.lambda = lambda;
         report.r_gain_m2 = r_gain;
         report.q_scale = self.q_adapt.alpha;
@@ -793,7 +782,7 @@ impl Eskf {
     /// [(C l) x], 0, 0]`, rejected when the Mahalanobis distance
     /// `sqrt(v^T S^-1 v)` exceeds `hard_gate_sigma`, otherwise a plain
     /// (unweighted) Joseph-form update. For initialisation checks and loose
-    /// coupling; it does not feed the TDOA divergence monitor.
+    /// coupling.
     ///
     /// # Errors
     /// [`PositionUpdateError`] on a non-finite input, a non-unit quaternion
@@ -889,7 +878,7 @@ impl Eskf {
 
     /// Restarts the filter after the caller re-initialised the INS (e.g. from
     /// a UWB multilateration fix): zero error state, the configured initial
-    /// covariance, cleared monitors, pair history and `needs_reset`. The
+    /// covariance, cleared pair history, `nis_last` and `needs_reset`. The
     /// clock and the counters continue.
     pub fn reset(&mut self) {
         let p0 = self.p0;
@@ -935,9 +924,6 @@ impl Eskf {
         self.p = p0;
         symmetrize(&mut self.p);
         self.nis_last = None;
-        self.nis_len = 0;
-        self.nis_next = 0;
-        self.reject_run_start_s = None;
         self.needs_reset = false;
         self.pairs = [PairSlot::default(); PAIR_SLOTS];
         self.stats.resets += 1;
@@ -975,10 +961,10 @@ impl Eskf {
         self.nis_last
     }
 
-    /// The divergence monitor asks the caller to re-initialise the INS and
-    /// call [`Eskf::reset`]: the NIS window statistic exceeded
-    /// `nis_threshold`, consecutive rejections lasted longer than
-    /// `max_reject_run_s`, or `P` became non-finite. Sticky until reset.
+    /// The covariance became non-finite: the caller must re-initialise the
+    /// INS and call [`Eskf::reset`]. Sticky until reset. (Inconsistency,
+    /// a filter that is finite but wrong, is the divergence monitor's to
+    /// find, from the reports' NIS.)
     #[must_use]
     pub fn needs_reset(&self) -> bool {
         self.needs_reset
@@ -994,32 +980,6 @@ impl Eskf {
     #[must_use]
     pub fn stats(&self) -> EskfStats {
         self.stats
-    }
-
-    /// The divergence monitor's window statistic (median or clipped mean of
-    /// the last `nis_window` NIS), `None` until the window is full.
-    #[must_use]
-    pub fn nis_window_statistic(&self) -> Option<f64> {
-        let n = self.config.nis_window;
-        if self.nis_len < n {
-            return None;
-        }
-        let vals = self.nis_ring.get(..n)?;
-        match self.config.nis_statistic {
-            NisStatistic::Mean => {
-                let cap = self.config.hard_gate_sigma * self.config.hard_gate_sigma;
-                #[allow(clippy::cast_precision_loss)]
-                let mean = vals.iter().map(|v| v.min(cap)).sum::<f64>() / n as f64;
-                Some(mean)
-            }
-            NisStatistic::Median => {
-                let mut buf = [0.0; MAX_NIS_WINDOW];
-                let work = buf.get_mut(..n)?;
-                work.copy_from_slice(vals);
-                let (_, m, _) = work.select_nth_unstable_by(n / 2, f64::total_cmp);
-                Some(*m)
-            }
-        }
     }
 
     /// The yaw is held out of the updates: the last specific force given to
@@ -1091,28 +1051,6 @@ impl Eskf {
             return;
         };
         a.alpha = (a.alpha * ratio.powf(dt / tau)).clamp(1.0, self.config.q_scale_max);
-    }
-
-    fn push_nis(&mut self, nis: f64) {
-        let n = self.config.nis_window;
-        if let Some(slot) = self.nis_ring.get_mut(self.nis_next) {
-            *slot = nis;
-        }
-        self.nis_next = (self.nis_next + 1) % n.max(1);
-        self.nis_len = (self.nis_len + 1).min(n);
-    }
-
-    fn check_monitors(&mut self) {
-        if let Some(stat) = self.nis_window_statistic() {
-            if stat > self.config.nis_threshold {
-                self.needs_reset = true;
-            }
-        }
-        if let Some(t0) = self.reject_run_start_s {
-            if self.time_s - t0 > self.config.max_reject_run_s {
-                self.needs_reset = true;
-            }
-        }
     }
 
     fn touch_pair(&mut self, slot: Option<usize>, key: [u64; 6]) {

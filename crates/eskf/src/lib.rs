@@ -5,10 +5,15 @@
 //! error-state filter (`δp, δv, δθ, δb_a, δb_g`, global attitude error)
 //! that propagates its covariance on the INS's nominal states (it never
 //! integrates the nominal state itself), fuses every TDOA difference with a
-//! robust, IAKF-style per-measurement weight, decorrelates the UWB errors'
-//! time correlation by a rate-adaptive `R` inflation, watches its own
-//! consistency (NIS window, rejection runs) and returns closed-loop
-//! corrections in the conventions of [`insuwb_msg::InsCorrection`]:
+//! robust, IAKF-style per-measurement weight (erratum 13, with the IAKF's
+//! [`insuwb_filter::LimitMode`]), decorrelates the UWB errors' time
+//! correlation by a rate-adaptive `R` inflation and returns closed-loop
+//! corrections in the conventions of [`insuwb_msg::InsCorrection`]. Its
+//! consistency is watched from outside, by the NIS monitor every filter
+//! shares ([`insuwb_filter::DivergenceMonitor`], which the fusion engine
+//! feeds with each update's [`TdoaUpdateReport::nis`]); the filter itself
+//! only asks for a reset when its covariance stops being finite.
+//! Conventions:
 //!
 //! - `δp = p_ins - p_true`, `δv = v_ins - v_true` (the INS subtracts them);
 //! - `q_true = Exp(-δθ) ⊗ q_ins`, `δθ` an ENU rotation vector;
@@ -24,11 +29,12 @@ mod config;
 mod eskf;
 mod math;
 
-pub use config::{EskfConfig, EskfConfigError, NisStatistic, RobustMode, MAX_NIS_WINDOW};
+pub use config::{EskfConfig, EskfConfigError};
 pub use eskf::{
     process_noise, tdoa_model, transition_matrix, Correction, Covariance, Eskf, EskfStats,
     PositionUpdateError, PositionUpdateReport, PredictError, ResetError, StateVector, TdoaModel,
     TdoaOutcome, TdoaUpdateError, TdoaUpdateReport, IDX_ACCEL_BIAS, IDX_ATT, IDX_GYRO_BIAS,
     IDX_POS, IDX_VEL, N_STATES,
 };
+pub use insuwb_filter::LimitMode;
 pub use math::{quat_to_rot, skew};

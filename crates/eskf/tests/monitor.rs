@@ -1,14 +1,17 @@
-//! Divergence monitor, reset, decimation and correlation inflation, the
-//! correction and its covariance reset, the position update, input errors.
+//! What the filter reports to the divergence monitor every filter shares
+//! (`insuwb_filter::DivergenceMonitor`), reset, decimation and correlation
+//! inflation, the correction and its covariance reset, the position update,
+//! input errors.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod common;
 
 use common::*;
 use insuwb_eskf::{
-    Covariance, Eskf, EskfConfig, NisStatistic, PredictError, ResetError, TdoaOutcome,
-    TdoaUpdateError, IDX_ATT, IDX_POS,
+    Covariance, Eskf, EskfConfig, PredictError, ResetError, TdoaOutcome, TdoaUpdateError, IDX_ATT,
+    IDX_POS,
 };
+use insuwb_filter::{DivergenceMonitor, MonitorConfig};
 use nalgebra::{Matrix3, Vector3};
 
 const Q0: Quat = [1.0, 0.0, 0.0, 0.0];
@@ -29,9 +32,16 @@ fn tdoa_at(p: [f64; 3], a: &[f64; 3], b: &[f64; 3]) -> f64 {
 }
 
 /// `seconds` at rest at `P_INS`, a TDOA every 2 ms (no lever arm) with an
-/// error of `offset_m` (plus white noise of 5 cm with `noise`); returns the
-/// number of steps after which `needs_reset` was first raised, if it was.
-fn hover(f: &mut Eskf, seconds: f64, offset_m: f64, noise: Option<&mut Rng>) -> Option<usize> {
+/// error of `offset_m` (plus white noise of 5 cm with `noise`), each
+/// report's NIS fed to `monitor` as the fusion engine feeds it; returns the
+/// number of steps after which the monitor first fired, if it did.
+fn hover(
+    f: &mut Eskf,
+    monitor: &mut DivergenceMonitor,
+    seconds: f64,
+    offset_m: f64,
+    noise: Option<&mut Rng>,
+) -> Option<usize> {
     let an = anchors();
     let mut rng = noise;
     let mut first = None;
@@ -40,42 +50,67 @@ fn hover(f: &mut Eskf, seconds: f64, offset_m: f64, noise: Option<&mut Rng>) -> 
         if k % 2 == 1 {
             let (a, b) = (an[(k / 2) % 8], an[(k / 2 + 1) % 8]);
             let n = rng.as_mut().map_or(0.0, |r| r.normal() * 0.05);
-            f.update_tdoa(
-                P_INS,
-                Q0,
-                [0.0; 3],
-                a,
-                b,
-                tdoa_at(P_INS, &a, &b) + offset_m + n,
-            )
-            .unwrap();
+            let rep = f
+                .update_tdoa(
+                    P_INS,
+                    Q0,
+                    [0.0; 3],
+                    a,
+                    b,
+                    tdoa_at(P_INS, &a, &b) + offset_m + n,
+                )
+                .unwrap();
             f.take_correction();
-        }
-        if first.is_none() && f.needs_reset() {
-            first = Some(k + 1);
+            // As the fusion engine feeds it, with the filter's time.
+            let fired = if rep.rejected {
+                monitor.push_rejected(f.time_s())
+            } else {
+                monitor.push(rep.nis, 1)
+            };
+            if fired && first.is_none() {
+                first = Some(k + 1);
+            }
         }
     }
     first
 }
 
+fn monitor(window: usize, fraction: f64) -> DivergenceMonitor {
+    DivergenceMonitor::new(MonitorConfig {
+        window,
+        gate_per_dim: 9.0,
+        fraction,
+        max_reject_run_s: 0.0,
+    })
+    .unwrap()
+}
+
+/// Every TDOA 2 m off, beyond the hard gate: each is rejected, the filter
+/// does not ask for a reset itself (it is finite), and its reports say
+/// rejected, with the NIS; the shared monitor, which leaves rejections out
+/// of its window, fires once they have lasted `max_reject_run_s` (1 s,
+/// the filter's own rejection-run monitor before). A reset then restores
+/// the configured P0 and clears the error state.
 #[test]
-fn a_run_of_rejections_longer_than_max_reject_run_raises_needs_reset() {
-    // NIS window out of the way (it would fire first, after half a window).
-    let mut f = Eskf::new(EskfConfig {
-        nis_threshold: 1e12,
-        ..config()
+fn rejections_feed_the_monitor_and_reset_restores_the_prior() {
+    let mut f = Eskf::new(config()).unwrap();
+    let mut m = DivergenceMonitor::new(MonitorConfig {
+        window: 10,
+        gate_per_dim: 9.0,
+        fraction: 0.7,
+        max_reject_run_s: 1.0,
     })
     .unwrap();
-    assert_eq!(hover(&mut f, 3.0, 0.0, None), None);
-    // Every TDOA is now 2 m off, beyond the gate. The run starts at the
-    // first rejection (2 ms in) and `needs_reset` must come after 1 s of
-    // consecutive rejections, not before.
+    assert_eq!(hover(&mut f, &mut m, 3.0, 0.0, None), None);
     let before = f.stats().rejected;
-    let step = hover(&mut f, 2.0, 2.0, None).expect("needs_reset never raised");
+    // The run starts at the first rejection (2 ms in) and fires after 1 s.
+    let step = hover(&mut f, &mut m, 2.0, 2.0, None).expect("the monitor never fired");
     assert!(f.stats().rejected > before + 400);
-    assert!((1002..=1006).contains(&step), "raised after {step} steps");
-    // Reset: monitors cleared, the configured P0 back, error state zero.
+    assert!((1002..=1006).contains(&step), "fired after {step} steps");
+    assert!(!f.needs_reset(), "inconsistency is the monitor's to find");
+    assert!(f.nis_last().unwrap() > config().hard_gate_sigma.powi(2));
     f.reset();
+    m.clear();
     assert!(!f.needs_reset());
     assert_eq!(*f.covariance(), Eskf::initial_covariance(f.config()));
     assert_eq!(f.state().norm(), 0.0);
@@ -83,38 +118,33 @@ fn a_run_of_rejections_longer_than_max_reject_run_raises_needs_reset() {
     assert_eq!(f.stats().resets, 1);
 }
 
+/// No hard gate (every measurement is applied, down-weighted), so only the
+/// NIS can tell: half a window of 100 above 3 sigma (the former median
+/// statistic of the ESKF's own monitor) fires after about 50 updates of a
+/// 1 m offset, and never while the innovations are consistent.
 #[test]
-fn nis_window_raises_needs_reset_when_innovations_are_inconsistent() {
-    for stat in [NisStatistic::Median, NisStatistic::Mean] {
-        // No gate (every measurement is applied, Huber-clipped), so only the
-        // NIS window can notice.
-        let c = EskfConfig {
-            hard_gate_sigma: 1e6,
-            nis_statistic: stat,
-            nis_window: 100,
-            ..config()
-        };
-        let mut f = Eskf::new(c).unwrap();
-        let mut rng = Rng::new(9);
-        assert_eq!(hover(&mut f, 3.0, 0.0, Some(&mut rng)), None, "{stat:?}");
-        let healthy = f.nis_window_statistic().unwrap();
-        println!("{stat:?}: healthy window statistic {healthy:.2}");
-        assert!(
-            healthy < 2.0,
-            "{stat:?} statistic {healthy} when consistent"
-        );
-        let step = hover(&mut f, 1.0, 1.0, Some(&mut rng)).expect("needs_reset never raised");
-        // The median needs half the window (50 updates, every 2 steps); the
-        // unclipped mean (gate 1e6) fires on the first few huge NIS.
-        match stat {
-            NisStatistic::Median => assert!(
-                (2 * 45..=2 * 60).contains(&step),
-                "median raised after {step} steps"
-            ),
-            NisStatistic::Mean => assert!(step <= 2 * 100, "mean raised after {step} steps"),
-        }
-        assert!(f.stats().rejected == 0);
-    }
+fn the_reports_nis_shows_an_inconsistent_filter() {
+    let c = EskfConfig {
+        hard_gate_sigma: 1e6,
+        ..config()
+    };
+    let mut f = Eskf::new(c).unwrap();
+    let mut m = monitor(100, 0.5);
+    let mut rng = Rng::new(9);
+    assert_eq!(hover(&mut f, &mut m, 3.0, 0.0, Some(&mut rng)), None);
+    assert!(m.is_full());
+    let healthy = m.inconsistent();
+    assert!(
+        healthy < 10,
+        "{healthy} of 100 beyond 3 sigma when consistent"
+    );
+    let step = hover(&mut f, &mut m, 1.0, 1.0, Some(&mut rng)).expect("the monitor never fired");
+    assert!(
+        (2 * 40..=2 * 60).contains(&step),
+        "fired after {step} steps"
+    );
+    assert_eq!(f.stats().rejected, 0);
+    assert!(!f.needs_reset());
 }
 
 #[test]

@@ -5,7 +5,7 @@
 mod common;
 
 use common::*;
-use insuwb_eskf::{Eskf, EskfConfig, RobustMode, TdoaOutcome, IDX_ATT, IDX_POS};
+use insuwb_eskf::{Eskf, EskfConfig, LimitMode, TdoaOutcome, IDX_ATT, IDX_POS};
 use nalgebra::Vector3;
 
 const DT: f64 = 1e-3;
@@ -309,7 +309,7 @@ fn nlos_spike_is_weighted_down_to_kappa_sigma() {
 
     // InflateR: the same bound on the gain-weighted innovation.
     let (rep, moved_i, _) = spike(EskfConfig {
-        robust_mode: RobustMode::InflateR,
+        limit_mode: LimitMode::InflateR,
         hard_gate_sigma: 1000.0,
         ..sim_config()
     });

@@ -18,7 +18,7 @@ struct Run {
 /// the model is told cannot exist (tiny process noise, tiny initial
 /// uncertainty). Its gain collapses and the INS drifts away from UWB:
 /// a divergence, not an outlier.
-fn diverging_kf(nis_window: usize) -> Run {
+fn diverging_kf(monitor_window: usize) -> Run {
     let mut sc = ScenarioFile::load("nlos-long").unwrap();
     sc.sim.imu.accel_bias_g = 0.02;
     sc.sim.uwb.random_nlos = None;
@@ -34,7 +34,7 @@ fn diverging_kf(nis_window: usize) -> Run {
             *v = 1e-12;
         }
     }
-    cfg.engine.nis_window = nis_window;
+    cfg.engine.monitor.window = monitor_window;
     let sim = insuwb_sim::simulate(&sc.sim, 1).unwrap();
     let out = offline::run(&sim.imu, &sim.tdoa, &cfg, FilterKind::Kf).unwrap();
     let track = TruthTrack::new(&sim.truth, 100_000_000);
@@ -87,6 +87,29 @@ fn a_diverging_filter_is_reset_from_uwb_and_flagged() {
         FilterDiag::FLAG_DIVERGENCE,
     );
     assert!(flagged_div >= 1, "no diagnostic flagged DIVERGENCE");
+    // The update the monitor fired on is published as not valid, the reset
+    // as valid, and the first diagnostic after a reset says so.
+    let invalid = on
+        .out
+        .fused
+        .iter()
+        .filter(|f| f.header.flags & FusedState::FLAG_VALID == 0)
+        .count();
+    assert!(invalid >= 1, "no fused state flagged not valid");
+    assert!(on
+        .out
+        .fused
+        .iter()
+        .filter(|f| f.header.flags & FusedState::FLAG_RESET != 0)
+        .all(|f| f.header.flags & FusedState::FLAG_VALID != 0));
+    let flagged_reset_diag = count(
+        on.out.diag.iter().map(|d| d.header.flags),
+        FilterDiag::FLAG_RESET,
+    );
+    assert!(
+        (1..=flagged_resets).contains(&flagged_reset_diag),
+        "one RESET diagnostic per reset followed by an update: {flagged_reset_diag} of {flagged_resets}"
+    );
     let on_err = max_err_after(&on, 30.0);
     assert!(
         on_err < 0.5 * off_err,

@@ -9,7 +9,10 @@
 //! - [`params`]: the tuning of the adaptive filters ([`FilterParams`]) and
 //!   the prior they share ([`FilterSetup`]);
 //! - [`filter`]: the [`ErrorFilter`] trait and the [`Kf`], [`Shaf`], [`Stf`]
-//!   and [`Iakf`] filters (errata 6-15), and [`build`].
+//!   and [`Iakf`] filters (errata 6-15), and [`build`];
+//! - [`monitor`]: the windowed NIS divergence monitor every filter shares,
+//!   the tightly coupled one of `insuwb-eskf` included
+//!   ([`DivergenceMonitor`]).
 //!
 //! Conventions: errors are "INS minus truth" (the measurement is
 //! `z = [P_ins - P_uwb; V_ins - V_uwb]`, eq. 15), ENU frame, heading
@@ -37,6 +40,7 @@
 mod engine;
 pub mod filter;
 pub mod model;
+pub mod monitor;
 pub mod params;
 pub mod sparse;
 
@@ -54,6 +58,7 @@ pub use model::{
     ModelConfig, ModelConfigError, ModelForm, PaperModel, PredictSteps, StepError, Transition14,
     Vec14, N_MEAS, N_STATES,
 };
+pub use monitor::{DivergenceMonitor, MonitorConfig, MonitorConfigError, MAX_MONITOR_WINDOW};
 pub use params::{
     FilterParams, FilterParamsError, FilterSetup, FilterSetupError, LimitMode, OutlierForm,
 };

@@ -21,13 +21,18 @@ pub enum OutlierForm {
     ZForm,
 }
 
-/// How the IAKF limits a component flagged as outlier (erratum 13).
+/// How an outlier's weight `lambda < 1` is applied (erratum 13): the one
+/// outlier-weighting vocabulary of both filter families, the IAKF's
+/// `filter.limit_mode` and the tight ESKF's `eskf.limit_mode`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LimitMode {
-    /// Scale the innovation: `v_i <- lambda_i v_i` (default; with the default
-    /// `eps_i` this clips `v_i` at `kappa sqrt(S_ii)`, Huber style).
+    /// Scale the innovation: `v_i <- lambda_i v_i` (default; with the
+    /// default `eps_i` of the IAKF, and the ESKF's `lambda = kappa / r`,
+    /// this clips `v_i` at `kappa sqrt(S_ii)`: Huber). `huber` is read as
+    /// this.
     #[default]
+    #[serde(alias = "huber")]
     ScaleInnovation,
     /// Keep `v` and inflate `R` for this update: `R <- L^-1 R L^-1`,
     /// `L = diag(lambda)` (i.e. `R_ii / lambda_i^2`), which keeps `P` consistent.
@@ -260,6 +265,8 @@ mod tests {
             serde_json::from_str(r#"{"outlier_form":"z_form","limit_mode":"inflate_r"}"#).unwrap();
         assert_eq!(p.outlier_form, OutlierForm::ZForm);
         assert_eq!(p.limit_mode, LimitMode::InflateR);
+        let p: FilterParams = serde_json::from_str(r#"{"limit_mode":"huber"}"#).unwrap();
+        assert_eq!(p.limit_mode, LimitMode::ScaleInnovation);
         assert!(serde_json::from_str::<FilterParams>(r#"{"gama":3}"#).is_err());
         assert!(serde_json::from_str::<FilterSetup>(r#"{"p0":[]}"#).is_err());
     }

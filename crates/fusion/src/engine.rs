@@ -20,10 +20,18 @@
 //!   coupling: a fix arrives after the TDOA differences of its epoch moved
 //!   the INS to or past it);
 //! - the INS position is (re-)initialised from a UWB fix, once
-//!   `reset_min_fixes` consecutive fixes agree within `reset_gate_m`.
+//!   `reset_min_fixes` consecutive fixes agree within `reset_gate_m`;
+//! - divergence: every update's NIS, of whichever filter, goes to one
+//!   [`DivergenceMonitor`] ([`FusionEngineConfig::monitor`]); when it fires,
+//!   the filter and the INS are re-initialised from agreeing fixes (as
+//!   above), the fused states published until then lose
+//!   [`FusedState::FLAG_VALID`], the reset's carries
+//!   [`FusedState::FLAG_RESET`] and the first diagnostic after it
+//!   [`FilterDiag::FLAG_RESET`].
 
 use std::collections::VecDeque;
 
+use insuwb_filter::{DivergenceMonitor, MonitorConfig, MonitorConfigError};
 use insuwb_msg::{
     fixed_name, FilterDiag, FusedState, Header, InsCorrection, NavState, UwbFix, UwbTdoa,
     LAYOUT_VERSION,
@@ -48,7 +56,9 @@ pub struct FusionEngineConfig {
     pub max_pending: usize,
     /// INS states buffered beyond this count are dropped (oldest first).
     pub max_nav_buffer: usize,
-    /// Reset the INS from the next UWB fix when the estimator reports divergence.
+    /// Re-initialise the filter and the INS from agreeing UWB fixes when the
+    /// divergence monitor fires (or the estimator's covariance stops being
+    /// finite). Default true.
     pub reset_on_divergence: bool,
     /// Initialisations and resets wait for this many consecutive UWB fixes
     /// that agree (each within `reset_gate_m` of the previous one) and take
@@ -77,16 +87,47 @@ pub struct FusionEngineConfig {
     /// coasting covariance grow while UWB is silent. Default None; the
     /// fusion stage sets it in real time.
     pub eager_lag_s: Option<f64>,
-    /// Divergence monitor over a window of updates: when at least
-    /// `nis_window_fraction` of the last `nis_window` updates have a NIS per
-    /// measured component above `nis_gate_per_dim`, the filter is deemed
-    /// diverged and reset from UWB (`reset_on_divergence`). 0 disables.
-    /// Default 30 updates (3 s at 10 Hz: longer than an NLOS burst).
-    pub nis_window: usize,
-    /// NIS per component above which an update counts as inconsistent. Default 16 (4 sigma).
-    pub nis_gate_per_dim: f64,
-    /// Fraction of the window that must be inconsistent. Default 0.9.
-    pub nis_window_fraction: f64,
+    /// The divergence monitor of every filter, tight or loose
+    /// (`[fusion.engine.monitor]`): when at least `fraction` of the last
+    /// `window` updates (fixes for the loose filters, TDOA differences for
+    /// the tight one; rejected ones apart) have a NIS per measured
+    /// component above `gate_per_dim`, or nothing but rejected updates came
+    /// for longer than `max_reject_run_s`, the filter is deemed diverged and
+    /// re-initialised from UWB (`reset_on_divergence`). Default 30 updates,
+    /// 16 per component, 0.9, 1 s.
+    pub monitor: MonitorConfig,
+    /// Moved to `monitor.window`: reading it is an error naming the new key.
+    #[doc(hidden)]
+    #[serde(default, skip_serializing, deserialize_with = "moved::window")]
+    pub nis_window: (),
+    /// Moved to `monitor.gate_per_dim`.
+    #[doc(hidden)]
+    #[serde(default, skip_serializing, deserialize_with = "moved::gate_per_dim")]
+    pub nis_gate_per_dim: (),
+    /// Moved to `monitor.fraction`.
+    #[doc(hidden)]
+    #[serde(default, skip_serializing, deserialize_with = "moved::fraction")]
+    pub nis_window_fraction: (),
+}
+
+/// Keys of earlier versions, refused with a message naming the key that
+/// replaces them (the configuration loader adds the file and the key).
+mod moved {
+    use serde::de::{Deserializer, Error};
+
+    macro_rules! moved {
+        ($($name:ident => $msg:literal),* $(,)?) => {$(
+            pub(super) fn $name<'de, D: Deserializer<'de>>(_: D) -> Result<(), D::Error> {
+                Err(D::Error::custom($msg))
+            }
+        )*};
+    }
+
+    moved! {
+        window => "moved to fusion.engine.monitor.window (the one divergence monitor of every filter)",
+        gate_per_dim => "moved to fusion.engine.monitor.gate_per_dim (the one divergence monitor of every filter)",
+        fraction => "moved to fusion.engine.monitor.fraction (the one divergence monitor of every filter)",
+    }
 }
 
 /// Largest [`FusionEngineConfig::reset_min_fixes`].
@@ -105,10 +146,21 @@ impl Default for FusionEngineConfig {
             reset_gate_m: 0.3,
             reset_velocity_from_fix: true,
             eager_lag_s: None,
-            nis_window: 30,
-            nis_gate_per_dim: 16.0,
-            nis_window_fraction: 0.9,
+            monitor: MonitorConfig::default(),
+            nis_window: (),
+            nis_gate_per_dim: (),
+            nis_window_fraction: (),
         }
+    }
+}
+
+impl FusionEngineConfig {
+    /// Checks the settings that can be out of range (the monitor's).
+    ///
+    /// # Errors
+    /// [`MonitorConfigError`] naming the monitor's key.
+    pub fn validate(&self) -> Result<(), MonitorConfigError> {
+        self.monitor.validate()
     }
 }
 
@@ -143,7 +195,8 @@ pub struct FusionCounters {
     pub corrections: u64,
     /// INS states that followed missing IMU samples.
     pub ins_gaps: u64,
-    /// Divergences found by the windowed NIS monitor.
+    /// Times the divergence monitor fired (once per divergence: it is
+    /// not fed while a reset waits for agreeing fixes).
     pub nis_divergences: u64,
 }
 
@@ -213,10 +266,11 @@ pub struct FusionEngine {
     /// While waiting to (re-)initialise: the last fix position and how many
     /// consecutive fixes up to it agreed.
     reset_run: Option<([f64; 3], usize)>,
-    /// Divergence monitor: whether each of the last `nis_window` updates was
-    /// inconsistent, and how many of them were.
-    nis_hist: VecDeque<bool>,
-    nis_bad: usize,
+    /// The divergence monitor of whichever filter `est` is.
+    monitor: DivergenceMonitor,
+    /// The filter was re-initialised and has not been updated since: the
+    /// next diagnostic carries [`FilterDiag::FLAG_RESET`].
+    reset_unreported: bool,
     /// Where the tight coupling's correction epochs start ([`FusionEngine::align_to`]).
     epoch_phase_ns: u64,
 }
@@ -235,11 +289,14 @@ pub(crate) fn prefaulted_deque<T>(n: usize) -> VecDeque<T> {
 }
 
 impl FusionEngine {
-    /// A new engine around `est`.
+    /// A new engine around `est`. A monitor configuration that does not
+    /// validate ([`FusionEngineConfig::validate`]; `offline::build_estimator`
+    /// checks it) disables the monitor.
     #[must_use]
     pub fn new(cfg: FusionEngineConfig, est: Box<dyn Estimator>) -> Self {
         let initialised = !cfg.init_from_first_fix;
-        let cfg_nis_capacity = cfg.nis_window.min(4096);
+        let monitor = DivergenceMonitor::new(cfg.monitor.clone())
+            .unwrap_or_else(|_| DivergenceMonitor::disabled());
         Self {
             nav_buf: prefaulted_deque(cfg.max_nav_buffer.min(65_536)),
             pending: prefaulted_deque(cfg.max_pending.min(65_536)),
@@ -255,33 +312,41 @@ impl FusionEngine {
             counters: FusionCounters::default(),
             last_fused: None,
             reset_run: None,
-            nis_hist: VecDeque::with_capacity(cfg_nis_capacity),
-            nis_bad: 0,
+            monitor,
+            reset_unreported: false,
             epoch_phase_ns: 0,
         }
     }
 
-    /// Records one update's NIS in the divergence monitor; true when the
-    /// window says the filter diverged (the window then starts afresh).
-    fn nis_diverged(&mut self, info: &UpdateInfo) -> bool {
-        let w = self.cfg.nis_window;
-        if w == 0 || info.dim == 0 || info.rejected || !info.nis.is_finite() {
+    /// Records one update at `t_ns` in the divergence monitor: its NIS, or
+    /// that it was rejected; true when the monitor says the filter
+    /// diverged (it then starts afresh). Not fed while a reset waits for
+    /// agreeing fixes: the filter is known to be wrong until then.
+    fn nis_diverged(&mut self, info: &UpdateInfo, t_ns: u64) -> bool {
+        if self.reset_pending() {
             return false;
         }
-        let bad = info.nis / f64::from(info.dim) > self.cfg.nis_gate_per_dim;
-        if self.nis_hist.len() >= w && self.nis_hist.pop_front() == Some(true) {
-            self.nis_bad = self.nis_bad.saturating_sub(1);
+        if info.rejected {
+            self.monitor.push_rejected(t_ns as f64 * 1e-9)
+        } else {
+            self.monitor.push(info.nis, info.dim)
         }
-        self.nis_hist.push_back(bad);
-        self.nis_bad += usize::from(bad);
-        if self.nis_hist.len() >= w
-            && self.nis_bad as f64 >= self.cfg.nis_window_fraction * w as f64
-        {
-            self.nis_hist.clear();
-            self.nis_bad = 0;
-            return true;
-        }
-        false
+    }
+
+    /// The divergence monitor (its window, for diagnostics and tests).
+    #[must_use]
+    pub fn monitor(&self) -> &DivergenceMonitor {
+        &self.monitor
+    }
+
+    /// Whether a re-initialisation from UWB is pending: the monitor fired
+    /// (or the covariance stopped being finite) and the engine waits for
+    /// agreeing fixes. Fused states published meanwhile are not valid.
+    #[must_use]
+    pub fn reset_pending(&self) -> bool {
+        self.initialised
+            && self.cfg.reset_on_divergence
+            && (self.reset_requested || self.est.needs_reset())
     }
 
     /// Predicts through the buffered INS states older than the newest by
@@ -614,10 +679,7 @@ impl FusionEngine {
         };
         // Position initialisation and divergence resets come from fixes.
         if let Measurement::Fix(fix) = m {
-            let want_reset = !self.initialised
-                || (self.cfg.reset_on_divergence
-                    && (self.reset_requested || self.est.needs_reset()));
-            if want_reset {
+            if !self.initialised || self.reset_pending() {
                 if self.reset_fix_ready(&fix) {
                     self.reset_run = None;
                     self.reset_from_fix(&fix, &ins, &last, out);
@@ -647,7 +709,10 @@ impl FusionEngine {
             self.reset_requested = true;
         }
         let mut diag = self.diag_from(&info, &m);
-        if self.nis_diverged(&info) {
+        if std::mem::take(&mut self.reset_unreported) {
+            diag.header.flags |= FilterDiag::FLAG_RESET;
+        }
+        if self.nis_diverged(&info, m.time()) {
             self.counters.nis_divergences += 1;
             diag.header.flags |= FilterDiag::FLAG_DIVERGENCE;
             if self.cfg.reset_on_divergence {
@@ -699,6 +764,8 @@ impl FusionEngine {
     fn reset_from_fix(&mut self, fix: &UwbFix, ins: &InsAt, last: &NavState, out: &mut Outputs) {
         self.counters.resets += 1;
         self.est.reset();
+        // Updates of the diverged filter do not count against the new one.
+        self.monitor.clear();
         self.dirty = None;
         let vel =
             if self.cfg.reset_velocity_from_fix && fix.header.flags & UwbFix::FLAG_VEL_VALID != 0 {
@@ -721,6 +788,7 @@ impl FusionEngine {
         } else {
             0
         };
+        self.reset_unreported = self.initialised;
         self.initialised = true;
         self.reset_requested = false;
         self.send_correction(&Delta::default(), Some(reset), last, out);
@@ -799,9 +867,15 @@ impl FusionEngine {
         };
         let seq = self.fused_seq;
         self.fused_seq += 1;
+        // A filter the monitor found diverged is not valid until re-initialised.
+        let flags = if self.reset_pending() {
+            0
+        } else {
+            FusedState::FLAG_VALID
+        };
         FusedState {
             header: Header {
-                flags: FusedState::FLAG_VALID,
+                flags,
                 ..Header::new(seq, ins.t_ns)
             },
             pos_m: pos,
@@ -899,6 +973,124 @@ mod tests {
         };
         let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
         (FusionEngine::new(cfg, est), Outputs::default())
+    }
+
+    /// Fixes jumping by 100 m, a KF at rest: the monitor fires on the third
+    /// update (window 3, all above the gate); the output of that update is
+    /// not valid, the next fix resets the filter and the INS (flagged,
+    /// valid), the window starts empty and the next diagnostic says reset.
+    #[test]
+    fn the_monitor_resets_from_uwb_and_flags_the_outputs() {
+        let cfg = FusionEngineConfig {
+            init_from_first_fix: true,
+            monitor: MonitorConfig {
+                window: 3,
+                gate_per_dim: 9.0,
+                fraction: 1.0,
+                max_reject_run_s: 1.0,
+            },
+            ..FusionEngineConfig::default()
+        };
+        let est = build_estimator(FilterKind::Kf, &FusionConfig::default()).unwrap();
+        let mut e = FusionEngine::new(cfg, est);
+        let mut out = Outputs::default();
+        let mut all = Outputs::default();
+        let mut k = 0;
+        let (east, west) = ([50.0, 0.0, 0.0], [-50.0, 0.0, 0.0]);
+        let fixes = [
+            [0.0; 3],
+            east,
+            west,
+            east,
+            [10.0, 0.0, 0.0],
+            [10.1, 0.0, 0.0],
+        ];
+        for (i, p) in fixes.iter().enumerate() {
+            let t = (i as u64 + 1) * 100;
+            while k <= t {
+                let n = NavState {
+                    correction_id: e.correction_id(),
+                    ..nav(k)
+                };
+                e.on_nav(&n, &mut out);
+                k += 1;
+            }
+            e.on_measurement(Measurement::Fix(fix(t * 1_000_000, *p)), &mut out);
+            all.fused.extend_from_slice(&out.fused);
+            all.diag.extend_from_slice(&out.diag);
+            out.clear();
+            assert_eq!(e.reset_pending(), i == 3, "after fix {i}");
+        }
+        let c = e.counters();
+        assert_eq!((c.nis_divergences, c.resets, c.updates), (1, 2, 4), "{c:?}");
+        let flags: Vec<u32> = all.fused.iter().map(|f| f.header.flags).collect();
+        let (v, r) = (FusedState::FLAG_VALID, FusedState::FLAG_RESET);
+        // First fix (initialisation), three updates (the last fires), the
+        // reset from the fifth fix, one update.
+        assert_eq!(flags, [v, v, v, 0, v | r, v], "{flags:?}");
+        let diag: Vec<u32> = all.diag.iter().map(|d| d.header.flags).collect();
+        assert_eq!(
+            diag[2] & FilterDiag::FLAG_DIVERGENCE,
+            FilterDiag::FLAG_DIVERGENCE
+        );
+        assert_eq!(diag[3] & FilterDiag::FLAG_RESET, FilterDiag::FLAG_RESET);
+        assert!(diag[..3].iter().all(|d| d & FilterDiag::FLAG_RESET == 0));
+        assert!(!e.reset_pending());
+        assert_eq!(e.monitor().len(), 1, "only the update after the reset");
+    }
+
+    /// The monitor's keys live in `[fusion.engine.monitor]`; the former keys
+    /// of `[fusion.engine]` are refused with a message naming the new one,
+    /// and are never written.
+    #[test]
+    fn the_monitor_keys_and_their_former_names() {
+        let c: FusionEngineConfig =
+            toml::from_str("[monitor]\nwindow = 10\nfraction = 0.7\ngate_per_dim = 9.0").unwrap();
+        assert_eq!(
+            (c.monitor.window, c.monitor.fraction, c.monitor.gate_per_dim),
+            (10, 0.7, 9.0)
+        );
+        assert_eq!(c.monitor.max_reject_run_s, 1.0);
+        c.validate().unwrap();
+        for (old, new) in [
+            ("nis_window = 10", "fusion.engine.monitor.window"),
+            (
+                "nis_gate_per_dim = 9.0",
+                "fusion.engine.monitor.gate_per_dim",
+            ),
+            (
+                "nis_window_fraction = 0.7",
+                "fusion.engine.monitor.fraction",
+            ),
+        ] {
+            let e = toml::from_str::<FusionEngineConfig>(old)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(new), "{old}: {e}");
+        }
+        let text = toml::to_string(&FusionEngineConfig::default()).unwrap();
+        assert!(!text.contains("nis_"), "{text}");
+        let bad = FusionEngineConfig {
+            monitor: MonitorConfig {
+                fraction: 1.5,
+                ..MonitorConfig::default()
+            },
+            ..FusionEngineConfig::default()
+        };
+        assert_eq!(
+            bad.validate().unwrap_err().to_string(),
+            "monitor.fraction must be in (0, 1], got 1.5"
+        );
+        let mut cfg = FusionConfig {
+            engine: bad,
+            ..FusionConfig::default()
+        };
+        let e = build_estimator(FilterKind::Kf, &cfg)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "engine.monitor.fraction must be in (0, 1], got 1.5");
+        cfg.engine.monitor.fraction = 0.5;
+        assert!(build_estimator(FilterKind::IakfTdoa, &cfg).is_ok());
     }
 
     /// Aligned to a replay's epoch, the correction epochs hold the same

@@ -73,11 +73,14 @@ pub struct UpdateInfo {
     pub r_diag: [f64; 8],
     /// Components used.
     pub dim: u32,
-    /// Normalised innovation squared.
+    /// Normalised innovation squared (what the divergence monitor reads,
+    /// per component: `nis / dim`).
     pub nis: f64,
     /// Fading factor (1: none).
     pub fading: f64,
-    /// Divergence test fired.
+    /// The filter's own divergence test fired (the IAKF's eq. 27, which
+    /// triggers its fading; the tight filter: its covariance is no longer
+    /// finite). The engine's monitor is apart from it.
     pub divergence: bool,
     /// A component was weighted as an outlier.
     pub outlier: bool,
@@ -102,7 +105,10 @@ pub trait Estimator: std::fmt::Debug + Send {
     fn take_correction(&mut self) -> Delta;
     /// Covariance of `[pe, pn, pu, ve, vn, vu]`.
     fn pos_vel_cov(&self) -> [[f64; 6]; 6];
-    /// Whether the estimator asks to be reset (divergence).
+    /// Whether the estimator asks to be reset because it broke down
+    /// numerically (a covariance that is no longer finite). A finite but
+    /// inconsistent filter is found by the engine's divergence monitor,
+    /// the same for every estimator, from [`UpdateInfo::nis`].
     fn needs_reset(&self) -> bool {
         false
     }

@@ -21,7 +21,7 @@ pub struct FusionConfig {
     pub ins: InsEngineConfig,
     /// UWB fix builder (the UWB driver's multilateration).
     pub fix: insuwb_uwb::fix::FixConfig,
-    /// Fusion engine.
+    /// Fusion engine, with the divergence monitor of every filter (`monitor`).
     pub engine: FusionEngineConfig,
     /// The paper's error model (shared by KF, SHAF, STF, IAKF).
     pub model: insuwb_filter::ModelConfig,
@@ -32,7 +32,7 @@ pub struct FusionConfig {
     /// Loose-coupling options.
     pub loose: LooseConfig,
     /// The tightly coupled error-state filter (`iakf_tdoa`): noise, initial
-    /// uncertainty, TDOA noise, robust weighting and divergence monitor.
+    /// uncertainty, TDOA noise and robust weighting.
     pub eskf: insuwb_eskf::EskfConfig,
     /// Tight-coupling settings outside the ESKF (antenna lever arm, specific-force smoothing).
     pub tight: TightConfig,
@@ -59,18 +59,30 @@ pub enum RunError {
     /// The tightly coupled filter could not be built.
     #[error(transparent)]
     Tight(#[from] TightBuildError),
+    /// The engine's divergence monitor config was refused (the message
+    /// names the key, `engine.monitor.*`).
+    #[error("engine.{0}")]
+    Engine(insuwb_filter::MonitorConfigError),
+}
+
+impl From<insuwb_filter::MonitorConfigError> for RunError {
+    fn from(e: insuwb_filter::MonitorConfigError) -> Self {
+        Self::Engine(e)
+    }
 }
 
 /// Builds the estimator for `kind` from `cfg`: the paper's filters from
 /// `model`, `filter`, `setup` and `loose`; [`FilterKind::IakfTdoa`] the
-/// tightly coupled ESKF from `eskf` and `tight`.
+/// tightly coupled ESKF from `eskf` and `tight`. Checks the engine's
+/// settings too (the divergence monitor every filter gets).
 ///
 /// # Errors
-/// A model or filter config that does not validate.
+/// A model, filter or engine config that does not validate.
 pub fn build_estimator(
     kind: FilterKind,
     cfg: &FusionConfig,
 ) -> Result<Box<dyn Estimator>, RunError> {
+    cfg.engine.validate()?;
     if kind == FilterKind::IakfTdoa {
         return Ok(Box::new(TightEstimator::new(
             cfg.eskf.clone(),
@@ -155,6 +167,7 @@ pub fn run_with(
     cfg: &FusionConfig,
     est: Box<dyn Estimator>,
 ) -> Result<RunOutput, RunError> {
+    cfg.engine.validate()?;
     let tight = est.is_tight();
     let mut ins = InsEngine::new(cfg.ins.clone())?;
     let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?;

@@ -7,8 +7,9 @@
 //! [`TightConfig`]), and hands the full correction (position, velocity,
 //! attitude, both biases) back to the engine, which feeds it to the INS at the
 //! end of each TDOA epoch. UWB fixes are not fused: the engine uses them only
-//! to initialise the INS and to re-initialise it after a divergence
-//! ([`Estimator::needs_reset`]).
+//! to initialise the INS and to re-initialise it after a divergence, which
+//! the engine's monitor finds from each update's NIS as for every filter
+//! (and [`Estimator::needs_reset`] when the covariance stops being finite).
 
 use insuwb_eskf::{
     Covariance, Eskf, EskfConfig, EskfConfigError, TdoaOutcome, TdoaUpdateReport, N_STATES,
