@@ -12,6 +12,8 @@ use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, UwbFix};
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
 use insuwb_stage::group::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
 
+use crate::monitor::Monitor;
+
 /// Signal numbers (Linux).
 mod libc_sig {
     pub const KILL: i32 = 9;
@@ -44,6 +46,8 @@ pub struct GroupReport {
     /// Horizontal RMS error of the valid fused states against ground truth, m.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rmse_horizontal: Option<f64>,
+    /// Valid fused states that ground truth was found for (the RMSE's count).
+    pub rmse_states: u64,
     /// Rate of fused states from UWB updates, Hz.
     pub fused_rate_hz: f64,
     /// Rate of IMU samples, Hz.
@@ -169,29 +173,6 @@ impl std::str::FromStr for Fault {
     }
 }
 
-struct Monitor {
-    fused: Vec<FusedState>,
-    truth: Vec<GroundTruth>,
-    imu_times: (u64, u64, u64),
-    fix_times: (u64, u64, u64),
-    health: std::collections::BTreeMap<String, Health>,
-}
-
-fn count(t: &mut (u64, u64, u64), at: u64) {
-    if t.2 == 0 {
-        t.0 = at;
-    }
-    t.1 = at;
-    t.2 += 1;
-}
-
-fn rate(t: (u64, u64, u64)) -> f64 {
-    if t.2 < 2 || t.1 <= t.0 {
-        return 0.0;
-    }
-    (t.2 - 1) as f64 / ((t.1 - t.0) as f64 * 1e-9)
-}
-
 /// What a group run may be given besides its [`RunOptions`] (the device
 /// demo, whose emulators are paced to the epoch and whose drivers publish
 /// no ground truth).
@@ -219,6 +200,9 @@ pub fn run_group_with(
 ) -> Result<GroupReport> {
     // Owner-only files (0600/0700) for the launcher and, inherited, every stage.
     insuwb_runtime::perm::restrict_umask();
+    // One group per prefix and run directory: a second launch refuses here,
+    // before it cleans, removes or creates anything (insuwb_stage::lock).
+    let _group_lock = insuwb_stage::lock::GroupLock::acquire(&cfg.group)?;
     if insuwb_runtime::perm::is_shared(&cfg.group.run_dir) {
         tracing::warn!(
             "the run directory {} has group or other permission bits",
@@ -266,13 +250,7 @@ pub fn run_group_with(
     ));
     let t0 = Instant::now();
     sup.start(t0)?;
-    let mut mon = Monitor {
-        fused: Vec::new(),
-        truth: extras.truth,
-        imu_times: (0, 0, 0),
-        fix_times: (0, 0, 0),
-        health: std::collections::BTreeMap::new(),
-    };
+    let mut mon = Monitor::new(extras.truth);
     let mut last_live = Instant::now();
     let mut last_live_counts = (0u64, 0u64, 0u64);
     let mut failed = None;
@@ -290,10 +268,11 @@ pub fn run_group_with(
     loop {
         let wake = waiter.wait_timeout(Duration::from_millis(100))?;
         let now = Instant::now();
-        fused_sub.drain(|f| mon.fused.push(f))?;
-        truth_sub.drain(|t| mon.truth.push(t))?;
-        imu_sub.drain(|s| count(&mut mon.imu_times, s.header.meas_time_ns))?;
-        fix_sub.drain(|s| count(&mut mon.fix_times, s.header.meas_time_ns))?;
+        fused_sub.drain(|f| mon.fused(&f))?;
+        truth_sub.drain(|t| mon.truth(t))?;
+        mon.settle();
+        imu_sub.drain(|s| mon.imu.count(s.header.meas_time_ns))?;
+        fix_sub.drain(|s| mon.fixes.count(s.header.meas_time_ns))?;
         health_sub.drain(|h| {
             let name = insuwb_msg::name_str(&h.stage);
             sup.note_heartbeat_from(&name, h.pid, now);
@@ -349,14 +328,9 @@ pub fn run_group_with(
         if opts.live && now.duration_since(last_live) >= Duration::from_secs(1) {
             let dt = now.duration_since(last_live).as_secs_f64();
             last_live = now;
-            let upd = mon
-                .fused
-                .iter()
-                .filter(|f| f.uwb_seq != 0 || f.header.flags & FusedState::FLAG_DEGRADED == 0)
-                .count() as u64;
-            let c = (mon.imu_times.2, mon.fix_times.2, upd);
+            let (upd, p) = mon.live();
+            let c = (mon.imu.n(), mon.fixes.n(), upd);
             let outliers: u64 = mon.health.get("fusion").map_or(0, |h| h.extra[1]);
-            let p = mon.fused.last().map_or([f64::NAN; 3], |f| f.pos_m);
             eprintln!(
                 "[{:5.1} s] imu {:6.1} Hz  uwb {:5.1} Hz  fused {:5.1} Hz  pos ({:6.2}, {:6.2})  outliers {outliers}  restarts {}",
                 now.duration_since(t0).as_secs_f64(),
@@ -379,7 +353,7 @@ pub fn run_group_with(
     let elapsed = t0.elapsed().as_secs_f64();
     sup.shutdown(&SHUTDOWN_ORDER);
     let restarts = sup.total_restarts();
-    let mut report = summarise(&mon, restarts, elapsed);
+    let mut report = summarise(&mut mon, restarts, elapsed);
     for (stage, src) in [("imu", &cfg.sources.imu), ("uwb", &cfg.sources.uwb)] {
         if src == "device" {
             if let Some(f) = report.stages.get_mut(stage) {
@@ -404,57 +378,8 @@ pub fn run_group_with(
     Ok(report)
 }
 
-fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
-    let updates: Vec<&FusedState> = mon
-        .fused
-        .iter()
-        .filter(|f| f.header.flags & FusedState::FLAG_DEGRADED == 0)
-        .collect();
-    let mut hist = hdrhistogram::Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).ok();
-    for f in &updates {
-        if f.uwb_pub_time_ns > 0 && f.header.pub_time_ns > f.uwb_pub_time_ns {
-            if let Some(h) = hist.as_mut() {
-                let _ = h.record(((f.header.pub_time_ns - f.uwb_pub_time_ns) / 1000).max(1));
-            }
-        }
-    }
-    let (p50, p99) = hist
-        .as_ref()
-        .filter(|h| !h.is_empty())
-        .map_or((0.0, 0.0), |h| {
-            (
-                h.value_at_quantile(0.5) as f64,
-                h.value_at_quantile(0.99) as f64,
-            )
-        });
-    let mut truth = mon.truth.clone();
-    truth.sort_by_key(|t| t.header.meas_time_ns);
-    let track = insuwb_eval::metrics::TruthTrack::new(&truth, 100_000_000);
-    let (mut se, mut n) = (0.0, 0usize);
-    for f in updates
-        .iter()
-        .filter(|f| f.header.flags & FusedState::FLAG_VALID != 0)
-    {
-        if let Some((p, _)) = track.at(f.header.meas_time_ns) {
-            se += (f.pos_m[0] - p[0]).powi(2) + (f.pos_m[1] - p[1]).powi(2);
-            n += 1;
-        }
-    }
-    let fused_times: (u64, u64, u64) = updates.iter().fold((0, 0, 0), |mut t, f| {
-        count(&mut t, f.header.meas_time_ns);
-        t
-    });
-    let mut pub_times: Vec<u64> = updates
-        .iter()
-        .filter(|f| f.header.flags & FusedState::FLAG_VALID != 0)
-        .map(|f| f.header.pub_time_ns)
-        .collect();
-    pub_times.sort_unstable();
-    let max_gap = pub_times.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
-    let deadlocks = pub_times
-        .windows(2)
-        .filter(|w| w[1] - w[0] > 5_000_000_000)
-        .count() as u32;
+fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
+    let fig = mon.finish();
     let dropped: u64 = mon
         .health
         .values()
@@ -462,20 +387,21 @@ fn summarise(mon: &Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         .sum::<u64>()
         + mon.health.get("logger").map_or(0, |h| h.extra[1]);
     GroupReport {
-        rmse_horizontal: (n > 0).then(|| (se / n as f64).sqrt()),
-        fused_rate_hz: rate(fused_times),
-        imu_rate_hz: rate(mon.imu_times),
-        uwb_fix_rate_hz: rate(mon.fix_times),
+        rmse_horizontal: fig.rmse_horizontal,
+        rmse_states: fig.compared,
+        fused_rate_hz: fig.fused_rate_hz,
+        imu_rate_hz: mon.imu.rate(),
+        uwb_fix_rate_hz: mon.fixes.rate(),
         restarts,
-        latency_p50_us: p50,
-        latency_p99_us: p99,
+        latency_p50_us: fig.latency_p50_us,
+        latency_p99_us: fig.latency_p99_us,
         dropped,
         outliers: mon.health.get("fusion").map_or(0, |h| h.extra[1]),
-        degraded: (mon.fused.len() - updates.len()) as u64,
-        max_gap_ms: max_gap as f64 * 1e-6,
+        degraded: fig.degraded,
+        max_gap_ms: fig.max_gap_ms,
         duration_s: elapsed,
         faults: 0,
-        deadlocks,
+        deadlocks: fig.deadlocks,
         gave_up: Vec::new(),
         stages: mon
             .health
@@ -854,6 +780,10 @@ pub struct ChaosArgs {
     /// Print one JSON object on standard output.
     #[arg(long)]
     pub json: bool,
+    /// Keep both groups' run directories (configuration and recording) and
+    /// print where they are.
+    #[arg(long)]
+    pub keep: bool,
 }
 
 /// What `insuwb chaos` checks.
@@ -866,6 +796,10 @@ struct ChaosReport {
     leftover_files: usize,
     deadlocks: u32,
     rmse_horizontal: Option<f64>,
+    /// The same scenario, seed and length without faults, run beside.
+    rmse_undisturbed: Option<f64>,
+    /// `rmse_horizontal / rmse_undisturbed`.
+    rmse_ratio: Option<f64>,
     fused_rate_hz: f64,
 }
 
@@ -876,47 +810,59 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
         bail!("--duration must be in [5, 3600] s, got {}", a.duration);
     }
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
-    let run_dir = std::env::temp_dir().join(format!("insuwb-chaos-{id}"));
-    std::fs::create_dir_all(&run_dir)?;
-    let prefix = format!("insuwb_chaos{id}_");
-    // The long NLOS scenario, stretched to outlast the run (its loops and
-    // random NLOS continue); the restart budget is sized so the fault rate
-    // (at most one fault per second across the group) can never exhaust it.
-    let scenario = insuwb_config::builtin("scenario", "nlos-long")?
-        .text
-        .replacen(
-            "duration_s = 60.0",
-            &format!("duration_s = {:.1}", a.duration + 15.0),
-            1,
-        );
-    let scenario_path = run_dir.join("chaos-scenario.toml");
-    std::fs::write(&scenario_path, scenario)?;
-    let text = format!(
-        "[group]\nname = \"chaos\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
-         [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{}\"\nseed = 1\n\
-         [fusion]\nfilter = \"iakf\"\n[logger.segments.flush]\nevery_ms = 200\n\
-         [launch]\nbudget_restarts = 60\nbudget_window_s = 60.0\n",
-        run_dir.display(),
-        scenario_path.display()
-    );
-    let cfg_path = run_dir.join("chaos.toml");
-    std::fs::write(&cfg_path, &text)?;
-    let cfg = RobotConfig::load(&cfg_path)?;
+    let chaos_group = ChaosGroup::write(&format!("chaos{id}"), a.duration)?;
+    let control = ChaosGroup::write(&format!("calm{id}"), a.duration)?;
+    let duration = Some(Duration::from_secs_f64(a.duration));
+    // The undisturbed run: the same scenario, seed and length, beside the
+    // chaos group on the same machine at the same time.
+    let calm = std::thread::spawn({
+        let (path, cfg) = (control.cfg_path.clone(), control.cfg.clone());
+        move || {
+            run_group(
+                &path,
+                &cfg,
+                &RunOptions {
+                    duration,
+                    live: false,
+                    faults: Vec::new(),
+                    chaos_seed: None,
+                    env: Vec::new(),
+                },
+            )
+        }
+    });
     let result = run_group(
-        &cfg_path,
-        &cfg,
+        &chaos_group.cfg_path,
+        &chaos_group.cfg,
         &RunOptions {
-            duration: Some(Duration::from_secs_f64(a.duration)),
+            duration,
             live: !a.json,
             faults: Vec::new(),
             chaos_seed: Some(a.seed),
             env: Vec::new(),
         },
     );
-    let leftover = leftover_files(&prefix, &cfg.iox_root());
-    let lost = imu_records_lost(&run_dir.join("log"));
-    let _ = std::fs::remove_dir_all(&run_dir);
+    let calm = calm
+        .join()
+        .map_err(|_| anyhow::anyhow!("the undisturbed group's thread panicked"));
+    let leftover = chaos_group.leftover_files();
+    let lost = imu_records_lost(&chaos_group.run_dir.join("log"));
+    if a.keep {
+        eprintln!(
+            "insuwb chaos: kept {} (faults) and {} (undisturbed)",
+            chaos_group.run_dir.display(),
+            control.run_dir.display()
+        );
+    } else {
+        let _ = std::fs::remove_dir_all(&chaos_group.run_dir);
+        let _ = std::fs::remove_dir_all(&control.run_dir);
+    }
     let r = result?;
+    let calm = calm?.context("the undisturbed group")?;
+    let rmse_ratio = match (r.rmse_horizontal, calm.rmse_horizontal) {
+        (Some(a), Some(b)) if b > 0.0 => Some(a / b),
+        _ => None,
+    };
     let report = ChaosReport {
         faults: r.faults,
         restarts: r.restarts,
@@ -925,6 +871,8 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
         leftover_files: leftover,
         deadlocks: r.deadlocks,
         rmse_horizontal: r.rmse_horizontal,
+        rmse_undisturbed: calm.rmse_horizontal,
+        rmse_ratio,
         fused_rate_hz: r.fused_rate_hz,
     };
     if a.json {
@@ -935,6 +883,56 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
     }
     Ok(())
+}
+
+/// One group of `insuwb chaos`: its run directory and configuration.
+struct ChaosGroup {
+    run_dir: PathBuf,
+    prefix: String,
+    cfg_path: PathBuf,
+    cfg: RobotConfig,
+}
+
+impl ChaosGroup {
+    /// Writes the configuration of group `name`: the long NLOS scenario,
+    /// stretched to outlast the run (its loops and random NLOS continue),
+    /// and a restart budget sized so the fault rate (at most one fault per
+    /// second across the group) can never exhaust it.
+    fn write(name: &str, duration_s: f64) -> Result<Self> {
+        let run_dir = std::env::temp_dir().join(format!("insuwb-{name}"));
+        std::fs::create_dir_all(&run_dir)?;
+        let prefix = format!("insuwb_{name}_");
+        let scenario = insuwb_config::builtin("scenario", "nlos-long")?
+            .text
+            .replacen(
+                "duration_s = 60.0",
+                &format!("duration_s = {:.1}", duration_s + 15.0),
+                1,
+            );
+        let scenario_path = run_dir.join("chaos-scenario.toml");
+        std::fs::write(&scenario_path, scenario)?;
+        let text = format!(
+            "[group]\nname = \"{name}\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
+             [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{}\"\nseed = 1\n\
+             [fusion]\nfilter = \"iakf\"\n[logger.segments.flush]\nevery_ms = 200\n\
+             [launch]\nbudget_restarts = 60\nbudget_window_s = 60.0\n",
+            run_dir.display(),
+            scenario_path.display()
+        );
+        let cfg_path = run_dir.join("chaos.toml");
+        std::fs::write(&cfg_path, &text)?;
+        let cfg = RobotConfig::load(&cfg_path)?;
+        Ok(Self {
+            run_dir,
+            prefix,
+            cfg_path,
+            cfg,
+        })
+    }
+
+    fn leftover_files(&self) -> usize {
+        leftover_files(&self.prefix, &self.cfg.iox_root())
+    }
 }
 
 /// Files of the group left in /dev/shm and under its iceoryx2 root.

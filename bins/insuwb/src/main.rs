@@ -12,6 +12,7 @@ mod emulate_cmd;
 mod eval_cmd;
 mod group_cmd;
 mod log_cmd;
+mod monitor;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};

@@ -81,23 +81,7 @@ impl Running {
     fn processes(&self) -> Vec<(u32, String)> {
         let me = self.child.id();
         let mut out = vec![(me, "insuwb".to_owned())];
-        for e in std::fs::read_dir("/proc").unwrap().filter_map(Result::ok) {
-            let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
-                continue;
-            };
-            let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-                continue;
-            };
-            // "pid (comm) state ppid ...": comm may hold spaces, so split at ')'.
-            let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else {
-                continue;
-            };
-            let comm = stat[open + 1..close].to_owned();
-            let ppid = stat[close + 1..].split_whitespace().nth(1);
-            if ppid == Some(me.to_string().as_str()) {
-                out.push((pid, comm));
-            }
-        }
+        out.extend(common::child_processes(me));
         out
     }
 

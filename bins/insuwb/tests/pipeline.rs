@@ -232,4 +232,10 @@ fn chaos_for_60_s_loses_nothing_and_leaves_nothing() {
     assert_eq!(f(&v, "leftover_files"), 0.0, "{v}");
     assert!(f(&v, "faults") >= 12.0, "{v}");
     assert!(f(&v, "restarts") >= 1.0, "{v}");
+    // Restarts cost accuracy only around the faults: against the same
+    // scenario run undisturbed beside it. A restarted INS that lost its bias
+    // estimates drifted until the adaptive R locked the filter out (9.5x
+    // over 600 s); the 600 s figures are in docs/RELIABILITY.md.
+    let ratio = f(&v, "rmse_ratio");
+    assert!(ratio.is_finite() && ratio <= 2.5, "{v}");
 }

@@ -18,6 +18,15 @@ use insuwb_nav::ins::{Ins, InsConfig, InsState, NavOutput};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+/// The INS's sensor bias estimates (alignment and corrections), body frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct InsBiases {
+    /// Accelerometer bias, m/s^2.
+    pub accel_mps2: [f64; 3],
+    /// Gyro bias, rad/s.
+    pub gyro_rps: [f64; 3],
+}
+
 /// How the INS attitude is initialised.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -255,6 +264,17 @@ impl InsEngine {
         self.ins.is_some()
     }
 
+    /// The current sensor bias estimates, if aligned (what a restarted INS
+    /// needs to go on where this one stopped: a fused state carries none).
+    #[must_use]
+    pub fn biases(&self) -> Option<InsBiases> {
+        let n = self.latest()?;
+        Some(InsBiases {
+            accel_mps2: n.accel_bias_mps2,
+            gyro_rps: n.gyro_bias_rps,
+        })
+    }
+
     /// The latest navigation state, if aligned.
     #[must_use]
     pub fn latest(&self) -> Option<&NavState> {
@@ -262,22 +282,34 @@ impl InsEngine {
     }
 
     /// Re-initialise from a fused state (a restarted INS): position,
-    /// velocity and attitude are taken from `fused`, the next IMU sample
-    /// starts integration.
+    /// velocity and attitude are taken from `fused`, the sensor biases from
+    /// `biases` (the previous generation's estimates; zero when unknown or
+    /// not finite), the next IMU sample starts integration.
     pub fn reinit_from(
         &mut self,
         pos_m: [f64; 3],
         vel_mps: [f64; 3],
         quat: [f64; 4],
+        biases: Option<InsBiases>,
         correction_id: u64,
     ) {
         let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             quat[0], quat[1], quat[2], quat[3],
         ));
+        let b = biases
+            .filter(|b| {
+                b.accel_mps2
+                    .iter()
+                    .chain(&b.gyro_rps)
+                    .all(|v| v.is_finite())
+            })
+            .unwrap_or_default();
         let st = InsState {
             pos_m: Vector3::from(pos_m),
             vel_mps: Vector3::from(vel_mps),
             att: q,
+            accel_bias_mps2: Vector3::from(b.accel_mps2),
+            gyro_bias_rps: Vector3::from(b.gyro_rps),
             ..InsState::default()
         };
         if let Ok(ins) = Ins::new(self.cfg.ins.clone(), st) {

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 use crate::group::{start_epoch_ns, RobotConfig};
+use crate::lock::STAGE_LOCK_WAIT;
 use crate::source::Want;
 
 /// Which stage a binary runs.
@@ -21,6 +22,20 @@ pub enum StageKind {
     Fusion,
     /// Logger.
     Logger,
+}
+
+impl StageKind {
+    /// The stage's name: its role in the group (`imu`, `uwb`, `ins`, `fusion`, `logger`).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Imu => "imu",
+            Self::Uwb => "uwb",
+            Self::Ins => "ins",
+            Self::Fusion => "fusion",
+            Self::Logger => "logger",
+        }
+    }
 }
 
 /// Arguments of every stage binary.
@@ -61,14 +76,7 @@ fn parse_speed(s: &str) -> Result<f64, String> {
 #[must_use]
 pub fn main(kind: StageKind) -> ExitCode {
     let args = StageArgs::parse();
-    let name = match kind {
-        StageKind::Imu => "imu",
-        StageKind::Uwb => "uwb",
-        StageKind::Ins => "ins",
-        StageKind::Fusion => "fusion",
-        StageKind::Logger => "logger",
-    };
-    let _ = insuwb_runtime::init_tracing(name);
+    let _ = insuwb_runtime::init_tracing(kind.name());
     match run(kind, &args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -80,6 +88,9 @@ pub fn main(kind: StageKind) -> ExitCode {
 
 fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
     let cfg = RobotConfig::load(&args.config)?;
+    // One process per role and group, before anything of the group is
+    // opened: a stage started by hand beside its running group refuses.
+    let _role = crate::lock::StageLock::acquire(&cfg.group, kind.name(), STAGE_LOCK_WAIT)?;
     let epoch = args.start_epoch_ns.unwrap_or_else(start_epoch_ns);
     let speed = args.speed.unwrap_or(cfg.sources.speed);
     if speed.is_nan() || speed <= 0.0 {

@@ -110,7 +110,10 @@ pub fn run(
     let gen = stage.generation();
     let mut src = source::open(source_spec, &cfg.sources.scenario, cfg.sources.seed, want)?;
     let now = monotonic_ns();
-    if now > epoch_ns {
+    // In real time (or a finite factor of it) a driver that starts after the
+    // epoch, a restarted one above all, resumes where the recording is now.
+    // At "max" no clock says where that is: it plays from the start.
+    if now > epoch_ns && speed.is_finite() {
         let reached = ((now - epoch_ns) as f64 * speed) as u64;
         let skipped = src.skip_before(reached);
         if skipped > 0 {

@@ -1,16 +1,38 @@
 //! The INS stage: mechanisation of the IMU samples and the correction
 //! protocol (see `insuwb_fusion::ins_engine`). A restarted INS
-//! re-initialises from the latest fused state and ignores IMU samples older
-//! than it.
+//! re-initialises from the latest fused state and its predecessor's sensor
+//! bias estimates (a checkpoint in the run directory, written once a second
+//! by a thread of its own), and ignores IMU samples older than that state.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use anyhow::Result;
-use insuwb_fusion::ins_engine::InsEngine;
+use anyhow::{Context, Result};
+use insuwb_fusion::ins_engine::{InsBiases, InsEngine};
 use insuwb_msg::{topics, FusedState, Health, ImuSample, InsCorrection, NavState};
-use insuwb_runtime::{HealthCounters, Stage, Wake};
+use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 
 use crate::group::RobotConfig;
+
+/// How often the INS writes its bias estimates, ns.
+const CHECKPOINT_PERIOD_NS: u64 = 1_000_000_000;
+
+/// Path of the INS checkpoint (its sensor bias estimates) in the run directory.
+#[must_use]
+pub fn checkpoint_path(run_dir: &Path) -> PathBuf {
+    run_dir.join("ins.ckpt.toml")
+}
+
+fn write_checkpoint(path: &Path, b: &InsBiases) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, toml::to_string(b)?).with_context(|| format!("{}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("{}", path.display()))?;
+    Ok(())
+}
+
+fn read_checkpoint(path: &Path) -> Option<InsBiases> {
+    toml::from_str(&std::fs::read_to_string(path).ok()?).ok()
+}
 
 /// Runs the INS stage until SIGINT/SIGTERM.
 pub fn run(cfg: &RobotConfig) -> Result<()> {
@@ -26,6 +48,11 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let corr_a = waiter.attach(&corr_sub)?;
     let hb = waiter.attach_interval(health.period())?;
     let mut renav: Vec<NavState> = Vec::with_capacity(4096);
+    let ckpt_path = checkpoint_path(&cfg.group.run_dir);
+    if stage.generation() == 0 {
+        // A checkpoint of an earlier run of the group is not this one's.
+        let _ = std::fs::remove_file(&ckpt_path);
+    }
     // A restarted INS takes its state from the latest fused state (history of
     // the fused topic) and skips the IMU samples before it.
     let mut min_imu_t: u64 = 0;
@@ -57,16 +84,37 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             // which the fusion stage adopts as a restart's, rather than
             // dropping every state as stale.
             let max_id = max_id.max(u64::from(stage.generation()) << 32);
-            ins.reinit_from(f.pos_m, f.vel_mps, f.quat, max_id);
+            // Biases are the INS's alone (alignment, corrections): without
+            // them a restarted INS drifts from its first second while the
+            // fusion filter believes them still removed.
+            let biases = read_checkpoint(&ckpt_path);
+            ins.reinit_from(f.pos_m, f.vel_mps, f.quat, biases, max_id);
             min_imu_t = f.header.meas_time_ns;
             tracing::warn!(
-                "generation {}: re-initialised from the fused state at {} ns, correction id {max_id}",
+                "generation {}: re-initialised from the fused state at {} ns, correction id {max_id}, {}",
                 stage.generation(),
-                min_imu_t
+                min_imu_t,
+                if biases.is_some() { "sensor biases from the checkpoint" } else { "no bias checkpoint: biases zero" }
             );
         }
     }
     let mut counters = HealthCounters::default();
+    // The writer thread serialises and writes: no file I/O on this loop.
+    let (ckpt_tx, ckpt_rx) = crossbeam_channel::bounded::<InsBiases>(1);
+    let writer = {
+        let path = ckpt_path.clone();
+        std::thread::Builder::new()
+            .name("checkpoint".into())
+            .spawn(move || {
+                for b in ckpt_rx {
+                    if let Err(e) = write_checkpoint(&path, &b) {
+                        tracing::warn!("checkpoint: {e:#}");
+                    }
+                }
+            })
+            .context("starting the checkpoint writer thread")?
+    };
+    let mut last_ckpt = 0u64;
     loop {
         match waiter.wait_timeout(Duration::from_millis(500))? {
             Wake::Shutdown => break,
@@ -97,6 +145,14 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                         return Err(e.into());
                     }
                 }
+                let now = monotonic_ns();
+                if now.saturating_sub(last_ckpt) >= CHECKPOINT_PERIOD_NS {
+                    if let Some(b) = ins.biases() {
+                        // Full: the previous one is still being written; skip.
+                        let _ = ckpt_tx.try_send(b);
+                        last_ckpt = now;
+                    }
+                }
                 if f.contains(&hb) {
                     let c = ins.counters();
                     counters = HealthCounters::default();
@@ -117,6 +173,8 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             }
         }
     }
+    drop(ckpt_tx);
+    let _ = writer.join();
     health.report(&counters, Health::STATE_STOPPING)?;
     Ok(())
 }

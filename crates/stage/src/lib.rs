@@ -2,7 +2,8 @@
 //! configuration ([`group`]), the sensor sources ([`source`]), and one module
 //! per stage ([`driver`] for the IMU and UWB drivers, [`device`] for their
 //! loop over a real sensor, [`ins`], [`fusion`],
-//! [`logger`]), and what the device emulators play ([`emulate`]). The stage
+//! [`logger`]), what the device emulators play ([`emulate`]) and the locks
+//! that keep one group per prefix and one process per stage role ([`lock`]). The stage
 //! binaries in `bins/` are thin `main`s over [`cli`]; all the algorithms come
 //! from `insuwb-fusion`, the same code `insuwb eval` runs.
 #![warn(missing_docs)]
@@ -14,5 +15,6 @@ pub mod emulate;
 pub mod fusion;
 pub mod group;
 pub mod ins;
+pub mod lock;
 pub mod logger;
 pub mod source;

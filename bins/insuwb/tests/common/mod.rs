@@ -204,3 +204,29 @@ pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::o
     let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
     insuwb_fusion::offline::run(&imu, &tdoa, &w.fusion, kind).unwrap()
 }
+
+/// The child processes of `parent`: `(pid, command name)` (the stages of a
+/// launcher).
+pub fn child_processes(parent: u32) -> Vec<(u32, String)> {
+    let parent = parent.to_string();
+    let mut out = Vec::new();
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return out;
+    };
+    for e in dir.filter_map(Result::ok) {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // "pid (comm) state ppid ...": comm may hold spaces, so split at ')'.
+        let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else {
+            continue;
+        };
+        if stat[close + 1..].split_whitespace().nth(1) == Some(parent.as_str()) {
+            out.push((pid, stat[open + 1..close].to_owned()));
+        }
+    }
+    out
+}
