@@ -24,27 +24,14 @@
 //! `CI` is set, where they fail.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use std::path::PathBuf;
+mod common;
 
+use common::{data_dir, load, preset};
 use insuwb_data::segment::{flight_segment, interpolate_truth};
-use insuwb_data::util::{load_util_flight, ImportOptions, UtilFlight};
+use insuwb_data::util::UtilFlight;
 use insuwb_fusion::offline::{self, FusionConfig, RunOutput};
 use insuwb_msg::{FilterDiag, FilterKind, FusedState};
 
-/// The preset, as `insuwb eval` reads it (`[fusion]`, `[import]`, `[eval]`).
-#[derive(Debug, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Preset {
-    #[serde(default)]
-    fusion: FusionConfig,
-    #[serde(default)]
-    import: ImportOptions,
-    #[serde(default)]
-    #[allow(dead_code)]
-    eval: Option<toml::Value>,
-}
-
-const PRESET: &str = include_str!("../../../config/util.toml");
 const FLIGHT: &str = "flight-a92f4787";
 const ANCHORS: &str = "anchors-const3.txt";
 /// The flight segment: ground-truth height above this, m (as the preset's `[eval]`).
@@ -60,41 +47,6 @@ const SETTLE_S: f64 = 2.0;
 /// Bound on the horizontal error over the second after `SETTLE_S`, m (the
 /// tight filter's largest error on the flight without the fault: 0.59 m).
 const BOUND_M: f64 = 1.0;
-
-/// The data directory, or `None` (after saying so) when it is absent outside CI.
-fn data_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("INSUWB_UTIL_DIR").map_or_else(
-        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/util"),
-        PathBuf::from,
-    );
-    if dir.join(FLIGHT).is_file() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "UTIL data not found at {} (set INSUWB_UTIL_DIR); CI is set, so this fails instead of skipping",
-        dir.display()
-    );
-    eprintln!(
-        "SKIPPED: UTIL data not found at {} (set INSUWB_UTIL_DIR to run the real-flight tests)",
-        dir.display()
-    );
-    None
-}
-
-fn preset() -> Preset {
-    toml::from_str(PRESET).expect("config/util.toml parses as [fusion], [import], [eval]")
-}
-
-fn load(dir: &std::path::Path, p: &Preset) -> UtilFlight {
-    load_util_flight(
-        &dir.join(FLIGHT),
-        &dir.join(ANCHORS),
-        &insuwb_data::cflog::ParseOptions::default(),
-        &p.import,
-    )
-    .unwrap()
-}
 
 fn secs(t_ns: u64) -> f64 {
     t_ns as f64 * 1e-9
@@ -157,11 +109,11 @@ fn resets(out: &RunOutput, end_s: f64) -> Vec<f64> {
 /// monitor fires, the filter is reset from UWB, the outputs are flagged,
 /// the error comes back under the bound.
 fn monitor_catches_a_divergence(kind: FilterKind, fault: bool) {
-    let Some(dir) = data_dir() else {
+    let Some(dir) = data_dir(FLIGHT) else {
         return;
     };
     let p = preset();
-    let flight = load(&dir, &p);
+    let flight = load(&dir, FLIGHT, ANCHORS, &p);
     let end = secs(flight_segment(&flight.truth, MIN_HEIGHT_M).unwrap().1);
 
     let on = run(&flight, &p.fusion, kind, fault);
@@ -266,11 +218,11 @@ fn monitor_catches_a_divergence(kind: FilterKind, fault: bool) {
 #[test]
 fn the_monitor_resets_the_tight_filter_after_an_imu_fault() {
     monitor_catches_a_divergence(FilterKind::IakfTdoa, true);
-    let Some(dir) = data_dir() else {
+    let Some(dir) = data_dir(FLIGHT) else {
         return;
     };
     let p = preset();
-    let flight = load(&dir, &p);
+    let flight = load(&dir, FLIGHT, ANCHORS, &p);
     let end = secs(flight_segment(&flight.truth, MIN_HEIGHT_M).unwrap().1);
     let clean = run(&flight, &p.fusion, FilterKind::IakfTdoa, false);
     assert_eq!(resets(&clean.out, end), Vec::<f64>::new());

@@ -10,26 +10,13 @@
 //! `CI` is set, where they fail.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use std::path::PathBuf;
+mod common;
 
+use common::{data_dir, load, preset, Preset};
 use insuwb_data::segment::{flight_segment, interpolate_truth};
-use insuwb_data::util::{load_util_flight, ImportOptions, UtilFlight};
-use insuwb_fusion::offline::{self, FusionConfig};
+use insuwb_data::util::UtilFlight;
+use insuwb_fusion::offline;
 use insuwb_msg::{FilterKind, FusedState, UwbFix};
-
-/// The preset, as `insuwb eval` reads it (`[fusion]`, `[import]`, `[eval]`).
-#[derive(Debug, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Preset {
-    #[serde(default)]
-    fusion: FusionConfig,
-    #[serde(default)]
-    import: ImportOptions,
-    #[serde(default)]
-    eval: Option<toml::Value>,
-}
-
-const PRESET: &str = include_str!("../../../config/util.toml");
 
 /// Log, anchor file, the radio alone: the least-squares TDOA fix's
 /// horizontal RMSE measured outside this project (`flights.csv`,
@@ -49,47 +36,12 @@ const FILTERS: [FilterKind; 5] = [
     FilterKind::IakfTdoa,
 ];
 
-fn preset() -> Preset {
-    toml::from_str(PRESET).expect("config/util.toml parses as [fusion], [import], [eval]")
-}
-
 fn min_height_m(p: &Preset) -> f64 {
     p.eval
         .as_ref()
         .and_then(|e| e.get("min_height_m"))
         .and_then(toml::Value::as_float)
         .unwrap_or(insuwb_data::segment::DEFAULT_MIN_HEIGHT_M)
-}
-
-/// The data directory, or `None` (after saying so) when it is absent outside CI.
-fn data_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("INSUWB_UTIL_DIR").map_or_else(
-        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/util"),
-        PathBuf::from,
-    );
-    if dir.join(LOGS[0].0).is_file() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "UTIL data not found at {} (set INSUWB_UTIL_DIR); CI is set, so this fails instead of skipping",
-        dir.display()
-    );
-    eprintln!(
-        "SKIPPED: UTIL data not found at {} (set INSUWB_UTIL_DIR to run the real-flight tests)",
-        dir.display()
-    );
-    None
-}
-
-fn load(dir: &std::path::Path, log: &str, anchors: &str, p: &Preset) -> UtilFlight {
-    load_util_flight(
-        &dir.join(log),
-        &dir.join(anchors),
-        &insuwb_data::cflog::ParseOptions::default(),
-        &p.import,
-    )
-    .unwrap()
 }
 
 /// Horizontal errors at `epochs` inside `segment`, of the estimates `est(t)`.
@@ -199,7 +151,7 @@ fn preset_parses_and_validates() {
 /// 0.141 m).
 #[test]
 fn util_logs_tight_filter_near_the_radio_alone() {
-    let Some(dir) = data_dir() else {
+    let Some(dir) = data_dir(LOGS[0].0) else {
         return;
     };
     let p = preset();
