@@ -132,13 +132,13 @@ const ISSUE_16: Bounds = Bounds {
 
 /// What the shared flights give today (docs/REAL_FLIGHTS.md), with margin:
 /// a guard against regressions while issue 16's bounds do not hold. Today:
-/// `iakf_tdoa` worst 1.35, median 1.07, `max_dist` 0.82 m, NEES median 5.5
-/// and worst 12.1; `iakf` worst 3.2; `uwb` worst 1.89.
+/// `iakf_tdoa` worst 1.33, median 1.03, `max_dist` 0.82 m, NEES median 5.3
+/// and worst 11.8; `iakf` worst 1.10; `uwb` worst 1.14.
 const TODAY: Bounds = Bounds {
     tight: 1.5,
     tight_median: 1.15,
-    iakf: 4.0,
-    uwb: 2.0,
+    iakf: 1.35,
+    uwb: 1.25,
     iakf_vs_kf: false,
     max_dist_m: 1.0,
     nees: 20.0,

@@ -487,6 +487,9 @@ pub struct Eskf {
     q_adapt: QAdapt,
     /// The specific force of the last prediction step, ENU, m/s^2.
     f_last: [f64; 3],
+    /// Velocity noise density added to the accelerometer's, m^2/s^3
+    /// ([`Eskf::set_extra_velocity_noise`]).
+    q_vel_extra: f64,
 }
 
 /// Updates the process-noise scale looks back over (median window).
@@ -558,6 +561,7 @@ impl Eskf {
             stats: EskfStats::default(),
             q_adapt: QAdapt::new(),
             f_last: [0.0; 3],
+            q_vel_extra: 0.0,
         })
     }
 
@@ -643,6 +647,9 @@ impl Eskf {
                 || (IDX_ACCEL_BIAS..IDX_ACCEL_BIAS + 3).contains(&i);
             self.p[(i, i)] += if accel { alpha * q[i] } else { q[i] };
         }
+        for i in IDX_VEL..IDX_VEL + 2 {
+            self.p[(i, i)] += self.q_vel_extra * dt_s;
+        }
         symmetrize(&mut self.p);
         if self.x.iter().any(|&v| v != 0.0) {
             self.x += apply_f(&minus_f_skew, &rot, &self.x) * dt_s;
@@ -653,6 +660,18 @@ impl Eskf {
             self.needs_reset = true;
         }
         Ok(())
+    }
+
+    /// Sets a horizontal velocity noise density (m^2/s^3) added to the
+    /// accelerometer's in the predictions that follow (e.g. from the
+    /// vibration the IMU measures); a value that is not finite and
+    /// non-negative is taken as 0.
+    pub fn set_extra_velocity_noise(&mut self, q_m2_per_s3: f64) {
+        self.q_vel_extra = if q_m2_per_s3.is_finite() && q_m2_per_s3 >= 0.0 {
+            q_m2_per_s3
+        } else {
+            0.0
+        };
     }
 
     /// [`Eskf::predict`] from an INS state: specific force

@@ -25,6 +25,9 @@ pub(crate) struct Core {
     pub r: Mat4,
     pub r0: Mat4,
     pub updates: u64,
+    /// Velocity noise density added to the model's (m^2/s^3), set per
+    /// prediction from what the IMU measures ([`crate::ErrorFilter::set_extra_velocity_noise`]).
+    pub q_vel_extra: f64,
 }
 
 /// What an update knows before any adaptation.
@@ -94,6 +97,7 @@ impl Core {
             r: setup.r0(),
             r0: setup.r0(),
             updates: 0,
+            q_vel_extra: 0.0,
         }
     }
 
@@ -103,7 +107,10 @@ impl Core {
         }
         let steps = self.model.steps(dt_s)?;
         let t = self.model.transition(steps.sub_dt_s, a_e_mps2, a_n_mps2);
-        let q = self.model.process_noise_diag(steps.sub_dt_s);
+        let mut q = self.model.process_noise_diag(steps.sub_dt_s);
+        for i in [crate::model::idx::VE, crate::model::idx::VN] {
+            q[i] += self.q_vel_extra * steps.sub_dt_s;
+        }
         let mut x = self.x;
         let mut p = self.p;
         let mut q_acc = self.q_acc;

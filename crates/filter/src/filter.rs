@@ -219,6 +219,11 @@ pub trait ErrorFilter: core::fmt::Debug + Send {
     /// [`ResetError`] when `p0` is not finite, symmetric, with a non-negative
     /// diagonal; the filter is then unchanged.
     fn reset(&mut self, p0: &Mat14) -> Result<(), ResetError>;
+    /// Sets a velocity noise density (m^2/s^3) added to the model's
+    /// `q_vel_m2_per_s3` in the predictions that follow (e.g. from the
+    /// vibration the IMU measures); a value that is not finite and
+    /// non-negative is taken as 0.
+    fn set_extra_velocity_noise(&mut self, q_m2_per_s3: f64);
     /// A copy of this filter on the heap (a scratch filter for
     /// [`ErrorFilter::copy_to`]; allocates, so made once).
     fn clone_boxed(&self) -> Box<dyn ErrorFilter>;
@@ -258,6 +263,13 @@ macro_rules! common_filter_methods {
         }
         fn take_correction(&mut self) -> Vec14 {
             self.core.take_correction()
+        }
+        fn set_extra_velocity_noise(&mut self, q_m2_per_s3: f64) {
+            self.core.q_vel_extra = if q_m2_per_s3.is_finite() && q_m2_per_s3 >= 0.0 {
+                q_m2_per_s3
+            } else {
+                0.0
+            };
         }
         fn clone_boxed(&self) -> Box<dyn ErrorFilter> {
             Box::new(self.clone())

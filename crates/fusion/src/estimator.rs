@@ -3,6 +3,7 @@
 //! with UWB fixes, and the tightly coupled 15-state error-state filter fed
 //! with each TDOA measurement.
 
+use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_msg::{FilterKind, NavState, UwbFix, UwbTdoa};
 
 /// The INS state at a measurement's epoch (interpolated between two samples).
@@ -266,6 +267,9 @@ pub struct PaperEstimator {
     /// Whether the last fix update used the velocity (the warm-up runs the
     /// same kind of update: another size is other code).
     last_update_vel: bool,
+    /// Vibration settings and meter ([`crate::vibration`]).
+    vib_cfg: VibrationConfig,
+    vib: VibrationMeter,
 }
 
 impl PaperEstimator {
@@ -286,6 +290,8 @@ impl PaperEstimator {
             last_fix_t_ns: None,
             scratch: filter.clone_boxed(),
             last_update_vel: false,
+            vib_cfg: VibrationConfig::default(),
+            vib: VibrationMeter::default(),
             filter,
             cfg,
             p0,
@@ -377,6 +383,14 @@ impl PaperEstimator {
         d
     }
 
+    /// Adds the velocity noise of the vibration the IMU measures to the
+    /// filter's ([`crate::vibration`]; off with the default settings).
+    #[must_use]
+    pub fn with_vibration(mut self, cfg: VibrationConfig) -> Self {
+        self.vib_cfg = cfg;
+        self
+    }
+
     /// The wrapped filter.
     #[must_use]
     pub fn filter(&self) -> &dyn insuwb_filter::ErrorFilter {
@@ -446,6 +460,8 @@ impl Estimator for PaperEstimator {
             return;
         }
         self.last_quat = nav.quat;
+        let q = self.vib.push(&self.vib_cfg, dt_s, nav);
+        self.filter.set_extra_velocity_noise(q);
         self.acc_dt += dt_s;
         self.acc_ae += nav.accel_nav_mps2[0] * dt_s;
         self.acc_an += nav.accel_nav_mps2[1] * dt_s;

@@ -6,7 +6,8 @@
 //! UWB measurements into fused states and corrections; [`offline`] wires the
 //! two (and the UWB fix builder) together in one process, in lockstep, with
 //! exactly the code the stage processes run; [`tight`] wraps the tightly
-//! coupled error-state filter as an estimator.
+//! coupled error-state filter as an estimator; [`vibration`] turns the
+//! vibration the IMU measures into process noise for every filter.
 #![warn(missing_docs)]
 
 pub mod engine;
@@ -14,3 +15,4 @@ pub mod estimator;
 pub mod ins_engine;
 pub mod offline;
 pub mod tight;
+pub mod vibration;

@@ -12,6 +12,7 @@ use crate::engine::{FusionCounters, FusionEngine, FusionEngineConfig, Measuremen
 use crate::estimator::{Estimator, LooseConfig, LooseConfigError, PaperEstimator};
 use crate::ins_engine::{InsCounters, InsEngine, InsEngineConfig, InsEngineError};
 use crate::tight::{TightBuildError, TightConfig, TightEstimator};
+use crate::vibration::{VibrationConfig, VibrationConfigError};
 
 /// Everything a run needs: the INS, the fix builder, the engine and every filter's settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -36,6 +37,8 @@ pub struct FusionConfig {
     pub eskf: insuwb_eskf::EskfConfig,
     /// Tight-coupling settings outside the ESKF (antenna lever arm, specific-force smoothing).
     pub tight: TightConfig,
+    /// Velocity noise from the vibration the IMU measures, for every filter.
+    pub vibration: VibrationConfig,
 }
 
 /// Why a run could not start.
@@ -59,6 +62,9 @@ pub enum RunError {
     /// The tightly coupled filter could not be built.
     #[error(transparent)]
     Tight(#[from] TightBuildError),
+    /// The vibration settings were refused.
+    #[error(transparent)]
+    Vibration(#[from] VibrationConfigError),
     /// The engine's divergence monitor config was refused (the message
     /// names the key, `engine.monitor.*`).
     #[error("engine.{0}")]
@@ -83,19 +89,24 @@ pub fn build_estimator(
     cfg: &FusionConfig,
 ) -> Result<Box<dyn Estimator>, RunError> {
     cfg.engine.validate()?;
+    cfg.vibration.validate()?;
     if kind == FilterKind::IakfTdoa {
-        return Ok(Box::new(TightEstimator::new(
-            cfg.eskf.clone(),
-            cfg.tight.clone(),
-            cfg.ins.ins.gravity_mps2,
-        )?));
+        return Ok(Box::new(
+            TightEstimator::new(
+                cfg.eskf.clone(),
+                cfg.tight.clone(),
+                cfg.ins.ins.gravity_mps2,
+            )?
+            .with_vibration(cfg.vibration.clone()),
+        ));
     }
     cfg.loose.validate()?;
     let model = insuwb_filter::PaperModel::new(cfg.model.clone())?;
     let f = insuwb_filter::build(kind, model, &cfg.filter, &cfg.setup)?;
     Ok(Box::new(
         PaperEstimator::new(f, cfg.loose.clone(), cfg.setup.p0())
-            .with_gravity(cfg.ins.ins.gravity_mps2),
+            .with_gravity(cfg.ins.ins.gravity_mps2)
+            .with_vibration(cfg.vibration.clone()),
     ))
 }
 

@@ -11,6 +11,7 @@
 //! the engine's monitor finds from each update's NIS as for every filter
 //! (and [`Estimator::needs_reset`] when the covariance stops being finite).
 
+use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_eskf::{
     Covariance, Eskf, EskfConfig, EskfConfigError, TdoaOutcome, TdoaUpdateReport, N_STATES,
 };
@@ -104,6 +105,8 @@ pub struct TightEstimator {
     gravity_mps2: f64,
     /// Low-passed specific force (ENU, m/s^2), `None` before the first interval.
     f_smooth: Option<[f64; 3]>,
+    vib_cfg: VibrationConfig,
+    vib: VibrationMeter,
     predict_errors: u64,
     update_errors: u64,
 }
@@ -129,9 +132,19 @@ impl TightEstimator {
             cfg,
             gravity_mps2,
             f_smooth: None,
+            vib_cfg: VibrationConfig::default(),
+            vib: VibrationMeter::default(),
             predict_errors: 0,
             update_errors: 0,
         })
+    }
+
+    /// Adds the velocity noise of the vibration the IMU measures to the
+    /// accelerometer's ([`crate::vibration`]; off with the default settings).
+    #[must_use]
+    pub fn with_vibration(mut self, cfg: VibrationConfig) -> Self {
+        self.vib_cfg = cfg;
+        self
     }
 
     /// The wrapped ESKF (statistics, covariance, monitors).
@@ -197,6 +210,8 @@ impl Estimator for TightEstimator {
             return;
         }
         let a = nav.accel_nav_mps2;
+        let q = self.vib.push(&self.vib_cfg, dt_s, nav);
+        self.eskf.set_extra_velocity_noise(q);
         let raw = [a[0], a[1], a[2] + self.gravity_mps2];
         let tau = self.cfg.specific_force_tau_s;
         let f = match self.f_smooth {

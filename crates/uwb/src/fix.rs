@@ -118,14 +118,12 @@ pub struct FixConfig {
     /// the fix covariance.
     pub solver: SolverConfig,
     /// Solve each epoch from the mean of every measurement of a pair in it
-    /// instead of the pair's latest one. Default false. At 50 Hz per pair
-    /// (UTIL TDOA2) a 0.1 s epoch holds about five measurements of each
-    /// pair, whose independent part the mean averages; a difference more
-    /// than `average_gate_m` from the pair's mean so far in the epoch is
-    /// left out of it (an NLOS jump), and counted as superseded.
+    /// instead of the pair's latest one, weighted by the count (`sigma /
+    /// sqrt(n)` per pair): the least-squares fix of every measurement of the
+    /// epoch. Default false. At 50 Hz per pair (UTIL TDOA2) a 0.1 s epoch
+    /// holds about five measurements of each pair, whose independent part
+    /// the mean averages.
     pub average_pairs: bool,
-    /// See `average_pairs`, m. Default 1.0.
-    pub average_gate_m: f64,
 }
 
 impl Default for FixConfig {
@@ -138,7 +136,6 @@ impl Default for FixConfig {
             velocity: VelocityConfig::default(),
             solver: SolverConfig::default(),
             average_pairs: false,
-            average_gate_m: 1.0,
         }
     }
 }
@@ -200,9 +197,6 @@ impl FixConfig {
             };
             return fail("min_pairs", req, self.min_pairs as f64);
         }
-        if !(self.average_gate_m.is_finite() && self.average_gate_m > 0.0) {
-            return fail("average_gate_m", "finite and > 0", self.average_gate_m);
-        }
         self.velocity.validate()?;
         self.solver.validate()?;
         Ok(())
@@ -230,6 +224,10 @@ pub struct FixStats {
     pub dropped_time_backwards: u64,
     /// Measurements dropped because the epoch's pair table was full.
     pub dropped_capacity: u64,
+    /// Measurements dropped as physically impossible: a range difference
+    /// longer than the distance between its two anchors.
+    #[serde(default)]
+    pub dropped_impossible: u64,
     /// Non-empty epochs closed.
     pub epochs: u64,
     /// Fixes produced.
@@ -291,6 +289,22 @@ pub enum PushError {
         /// Time of the previous accepted measurement, ns.
         last_ns: u64,
     },
+    /// The range difference is longer than the distance between its anchors
+    /// (the triangle inequality allows at most that): a corrupted or
+    /// multipath-wrapped measurement.
+    #[error(
+        "range difference {diff_m} m is longer than the {baseline_m} m between anchors {a} and {b}"
+    )]
+    Impossible {
+        /// The measured difference, m.
+        diff_m: f64,
+        /// Distance between the two anchors, m.
+        baseline_m: f64,
+        /// Anchor A id.
+        a: u32,
+        /// Anchor B id.
+        b: u32,
+    },
     /// The epoch's pair table is full.
     #[error("epoch pair table full ({max} pairs); pair ({a}, {b}) dropped")]
     PairCapacity {
@@ -319,6 +333,8 @@ pub struct FixBuilder {
     /// Per pair of the open epoch: the differences averaged so far (sum,
     /// count), oriented as `obs` (`average_pairs`).
     sums: Vec<(f64, u32)>,
+    /// Per pair of the open epoch: the sigma of its mean (`average_pairs`).
+    sigmas: Vec<f64>,
     /// Epoch index of the open group.
     epoch: Option<u64>,
     /// Time of the latest accepted measurement.
@@ -345,6 +361,7 @@ impl FixBuilder {
             keys: Vec::with_capacity(cfg.max_pairs),
             obs: Vec::with_capacity(cfg.max_pairs),
             sums: Vec::with_capacity(cfg.max_pairs),
+            sigmas: Vec::with_capacity(cfg.max_pairs),
             epoch: None,
             last_time_ns: None,
             prev_pos_m: None,
@@ -409,6 +426,7 @@ impl FixBuilder {
                 PushError::SameAnchor { .. } => self.stats.dropped_same_anchor += 1,
                 PushError::TimeBackwards { .. } => self.stats.dropped_time_backwards += 1,
                 PushError::PairCapacity { .. } => self.stats.dropped_capacity += 1,
+                PushError::Impossible { .. } => self.stats.dropped_impossible += 1,
             }
             return Err(e);
         }
@@ -425,14 +443,13 @@ impl FixBuilder {
         };
         match self.keys.iter().position(|q| *q == key) {
             Some(i) => {
-                let (avg, gate) = (self.cfg.average_pairs, self.cfg.average_gate_m);
                 if let (Some(slot), Some(sum)) = (self.obs.get_mut(i), self.sums.get_mut(i)) {
-                    if !avg {
-                        *slot = o;
-                    } else if sum.1 > 0 && (o.diff_m - sum.0 / f64::from(sum.1)).abs() <= gate {
+                    if self.cfg.average_pairs {
                         sum.0 += o.diff_m;
                         sum.1 += 1;
                         slot.diff_m = sum.0 / f64::from(sum.1);
+                    } else {
+                        *slot = o;
                     }
                 }
                 self.stats.superseded += 1;
@@ -491,6 +508,21 @@ impl FixBuilder {
         }
         if m.anchor_a == m.anchor_b {
             return Err(PushError::SameAnchor { id: m.anchor_a });
+        }
+        let baseline_m = m
+            .anchor_a_pos_m
+            .iter()
+            .zip(&m.anchor_b_pos_m)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        if m.diff_m.abs() > baseline_m {
+            return Err(PushError::Impossible {
+                diff_m: m.diff_m,
+                baseline_m,
+                a: m.anchor_a,
+                b: m.anchor_b,
+            });
         }
         let t = m.header.meas_time_ns;
         if let Some(last_ns) = self.last_time_ns.filter(|last| t < *last) {
@@ -579,18 +611,33 @@ impl FixBuilder {
         }
     }
 
-    fn solve_group(&self) -> Result<(solve::Fix, Seed), SkipReason> {
+    fn solve_group(&mut self) -> Result<(solve::Fix, Seed), SkipReason> {
         if self.obs.len() < self.cfg.min_pairs {
             return Err(SkipReason::TooFewPairs {
                 count: self.obs.len(),
                 min: self.cfg.min_pairs,
             });
         }
-        let fix = match self.cfg.mode {
-            FixMode::Mode2d { height_m } => {
-                solve::solve_2d(&self.obs, height_m, self.prev_pos_m, &self.cfg.solver)?
+        let (obs, init, solver) = (&self.obs, self.prev_pos_m, &self.cfg.solver);
+        let fix = if self.cfg.average_pairs {
+            // The mean of n differences has sigma / sqrt(n).
+            self.sigmas.clear();
+            self.sigmas.extend(
+                self.sums
+                    .iter()
+                    .map(|s| solver.tdoa_sigma_m / f64::from(s.1.max(1)).sqrt()),
+            );
+            match self.cfg.mode {
+                FixMode::Mode2d { height_m } => {
+                    solve::solve_2d_weighted(obs, &self.sigmas, height_m, init, solver)?
+                }
+                FixMode::Mode3d => solve::solve_3d_weighted(obs, &self.sigmas, init, solver)?,
             }
-            FixMode::Mode3d => solve::solve_3d(&self.obs, self.prev_pos_m, &self.cfg.solver)?,
+        } else {
+            match self.cfg.mode {
+                FixMode::Mode2d { height_m } => solve::solve_2d(obs, height_m, init, solver)?,
+                FixMode::Mode3d => solve::solve_3d(obs, init, solver)?,
+            }
         };
         Ok((fix, fix.seed))
     }

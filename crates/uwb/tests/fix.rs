@@ -334,6 +334,12 @@ fn bad_measurements_are_dropped_and_counted() {
     ));
     let m = meas(51 * MS, &anchors, 2, 2, p, 0.0);
     assert_eq!(b.push(&m), Err(PushError::SameAnchor { id: 2 }));
+    // A difference longer than the baseline between its anchors cannot be.
+    let m = meas(51 * MS, &anchors, 0, 1, p, 100.0);
+    assert!(matches!(
+        b.push(&m),
+        Err(PushError::Impossible { a: 0, b: 1, .. })
+    ));
     b.push(&meas(52 * MS, &anchors, 0, 2, p, 0.0)).unwrap();
     b.push(&meas(53 * MS, &anchors, 0, 3, p, 0.0)).unwrap();
     // The table holds 3 pairs: a 4th is dropped, a known pair is not.
@@ -349,9 +355,10 @@ fn bad_measurements_are_dropped_and_counted() {
             s.dropped_non_finite,
             s.dropped_same_anchor,
             s.dropped_capacity,
+            s.dropped_impossible,
             s.accepted
         ),
-        (1, 2, 1, 1, 4)
+        (1, 2, 1, 1, 1, 4)
     );
     // The builder is still usable: the epoch gives its fix.
     let f = b.flush().unwrap();
@@ -475,20 +482,20 @@ fn config_parses_and_errors_name_the_key() {
     .is_err());
 }
 
-/// `average_pairs`: the pair's differences in one epoch are averaged, one
-/// beyond `average_gate_m` from the running mean is left out; without it
-/// the last difference counts.
+/// `average_pairs`: the pair's differences in one epoch are averaged and
+/// the pair weighs as many measurements as it has (the least-squares fix of
+/// every difference); without it the last difference counts.
 #[test]
 fn averaged_pairs_use_every_difference_of_the_epoch() {
     let anchors = paper_square(2.0);
     let p = [0.5, -0.4, 0.3];
     // Epoch (0, 100 ms]: pair (0, 1) four times with errors +0.1, -0.1,
-    // +0.05 and an NLOS jump of +3 m; the other pairs exact.
+    // -0.1 and +0.4 (mean +0.075); the other pairs once each, exact.
     let mut stream = vec![
         meas(10 * MS, &anchors, 0, 1, p, 0.1),
         meas(20 * MS, &anchors, 0, 1, p, -0.1),
-        meas(30 * MS, &anchors, 0, 1, p, 0.05),
-        meas(40 * MS, &anchors, 0, 1, p, 3.0),
+        meas(30 * MS, &anchors, 0, 1, p, -0.1),
+        meas(40 * MS, &anchors, 0, 1, p, 0.4),
     ];
     stream.push(meas(50 * MS, &anchors, 1, 2, p, 0.0));
     stream.push(meas(60 * MS, &anchors, 2, 3, p, 0.0));
@@ -501,17 +508,17 @@ fn averaged_pairs_use_every_difference_of_the_epoch() {
         let (fixes, stats) = run(&cfg, &stream, &vec![false; stream.len()]);
         assert_eq!(fixes.len(), 1);
         assert_eq!(stats.superseded, 3);
-        fixes[0].pos_m
+        fixes[0]
     };
     let averaged = solve(true);
     let last = solve(false);
     let e = |q: [f64; 3]| ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2)).sqrt();
-    // Mean error of the kept three: +0.0167 m on one pair of four.
-    assert!(e(averaged) < 0.03, "{averaged:?}");
-    assert!(e(last) > 0.5, "{last:?}");
-    let bad = FixConfig {
-        average_gate_m: 0.0,
-        ..cfg_2d(0.3)
-    };
-    assert!(FixBuilder::new(bad).is_err());
+    assert!(
+        e(averaged.pos_m) < 0.5 * e(last.pos_m),
+        "{averaged:?} {last:?}"
+    );
+    // Four measurements of one pair weigh four times one: the averaged fix
+    // is more certain along that pair's gradient than with its last one.
+    let tr = |f: &insuwb_msg::UwbFix| f.pos_cov_m2[0][0] + f.pos_cov_m2[1][1];
+    assert!(tr(&averaged) < tr(&last), "{averaged:?} {last:?}");
 }
