@@ -22,14 +22,14 @@ pub struct EvalOptions {
     /// UTIL README's flight segment).
     pub min_height_m: f64,
     /// Filters run when the command line names none (kf, shaf, stf, iakf, iakf_tdoa).
-    pub filters: Vec<String>,
+    pub filters: Vec<insuwb_msg::FilterKind>,
 }
 
 impl Default for EvalOptions {
     fn default() -> Self {
         Self {
             min_height_m: 0.0,
-            filters: ["kf", "shaf", "stf", "iakf"].map(String::from).to_vec(),
+            filters: crate::eval_cmd::DEFAULT_FILTERS.to_vec(),
         }
     }
 }

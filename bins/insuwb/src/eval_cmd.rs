@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use insuwb_eval::metrics::Metrics;
-use insuwb_eval::run::{evaluate, filter_key, parse_filter, EvalReport};
+use insuwb_eval::run::{evaluate, EvalReport};
 use insuwb_eval::scenario::{monte_carlo, ScenarioFile};
 use insuwb_log::{LogWriter, Metadata, Record};
 use insuwb_msg::FilterKind;
@@ -28,11 +28,7 @@ pub fn parse_filters(list: Option<&str>, default: &[FilterKind]) -> Result<Vec<F
     list.split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| {
-            parse_filter(s).with_context(|| {
-                format!("--filters: unknown filter '{s}' (known: kf, shaf, stf, iakf, iakf_tdoa)")
-            })
-        })
+        .map(|s| s.parse::<FilterKind>().context("--filters"))
         .collect()
 }
 
@@ -190,7 +186,7 @@ fn model_true(a: &EvalArgs) -> Result<()> {
         let r = run_consistency(&fusion.model, &fusion.filter, &fusion.setup, &cc)?;
         table.push_str(&format!(
             "{:<6} {:>9.3} {:>9.3} {:>15.1}% {:>15.1}%   (95 % band of the mean NEES [{:.2}, {:.2}], NIS [{:.2}, {:.2}])\n",
-            filter_key(kind).to_uppercase(),
+            kind.name().to_uppercase(),
             r.nees_mean,
             r.nis_mean,
             100.0 * r.nees_in_band_fraction,
@@ -201,7 +197,7 @@ fn model_true(a: &EvalArgs) -> Result<()> {
             r.nis_band[1]
         ));
         map.insert(
-            filter_key(kind).to_owned(),
+            kind.name().to_owned(),
             serde_json::json!({
                 "nees_mean": r.nees_mean,
                 "nis_mean": r.nis_mean,
@@ -227,12 +223,7 @@ pub fn evaluate_file(
 ) -> Result<(dataset::Loaded, EvalReport)> {
     let loaded = dataset::load(path, anchors, config, ignore_crc)?;
     tracing::info!("config: {}", loaded.config_origin);
-    let default = parse_filters(
-        Some(&loaded.config.eval.filters.join(",")),
-        &DEFAULT_FILTERS,
-    )
-    .context("[eval] filters")?;
-    let filters = parse_filters(filters, &default)?;
+    let filters = parse_filters(filters, &loaded.config.eval.filters)?;
     let t0 = std::time::Instant::now();
     let rep = evaluate(&loaded.data, &loaded.config.fusion, &filters)?;
     let elapsed = t0.elapsed();

@@ -21,9 +21,6 @@ mod libc_sig {
     pub const CONT: i32 = 18;
 }
 
-/// Shutdown order: sources first so nothing new enters, the logger last so it records the end.
-const SHUTDOWN_ORDER: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
-
 /// The stage binaries live next to this executable.
 fn stage_program(stage: &str) -> Result<PathBuf> {
     let exe = std::env::current_exe().context("locating the insuwb executable")?;
@@ -162,7 +159,7 @@ impl std::str::FromStr for Fault {
                 .parse()
                 .map_err(|_| format!("fault '{s}': bad signal '{n}'"))?,
         };
-        if !insuwb_stage::group::STAGES.contains(&stage) {
+        if stage.parse::<insuwb_msg::StageRole>().is_err() {
             return Err(format!("fault '{s}': unknown stage '{stage}'"));
         }
         Ok(Self {
@@ -224,7 +221,7 @@ pub fn run_group_with(
     let cfg_arg = cfg_path.display().to_string();
     let mut specs = Vec::new();
     for s in &cfg.stages {
-        let mut spec = StageSpec::new(s, stage_program(s)?, &["--config", &cfg_arg]);
+        let mut spec = StageSpec::new(s.name(), stage_program(s.name())?, &["--config", &cfg_arg]);
         spec.env
             .push((START_EPOCH_ENV.to_owned(), epoch.to_string()));
         spec.env.extend(opts.env.iter().cloned());
@@ -292,7 +289,9 @@ pub fn run_group_with(
                 .duration
                 .is_some_and(|d| elapsed + Duration::from_secs(3) > d);
             if elapsed >= at && !quiet {
-                let stage = cfg.stages[(rng.next_u64() % cfg.stages.len() as u64) as usize].clone();
+                let stage = cfg.stages[(rng.next_u64() % cfg.stages.len() as u64) as usize]
+                    .name()
+                    .to_owned();
                 let stop = rng.next_u64() % 2 == 1;
                 let signal = if stop { libc_sig::STOP } else { libc_sig::KILL };
                 tracing::warn!(
@@ -351,7 +350,7 @@ pub fn run_group_with(
         }
     }
     let elapsed = t0.elapsed().as_secs_f64();
-    sup.shutdown(&SHUTDOWN_ORDER);
+    sup.shutdown(&insuwb_msg::StageRole::NAMES);
     let restarts = sup.total_restarts();
     let mut report = summarise(&mut mon, restarts, elapsed);
     for (stage, src) in [("imu", &cfg.sources.imu), ("uwb", &cfg.sources.uwb)] {
@@ -479,7 +478,7 @@ pub struct DemoArgs {
     pub duration: f64,
     /// Filter (kf, shaf, stf, iakf, iakf_tdoa).
     #[arg(long, default_value = "iakf")]
-    pub filter: String,
+    pub filter: insuwb_msg::FilterKind,
     /// Print one JSON object on standard output.
     #[arg(long)]
     pub json: bool,
@@ -584,9 +583,7 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
             a.duration
         );
     }
-    if a.via_devices
-        && insuwb_eval::run::parse_filter(&a.filter) == Some(insuwb_msg::FilterKind::IakfTdoa)
-    {
+    if a.via_devices && a.filter == insuwb_msg::FilterKind::IakfTdoa {
         bail!("--via-devices needs a loosely coupled filter (kf, shaf, stf, iakf): the devices report positions, not TDOA");
     }
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);

@@ -1,4 +1,4 @@
 //! The insuwb imu stage: a thin `main` over `insuwb_stage`.
 fn main() -> std::process::ExitCode {
-    insuwb_stage::cli::main(insuwb_stage::cli::StageKind::Imu)
+    insuwb_stage::cli::main(insuwb_stage::cli::StageRole::Imu)
 }

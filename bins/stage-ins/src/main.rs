@@ -1,4 +1,4 @@
 //! The insuwb ins stage: a thin `main` over `insuwb_stage`.
 fn main() -> std::process::ExitCode {
-    insuwb_stage::cli::main(insuwb_stage::cli::StageKind::Ins)
+    insuwb_stage::cli::main(insuwb_stage::cli::StageRole::Ins)
 }

@@ -1,4 +1,4 @@
 //! The insuwb logger stage: a thin `main` over `insuwb_stage`.
 fn main() -> std::process::ExitCode {
-    insuwb_stage::cli::main(insuwb_stage::cli::StageKind::Logger)
+    insuwb_stage::cli::main(insuwb_stage::cli::StageRole::Logger)
 }

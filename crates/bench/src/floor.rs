@@ -2,7 +2,7 @@
 //!
 //! Each role is the transport skeleton of the pipeline stage of the same name
 //! (`insuwb_stage`), on the same runtime ports (same topics, payload types,
-//! QoS, WaitSet wake-ups, heartbeats), with the maths and the logging taken
+//! QoS, `Waiter` wake-ups, heartbeats), with the maths and the logging taken
 //! out:
 //! - `imu`: at `imu_rate_hz` from the start epoch, publishes an IMU sample
 //!   and then a ground-truth sample, paced like the driver (one wait on the
@@ -50,48 +50,8 @@ pub const FLOOR_LOG_FILE: &str = "floor.iulog";
 /// File the floor logger writes its fused receive trace to, in the trace folder.
 pub const FUSED_TRACE_FILE: &str = "fused_recv.txt";
 
-/// A role of the floor graph.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Role {
-    /// The IMU driver's skeleton.
-    Imu,
-    /// The UWB driver's skeleton.
-    Uwb,
-    /// The INS stage's skeleton.
-    Ins,
-    /// The fusion stage's skeleton.
-    Fusion,
-    /// The logger's skeleton.
-    Logger,
-}
-
-impl Role {
-    /// Every role, in the start order of the pipeline.
-    pub const ALL: [Role; 5] = [Role::Imu, Role::Uwb, Role::Ins, Role::Fusion, Role::Logger];
-
-    /// The role's name (also its stage name, as in the pipeline).
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Imu => "imu",
-            Self::Uwb => "uwb",
-            Self::Ins => "ins",
-            Self::Fusion => "fusion",
-            Self::Logger => "logger",
-        }
-    }
-}
-
-impl core::str::FromStr for Role {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        Role::ALL
-            .into_iter()
-            .find(|r| r.name() == s)
-            .ok_or_else(|| format!("unknown role '{s}' (imu, uwb, ins, fusion, logger)"))
-    }
-}
+/// A role of the floor graph: the pipeline's stage roles, one floor process each.
+pub use insuwb_msg::StageRole as Role;
 
 /// Settings of a floor process.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -804,7 +764,11 @@ mod tests {
         for r in Role::ALL {
             assert_eq!(r.name().parse::<Role>(), Ok(r));
         }
-        assert!("gps".parse::<Role>().unwrap_err().contains("gps"));
+        assert!("gps"
+            .parse::<Role>()
+            .unwrap_err()
+            .to_string()
+            .contains("gps"));
         assert!(FloorConfig::default().validate().is_ok());
         let e = FloorConfig {
             imu_rate_hz: 0.0,

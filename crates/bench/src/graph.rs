@@ -16,9 +16,6 @@ use insuwb_runtime::{cleanup, monotonic_ns};
 use crate::floor::{Role, FLOOR_LOG_FILE, FUSED_TRACE_FILE};
 use crate::trace::{self, RecvStamp, TraceError};
 
-/// Shutdown order: sources first, the logger last (as the pipeline).
-pub const SHUTDOWN_ORDER: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
-
 /// How to run the floor graph.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FloorGraphOptions {
@@ -46,11 +43,11 @@ pub struct FloorGraphOptions {
 /// priority out of 1..=99.
 #[must_use]
 pub fn fifo_ladder(stage: &str, top: i32) -> Option<i32> {
-    let p = match stage {
-        "fusion" => top,
-        "ins" => top - 1,
-        "imu" | "uwb" => top - 2,
-        _ => return None,
+    let p = match stage.parse::<Role>().ok()? {
+        Role::Fusion => top,
+        Role::Ins => top - 1,
+        Role::Imu | Role::Uwb => top - 2,
+        Role::Logger => return None,
     };
     (1..=99).contains(&p).then_some(p)
 }
@@ -206,7 +203,7 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
         }
         std::thread::sleep(Duration::from_millis(20));
     }
-    sup.shutdown(&SHUTDOWN_ORDER);
+    sup.shutdown(&Role::NAMES);
     if let Err(e) = cleanup::remove_prefix_files(&opts.prefix, Some(&root)) {
         tracing::warn!("removing the floor's shared-memory files: {e}");
     }

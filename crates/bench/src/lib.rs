@@ -4,7 +4,7 @@
 //! - the **floor** ([`floor`], [`graph`]): the same process graph as the
 //!   pipeline (IMU driver, UWB driver, INS, fusion, logger), built from bare
 //!   iceoryx2 processes of `insuwb-runtime` that only forward samples: the
-//!   same payload types and sizes, the same rates, the same WaitSet wake-ups
+//!   same payload types and sizes, the same rates, the same waiter wake-ups
 //!   and the same waiting rule at the fusion node (it emits when it has the
 //!   UWB fix and the INS sample covering the fix epoch), with no maths and no
 //!   logging. The floor and the pipeline differ only by what insuwb adds.

@@ -54,7 +54,6 @@ pub struct ConsistencyConfig {
     /// Seed of the first run; run `i` uses `seed + i` (wrapping). Default 1.
     pub seed: u64,
     /// Filter checked, by its key (`kf`, `shaf`, `stf`, `iakf`). Default `kf`.
-    #[serde(with = "kind_key")]
     pub kind: FilterKind,
 }
 
@@ -67,25 +66,6 @@ impl Default for ConsistencyConfig {
             seed: 1,
             kind: FilterKind::Kf,
         }
-    }
-}
-
-/// Serde of a [`FilterKind`] as its command-line key.
-mod kind_key {
-    use insuwb_msg::FilterKind;
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(kind: &FilterKind, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(crate::run::filter_key(*kind))
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<FilterKind, D::Error> {
-        let key = String::deserialize(d)?;
-        crate::run::parse_filter(&key).ok_or_else(|| {
-            serde::de::Error::custom(format!(
-                "unknown filter `{key}`, expected one of kf, shaf, stf, iakf, iakf_tdoa"
-            ))
-        })
     }
 }
 

@@ -21,32 +21,6 @@ pub struct Dataset {
     pub segment: Option<(u64, u64)>,
 }
 
-/// A filter selectable on the command line, with its JSON key.
-#[must_use]
-pub fn filter_key(kind: FilterKind) -> &'static str {
-    match kind {
-        FilterKind::Kf => "kf",
-        FilterKind::Shaf => "shaf",
-        FilterKind::Stf => "stf",
-        FilterKind::Iakf => "iakf",
-        FilterKind::IakfTdoa => "iakf_tdoa",
-    }
-}
-
-/// Parses a filter key (`kf`, `shaf`, `stf`, `iakf`, `iakf_tdoa`).
-#[must_use]
-pub fn parse_filter(key: &str) -> Option<FilterKind> {
-    [
-        FilterKind::Kf,
-        FilterKind::Shaf,
-        FilterKind::Stf,
-        FilterKind::Iakf,
-        FilterKind::IakfTdoa,
-    ]
-    .into_iter()
-    .find(|k| filter_key(*k) == key)
-}
-
 /// One solution's results.
 #[derive(Debug, Clone)]
 pub struct Solution {
@@ -127,7 +101,7 @@ pub fn evaluate(
         let track = sample_fused(&out.fused, &epochs);
         let nis: Vec<f64> = out.diag.iter().map(|d| d.nis).collect();
         solutions.push(solution(
-            filter_key(kind),
+            kind.name(),
             track,
             &truth,
             data.segment,

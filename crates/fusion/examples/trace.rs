@@ -31,13 +31,11 @@ fn main() {
         &preset.import,
     )
     .unwrap();
-    let kind = match a.get(4).map_or("iakf_tdoa", String::as_str) {
-        "kf" => FilterKind::Kf,
-        "iakf" => FilterKind::Iakf,
-        "stf" => FilterKind::Stf,
-        "shaf" => FilterKind::Shaf,
-        _ => FilterKind::IakfTdoa,
-    };
+    let kind: FilterKind = a
+        .get(4)
+        .map_or("iakf_tdoa", String::as_str)
+        .parse()
+        .unwrap();
     let out = offline::run(&flight.imu, &flight.tdoa, &preset.fusion, kind).unwrap();
     println!("t,x,y,z,vx,vy,vz,tx,ty,tz,sx,sy,svx,svy,yaw,flags,nees,tyaw,fading");
     let mut di = 0usize;

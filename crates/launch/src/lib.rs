@@ -26,7 +26,7 @@
 //! sup.start(Instant::now())?;
 //! # let shutdown_requested = || true;
 //! while !shutdown_requested() && sup.state() == SupervisorState::Running {
-//!     // Wait on the WaitSet here (heartbeats: sup.note_heartbeat(name, Instant::now())).
+//!     // Wait for heartbeats here (sup.note_heartbeat(name, Instant::now())).
 //!     std::thread::sleep(Duration::from_millis(50));
 //!     sup.poll(Instant::now());
 //! }

@@ -275,8 +275,11 @@ impl FusedState {
     pub const FLAG_RESET: u32 = 16;
 }
 
-/// Codes for [`FusedState::filter_kind`] and [`FilterDiag::filter_kind`].
+/// The filters, with their codes in [`FusedState::filter_kind`] and
+/// [`FilterDiag::filter_kind`] and their one name (configuration, command
+/// line, JSON keys): `kf`, `shaf`, `stf`, `iakf`, `iakf_tdoa`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 #[repr(u32)]
 pub enum FilterKind {
     /// Plain Kalman filter.
@@ -289,6 +292,119 @@ pub enum FilterKind {
     Iakf = 4,
     /// Tightly coupled TDOA filter.
     IakfTdoa = 5,
+}
+
+impl FilterKind {
+    /// Every filter, in code order.
+    pub const ALL: [Self; 5] = [Self::Kf, Self::Shaf, Self::Stf, Self::Iakf, Self::IakfTdoa];
+
+    /// Its name: `kf`, `shaf`, `stf`, `iakf` or `iakf_tdoa`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Kf => "kf",
+            Self::Shaf => "shaf",
+            Self::Stf => "stf",
+            Self::Iakf => "iakf",
+            Self::IakfTdoa => "iakf_tdoa",
+        }
+    }
+
+    /// The filter of a sample's `filter_kind` code, if it is one.
+    #[must_use]
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| *k as u32 == code)
+    }
+}
+
+impl core::fmt::Display for FilterKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A name that is not one of [`FilterKind::ALL`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown filter '{0}' (known: kf, shaf, stf, iakf, iakf_tdoa)")]
+pub struct UnknownFilterKind(pub String);
+
+impl core::str::FromStr for FilterKind {
+    type Err = UnknownFilterKind;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| UnknownFilterKind(s.to_owned()))
+    }
+}
+
+/// The processes of a group, each one stage of the pipeline, with their one
+/// name (configuration `stages`, binaries, health, locks, logs): `imu`,
+/// `uwb`, `ins`, `fusion`, `logger`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StageRole {
+    /// The IMU driver.
+    Imu,
+    /// The UWB driver (and fix builder).
+    Uwb,
+    /// The strapdown INS.
+    Ins,
+    /// The fusion filter.
+    Fusion,
+    /// The logger.
+    Logger,
+}
+
+impl StageRole {
+    /// Every role, in start order.
+    pub const ALL: [Self; 5] = [Self::Imu, Self::Uwb, Self::Ins, Self::Fusion, Self::Logger];
+
+    /// Their names, in start order, which is also the shutdown order of a
+    /// group: the sources first, so that nothing new enters, the logger
+    /// last, so that it records the end.
+    pub const NAMES: [&'static str; 5] = [
+        Self::Imu.name(),
+        Self::Uwb.name(),
+        Self::Ins.name(),
+        Self::Fusion.name(),
+        Self::Logger.name(),
+    ];
+
+    /// Its name: `imu`, `uwb`, `ins`, `fusion` or `logger`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Imu => "imu",
+            Self::Uwb => "uwb",
+            Self::Ins => "ins",
+            Self::Fusion => "fusion",
+            Self::Logger => "logger",
+        }
+    }
+}
+
+impl core::fmt::Display for StageRole {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A name that is not one of [`StageRole::ALL`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, logger)")]
+pub struct UnknownStageRole(pub String);
+
+impl core::str::FromStr for StageRole {
+    type Err = UnknownStageRole;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| UnknownStageRole(s.to_owned()))
+    }
 }
 
 /// Filter diagnostics after each update (topic [`topics::DIAG`]).
@@ -452,6 +568,35 @@ impl_has_header!(
     GroundTruth,
     Health
 );
+
+#[cfg(test)]
+mod name_tests {
+    use super::*;
+
+    #[test]
+    fn every_name_parses_back_and_codes_round_trip() {
+        for k in FilterKind::ALL {
+            assert_eq!(k.name().parse::<FilterKind>(), Ok(k));
+            assert_eq!(FilterKind::from_code(k as u32), Some(k));
+            assert_eq!(k.to_string(), k.name());
+        }
+        assert_eq!(FilterKind::from_code(0), None);
+        let e = "ekf".parse::<FilterKind>().unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "unknown filter 'ekf' (known: kf, shaf, stf, iakf, iakf_tdoa)"
+        );
+        for r in StageRole::ALL {
+            assert_eq!(r.name().parse::<StageRole>(), Ok(r));
+            assert_eq!(r.to_string(), r.name());
+        }
+        assert!("gps"
+            .parse::<StageRole>()
+            .unwrap_err()
+            .to_string()
+            .contains("imu, uwb, ins, fusion, logger"));
+    }
+}
 
 #[cfg(test)]
 mod layout_tests {

@@ -51,10 +51,11 @@ pub struct RuntimeConfig {
     /// hash of `stage_name` (deterministic; set it explicitly where two stage
     /// names could collide).
     pub source_id: Option<u16>,
-    /// Busy-poll instead of sleeping in the WaitSet: lower wake-up latency
-    /// (no scheduler wake-up) at the price of one CPU core spinning at 100 %.
-    /// For latency experiments only. Default `false` (the measured WaitSet
-    /// wake-up is ~7 us hot, ~80 us idle; busy polling on 2 cores gives ms outliers).
+    /// Busy-poll instead of sleeping in the [`crate::Waiter`]'s `epoll_wait`:
+    /// lower wake-up latency (no scheduler wake-up) at the price of one CPU
+    /// core spinning at 100 %. For latency experiments only. Default `false`
+    /// (a sleeping waiter wakes within tens of microseconds; busy polling on
+    /// 2 loaded cores gave millisecond outliers, see BENCHMARKS.md).
     pub busy_poll: bool,
     /// Heartbeat ([`insuwb_msg::Health`]) period, seconds, in [0.01, 60].
     /// Default 0.2 (5 Hz, the project's heartbeat rate).

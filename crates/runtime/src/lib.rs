@@ -4,8 +4,9 @@
 //! It owns the iceoryx2 node of a stage ([`Stage`]: service prefix, root
 //! folder, generation, dead-node cleanup, signals), the typed ports with the
 //! QoS of [`insuwb_msg::qos`] ([`Pub`] stamps headers, [`Sub`] checks layout
-//! versions and tracks sequence gaps and restarts), the wait loop ([`Waiter`]
-//! over a WaitSet, or busy polling), the heartbeat ([`HealthReporter`]), the
+//! versions and tracks sequence gaps and restarts), the wait loop ([`Waiter`]:
+//! an epoll set over the subscribers' listeners, a deadline timerfd and the
+//! termination eventfd, or busy polling), the heartbeat ([`HealthReporter`]), the
 //! process-comparable clock ([`monotonic_ns`]), logging ([`init_tracing`]),
 //! the iceoryx2 service type whose loans allocate nothing ([`service::Ipc`]),
 //! shared memory paged in ahead of use ([`prefault`]), the due time of the

@@ -552,7 +552,7 @@ impl SeqTracker {
 /// Reading until [`Sub::receive`] returns `None` (or calling [`Sub::drain`])
 /// also consumes the wake-ups of the topic's listener, which a [`crate::Waiter`]
 /// waits on: a stage woken for a subscriber must read it until empty, or the
-/// WaitSet reports it again at once.
+/// waiter reports it again at once.
 pub struct Sub<T>
 where
     T: ZeroCopySend + Copy + Debug + HasHeader + 'static,

@@ -235,7 +235,8 @@ impl Stage {
         Sub::create(&self.node, topic)
     }
 
-    /// A wait loop (WaitSet, or busy polling when `busy_poll` is set).
+    /// The stage's wait loop: a [`Waiter`] (an epoll set over subscribers'
+    /// listeners and interval timers), busy-polling when `busy_poll` is set.
     pub fn waiter(&self) -> Result<Waiter, WaitError> {
         Waiter::new(self.cfg.busy_poll)
     }

@@ -495,7 +495,7 @@ fn receiver_in_another_process_and_one_way_latency() {
         assert_eq!(stat(&stats, "received"), n);
         assert_eq!(stat(&stats, "gaps"), 0);
         println!(
-            "one-way latency publish->receive, WaitSet, 2 processes, 100 Hz, n={n}: p50 {:.1} us, p99 {:.1} us, max {:.1} us",
+            "one-way latency publish->receive, Waiter, 2 processes, 100 Hz, n={n}: p50 {:.1} us, p99 {:.1} us, max {:.1} us",
             stat(&stats, "p50_ns") as f64 / 1e3,
             stat(&stats, "p99_ns") as f64 / 1e3,
             stat(&stats, "max_ns") as f64 / 1e3

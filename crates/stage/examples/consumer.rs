@@ -4,8 +4,8 @@
 //! `cargo run -p insuwb-stage --example consumer -- config/robot.toml`.
 //!
 //! The controller opens the group's `fused` topic with the same prefix and
-//! root as the stages (from the robot config), sleeps in a WaitSet until a
-//! pose arrives, and acts only on poses it can trust:
+//! root as the stages (from the robot config), sleeps in the runtime's
+//! `Waiter` until a pose arrives, and acts only on poses it can trust:
 //! - `FLAG_VALID` set, `FLAG_STALE` clear: built on fresh INS data;
 //! - `FLAG_DEGRADED`: INS-only coasting (no UWB for 150 ms): usable for a
 //!   short while, with a covariance that grows;

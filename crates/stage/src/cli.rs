@@ -9,34 +9,7 @@ use crate::group::{start_epoch_ns, RobotConfig};
 use crate::lock::STAGE_LOCK_WAIT;
 use crate::source::Want;
 
-/// Which stage a binary runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum StageKind {
-    /// IMU driver.
-    Imu,
-    /// UWB driver.
-    Uwb,
-    /// INS mechanisation.
-    Ins,
-    /// Fusion.
-    Fusion,
-    /// Logger.
-    Logger,
-}
-
-impl StageKind {
-    /// The stage's name: its role in the group (`imu`, `uwb`, `ins`, `fusion`, `logger`).
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Imu => "imu",
-            Self::Uwb => "uwb",
-            Self::Ins => "ins",
-            Self::Fusion => "fusion",
-            Self::Logger => "logger",
-        }
-    }
-}
+pub use insuwb_msg::StageRole;
 
 /// Arguments of every stage binary.
 #[derive(Debug, Parser)]
@@ -51,8 +24,10 @@ pub struct StageArgs {
     /// Driver source, overriding the config: `sim` or `replay:FILE`.
     #[arg(long)]
     pub source: Option<String>,
-    /// Replay speed, overriding the config: a factor (10 = ten times real
-    /// time) or `max` (lockstep with the consumers, never dropping a sample).
+    /// Replay speed, overriding the config's `sources.speed` for every stage
+    /// (the drivers' pacing and the fusion stage's eager updates alike): a
+    /// factor (10 = ten times real time) or `max` (lockstep with the
+    /// consumers, never dropping a sample).
     #[arg(long, value_parser = parse_speed)]
     pub speed: Option<f64>,
     /// Start epoch (CLOCK_MONOTONIC ns) shared by the drivers and fusion;
@@ -72,9 +47,26 @@ fn parse_speed(s: &str) -> Result<f64, String> {
     }
 }
 
+/// Puts `--speed` (when given) into the config for every stage: the
+/// drivers pace by it and the fusion stage chooses eager or lazy updates by
+/// it, so a fusion stage started by hand with `--speed max` predicts lazily
+/// behind drivers that run in lockstep, as the launcher's group does.
+/// Returns the speed in force.
+///
+/// # Errors
+/// A speed that is not > 0.
+pub fn apply_speed(cfg: &mut RobotConfig, speed: Option<f64>) -> anyhow::Result<f64> {
+    let speed = speed.unwrap_or(cfg.sources.speed);
+    if speed.is_nan() || speed <= 0.0 {
+        anyhow::bail!("--speed must be > 0, got {speed}");
+    }
+    cfg.sources.speed = speed;
+    Ok(speed)
+}
+
 /// Parses the arguments, sets up tracing and runs the stage; exit code 0 on a clean stop.
 #[must_use]
-pub fn main(kind: StageKind) -> ExitCode {
+pub fn main(kind: StageRole) -> ExitCode {
     let args = StageArgs::parse();
     let _ = insuwb_runtime::init_tracing(kind.name());
     match run(kind, &args) {
@@ -86,34 +78,31 @@ pub fn main(kind: StageKind) -> ExitCode {
     }
 }
 
-fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
-    let cfg = RobotConfig::load(&args.config)?;
+fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
+    let mut cfg = RobotConfig::load(&args.config)?;
     // One process per role and group, before anything of the group is
     // opened: a stage started by hand beside its running group refuses.
     let _role = crate::lock::StageLock::acquire(&cfg.group, kind.name(), STAGE_LOCK_WAIT)?;
     let epoch = args.start_epoch_ns.unwrap_or_else(start_epoch_ns);
-    let speed = args.speed.unwrap_or(cfg.sources.speed);
-    if speed.is_nan() || speed <= 0.0 {
-        anyhow::bail!("--speed must be > 0, got {speed}");
-    }
+    let speed = apply_speed(&mut cfg, args.speed)?;
     let result = match kind {
-        StageKind::Imu => {
+        StageRole::Imu => {
             let src = args
                 .source
                 .clone()
                 .unwrap_or_else(|| cfg.sources.imu.clone());
             crate::driver::run(Want::Imu, &cfg, &src, speed, epoch)
         }
-        StageKind::Uwb => {
+        StageRole::Uwb => {
             let src = args
                 .source
                 .clone()
                 .unwrap_or_else(|| cfg.sources.uwb.clone());
             crate::driver::run(Want::Uwb, &cfg, &src, speed, epoch)
         }
-        StageKind::Ins => crate::ins::run(&cfg),
-        StageKind::Fusion => crate::fusion::run(&cfg, epoch),
-        StageKind::Logger => crate::logger::run(&cfg),
+        StageRole::Ins => crate::ins::run(&cfg),
+        StageRole::Fusion => crate::fusion::run(&cfg, epoch),
+        StageRole::Logger => crate::logger::run(&cfg),
     };
     match result {
         Err(e)
@@ -123,5 +112,40 @@ fn run(kind: StageKind, args: &StageArgs) -> anyhow::Result<()> {
             Ok(())
         }
         r => r,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ROBOT: &str = include_str!("../../../config/robot.toml");
+
+    fn robot() -> RobotConfig {
+        RobotConfig::from_str(ROBOT, "config/robot.toml", std::path::Path::new("/tmp"))
+            .expect("config/robot.toml loads")
+    }
+
+    /// `--speed max` reaches the fusion stage too: it then predicts lazily,
+    /// as behind the launcher's lockstep drivers (issue: it used to read the
+    /// file's speed and ran eager behind lockstep drivers).
+    #[test]
+    fn speed_override_reaches_every_stage() {
+        let mut cfg = robot();
+        assert!(cfg.sources.speed.is_finite());
+        let eager = crate::fusion::eager_lag_s(&cfg);
+        assert!(eager.is_some(), "the robot config runs eager in real time");
+        assert_eq!(
+            apply_speed(&mut cfg, Some(f64::INFINITY)).unwrap(),
+            f64::INFINITY
+        );
+        assert_eq!(cfg.sources.speed, f64::INFINITY);
+        assert_eq!(crate::fusion::eager_lag_s(&cfg), None);
+        // No override: the file's speed stays.
+        let mut plain = robot();
+        let file = plain.sources.speed;
+        assert_eq!(apply_speed(&mut plain, None).unwrap(), file);
+        assert!(apply_speed(&mut plain, Some(0.0)).is_err());
+        assert!(apply_speed(&mut plain, Some(f64::NAN)).is_err());
     }
 }

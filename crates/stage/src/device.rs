@@ -222,10 +222,7 @@ impl Setup {
 }
 
 fn sensor_name(want: Want) -> &'static str {
-    match want {
-        Want::Imu => "imu",
-        Want::Uwb => "uwb",
-    }
+    want.role().name()
 }
 
 /// Bytes on the wire of the frames that make one reading.

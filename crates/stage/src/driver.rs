@@ -102,10 +102,7 @@ pub fn run(
     if source_spec == "device" {
         return crate::device::run(want, cfg);
     }
-    let name = match want {
-        Want::Imu => "imu",
-        Want::Uwb => "uwb",
-    };
+    let name = want.role().name();
     let stage = Stage::new(cfg.runtime(name))?;
     let gen = stage.generation();
     let mut src = source::open(source_spec, &cfg.sources.scenario, cfg.sources.seed, want)?;

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
 use insuwb_msg::{
-    topics, FilterDiag, FusedState, Health, InsCorrection, NavState, UwbFix, UwbTdoa,
+    topics, FilterDiag, FusedState, Health, InsCorrection, NavState, StageRole, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
@@ -59,19 +59,26 @@ fn read_checkpoint(path: &Path) -> Option<Checkpoint> {
     toml::from_str(&text).ok()
 }
 
+/// The eager-update lag the stage runs with: the configured one in real
+/// time (the drivers publish each sample at its time, so a fix is never far
+/// behind the INS stream), none (lazy) at `speed = "max"`, where the drivers
+/// run ahead, or when the configured lag is negative.
+#[must_use]
+pub fn eager_lag_s(cfg: &RobotConfig) -> Option<f64> {
+    (cfg.fusion.eager_lag_s >= 0.0 && cfg.sources.speed.is_finite())
+        .then_some(cfg.fusion.eager_lag_s)
+}
+
 /// Runs the fusion stage until SIGINT/SIGTERM; `epoch_ns` is the group's
 /// start epoch (the drivers stamp samples `epoch + t`).
 pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
-    let stage = Stage::new(cfg.runtime("fusion"))?;
+    let stage = Stage::new(cfg.runtime(StageRole::Fusion.name()))?;
     let fcfg = cfg.fusion_config()?;
     let kind = cfg.filter_kind();
     let est = insuwb_fusion::offline::build_estimator(kind, &fcfg)?;
     let tight = est.is_tight();
     let mut ecfg = fcfg.engine.clone();
-    // In real time the drivers publish each sample at its time, so a fix is
-    // never far behind the INS stream; replaying at "max" they run ahead.
-    ecfg.eager_lag_s = (cfg.fusion.eager_lag_s >= 0.0 && cfg.sources.speed.is_finite())
-        .then_some(cfg.fusion.eager_lag_s);
+    ecfg.eager_lag_s = eager_lag_s(cfg);
     let mut engine = FusionEngine::new(ecfg, est);
     engine.align_to(epoch_ns);
     std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {

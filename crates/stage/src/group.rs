@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use insuwb_fusion::offline::FusionConfig;
-use insuwb_msg::FilterKind;
+use insuwb_msg::{FilterKind, StageRole};
 use serde::{Deserialize, Serialize};
 
 /// Environment variable carrying the replay start epoch (CLOCK_MONOTONIC ns),
@@ -102,7 +102,7 @@ impl Default for SourcesConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct FusionStageConfig {
     /// Filter: kf, shaf, stf, iakf, iakf_tdoa.
-    pub filter: String,
+    pub filter: FilterKind,
     /// Fusion settings file (with a `[fusion]` table); empty: the scenario's
     /// (sim sources) or the replayed log's own.
     pub config: String,
@@ -132,7 +132,7 @@ pub struct FusionStageConfig {
 impl Default for FusionStageConfig {
     fn default() -> Self {
         Self {
-            filter: "iakf".into(),
+            filter: FilterKind::Iakf,
             config: String::new(),
             coast_timeout_s: 0.15,
             coast_rate_hz: 10.0,
@@ -226,7 +226,7 @@ pub struct RobotConfig {
     /// Logger.
     pub logger: LoggerConfig,
     /// Stages to run, in start order (imu, uwb, ins, fusion, logger).
-    pub stages: Vec<String>,
+    pub stages: Vec<StageRole>,
     /// Restart policy of the launcher.
     pub launch: insuwb_launch::RestartPolicy,
     /// Real sensors (drivers whose source is `device`).
@@ -235,9 +235,6 @@ pub struct RobotConfig {
     /// `cpus = [1]`, `fifo_priority = 50`); none by default.
     pub realtime: std::collections::BTreeMap<String, insuwb_runtime::realtime::RealtimeConfig>,
 }
-
-/// Stage names the launcher knows.
-pub const STAGES: [&str; 5] = ["imu", "uwb", "ins", "fusion", "logger"];
 
 impl RobotConfig {
     /// Loads and checks a robot config file; relative paths become relative to its folder.
@@ -266,15 +263,7 @@ impl RobotConfig {
 
     fn resolve(&mut self, base: &Path, origin: &str) -> Result<()> {
         if self.stages.is_empty() {
-            self.stages = STAGES.iter().map(|s| (*s).to_owned()).collect();
-        }
-        for s in &self.stages {
-            if !STAGES.contains(&s.as_str()) {
-                bail!(
-                    "{origin}: key 'stages': unknown stage '{s}' (known: {})",
-                    STAGES.join(", ")
-                );
-            }
+            self.stages = StageRole::ALL.to_vec();
         }
         check_path(origin, "group.run_dir", &self.group.run_dir)?;
         if self.group.run_dir.is_relative() {
@@ -374,10 +363,10 @@ impl RobotConfig {
             }
         }
         for (stage, rt) in &self.realtime {
-            if !STAGES.contains(&stage.as_str()) {
+            if stage.parse::<StageRole>().is_err() {
                 bail!(
                     "{origin}: key 'realtime.{stage}': unknown stage (known: {})",
-                    STAGES.join(", ")
+                    StageRole::NAMES.join(", ")
                 );
             }
             if let Err(e) = rt.validate() {
@@ -387,12 +376,6 @@ impl RobotConfig {
         let sp = self.sources.speed;
         if !(sp > 0.0 && (sp <= 1000.0 || sp.is_infinite())) {
             bail!("{origin}: key 'sources.speed': must be in (0, 1000] or \"max\", got {sp}");
-        }
-        if insuwb_eval::run::parse_filter(&self.fusion.filter).is_none() {
-            bail!(
-                "{origin}: key 'fusion.filter': unknown filter '{}' (kf, shaf, stf, iakf, iakf_tdoa)",
-                self.fusion.filter
-            );
         }
         if !self.fusion.config.is_empty() {
             let p = Path::new(&self.fusion.config);
@@ -432,11 +415,11 @@ impl RobotConfig {
             .launch
             .optional
             .iter()
-            .find(|s| !STAGES.contains(&s.as_str()))
+            .find(|s| s.parse::<StageRole>().is_err())
         {
             bail!(
                 "{origin}: key 'launch.optional': unknown stage '{s}' (known: {})",
-                STAGES.join(", ")
+                StageRole::NAMES.join(", ")
             );
         }
         self.logger
@@ -454,7 +437,7 @@ impl RobotConfig {
     /// The filter to run.
     #[must_use]
     pub fn filter_kind(&self) -> FilterKind {
-        insuwb_eval::run::parse_filter(&self.fusion.filter).unwrap_or(FilterKind::Iakf)
+        self.fusion.filter
     }
 
     /// The iceoryx2 root folder of this group.

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use insuwb_fusion::ins_engine::{InsBiases, InsEngine};
-use insuwb_msg::{topics, FusedState, Health, ImuSample, InsCorrection, NavState};
+use insuwb_msg::{topics, FusedState, Health, ImuSample, InsCorrection, NavState, StageRole};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 
 use crate::group::RobotConfig;
@@ -36,7 +36,7 @@ fn read_checkpoint(path: &Path) -> Option<InsBiases> {
 
 /// Runs the INS stage until SIGINT/SIGTERM.
 pub fn run(cfg: &RobotConfig) -> Result<()> {
-    let stage = Stage::new(cfg.runtime("ins"))?;
+    let stage = Stage::new(cfg.runtime(StageRole::Ins.name()))?;
     let fcfg = cfg.fusion_config()?;
     let mut ins = InsEngine::new(fcfg.ins.clone())?;
     let imu_sub = stage.subscriber::<ImuSample>(topics::IMU)?;

@@ -1,14 +1,22 @@
 //! The logger stage: records every topic into segment files. It wakes for
-//! each fused state and every 50 ms for the other topics; the receive loop
-//! only copies samples into a bounded channel; a writer thread does the
-//! disk I/O every 50 ms, so a slow disk never stalls a receive (and never back-pressures
-//! a producer: iceoryx2's safe overflow drops the oldest sample of a full
-//! subscriber buffer instead of blocking the publisher). A write error (disk
-//! full, file size limit, unwritable directory) ends the logger with an
-//! error line naming the path and the operating system's error, and a
-//! non-zero exit; the rest of the group keeps running (the launcher restarts
-//! the logger, and gives it up alone when its restart budget is spent: it is
-//! an optional stage by default, `[launch] optional`).
+//! each fused state and then drains every topic; when no fused state comes,
+//! it drains them `BULK_PERIOD_NS` (50 ms) after the last drain
+//! ([`DrainClock`]). The receive loop only copies samples into a bounded
+//! channel (a full channel drops the record and counts it in the
+//! heartbeat's `extra[1]`) and, after each drain, wakes a writer thread,
+//! which appends what the channel holds to the current segment
+//! ([`SegmentWriter`]: framed records in a 64 KiB buffer that reaches the
+//! file when it fills, on rotation, and as `[logger.segments.flush]` says,
+//! by default once a second); without a wake-up for `WRITER_IDLE` (200 ms)
+//! it looks at the channel anyway. So a slow disk never stalls a receive
+//! (and never back-pressures a producer: iceoryx2's safe overflow drops the
+//! oldest sample of a full subscriber buffer instead of blocking the
+//! publisher). A write error (disk full, file size limit, unwritable
+//! directory) ends the logger with an error line naming the path and the
+//! operating system's error, and a non-zero exit; the rest of the group
+//! keeps running (the launcher restarts the logger, and gives it up alone
+//! when its restart budget is spent: it is an optional stage by default,
+//! `[launch] optional`).
 //!
 //! For the latency benchmark, [`FUSED_TRACE_ENV`] makes the logger note when
 //! each fused state arrived (in a buffer allocated at start) and write the
@@ -21,7 +29,7 @@ use crossbeam_channel::{bounded, RecvTimeoutError, TryRecvError, TrySendError};
 use insuwb_log::{Metadata, Record, SegmentWriter};
 use insuwb_msg::{
     topics, FilterDiag, FusedState, GroundTruth, Health, ImuSample, InsCorrection, NavState,
-    UwbFix, UwbTdoa,
+    StageRole, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage};
@@ -84,7 +92,7 @@ impl FusedTrace {
 
 /// Runs the logger stage until SIGINT/SIGTERM.
 pub fn run(cfg: &RobotConfig) -> Result<()> {
-    let stage = Stage::new(cfg.runtime("logger"))?;
+    let stage = Stage::new(cfg.runtime(StageRole::Logger.name()))?;
     let dir = cfg
         .group
         .run_dir

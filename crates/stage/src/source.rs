@@ -40,6 +40,17 @@ pub enum Want {
     Uwb,
 }
 
+impl Want {
+    /// The driver's stage role.
+    #[must_use]
+    pub const fn role(self) -> insuwb_msg::StageRole {
+        match self {
+            Self::Imu => insuwb_msg::StageRole::Imu,
+            Self::Uwb => insuwb_msg::StageRole::Uwb,
+        }
+    }
+}
+
 /// A source of samples for a driver.
 pub trait Source: std::fmt::Debug {
     /// The next sample, in time order; `None` at the end of a recording.
