@@ -16,12 +16,12 @@ pub const NS_PER_TICK: u64 = 10_000_000;
 #[derive(Debug, thiserror::Error)]
 pub enum CpuError {
     /// `/proc/PID/stat` could not be read (the process is gone).
-    #[error("cannot read /proc/{pid}/stat: {source}")]
+    #[error("cannot read /proc/{pid}/stat: {error}")]
     Read {
         /// The process.
         pid: u32,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// `/proc/PID/stat` has an unexpected layout.
     #[error("/proc/{pid}/stat: unexpected content {text:?}")]
@@ -68,7 +68,7 @@ pub fn parse_stat(text: &str) -> Option<ProcStat> {
 /// Reads `/proc/PID/stat`.
 pub fn stat(pid: u32) -> Result<ProcStat, CpuError> {
     let text = std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .map_err(|source| CpuError::Read { pid, source })?;
+        .map_err(|source| CpuError::Read { pid, error: source })?;
     parse_stat(&text).ok_or_else(|| CpuError::Parse {
         pid,
         text: text.chars().take(80).collect(),

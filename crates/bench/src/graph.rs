@@ -67,12 +67,12 @@ pub struct FloorRun {
 #[derive(Debug, thiserror::Error)]
 pub enum GraphError {
     /// The run folder could not be created.
-    #[error("cannot create the floor run folder {path}: {source}")]
+    #[error("cannot create the floor run folder {path}: {error}")]
     RunDir {
         /// The folder.
         path: String,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The floor program is missing.
     #[error("floor program {0} not found (build the workspace: cargo build --release)")]
@@ -135,7 +135,7 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
         // Owner-only, as the stages want their iceoryx2 root.
         insuwb_runtime::perm::create_private_dir(d).map_err(|source| GraphError::RunDir {
             path: d.display().to_string(),
-            source,
+            error: source,
         })?;
     }
     // As the pipeline's launcher: an epoch (a whole second plus 2.5 ms, off

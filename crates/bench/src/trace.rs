@@ -26,12 +26,12 @@ pub struct RecvStamp {
 #[derive(Debug, thiserror::Error)]
 pub enum TraceError {
     /// The file could not be read or written.
-    #[error("receive trace {path}: {source}")]
+    #[error("receive trace {path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// A line is not three unsigned integers.
     #[error("receive trace line {line}: expected `seq pub_time_ns receive_ns`, got {text:?}")]
@@ -74,7 +74,7 @@ pub fn parse(text: &str) -> Result<Vec<RecvStamp>, TraceError> {
 pub fn read(path: &Path) -> Result<Vec<RecvStamp>, TraceError> {
     let text = std::fs::read_to_string(path).map_err(|source| TraceError::Io {
         path: path.display().to_string(),
-        source,
+        error: source,
     })?;
     parse(&text)
 }
@@ -83,7 +83,7 @@ pub fn read(path: &Path) -> Result<Vec<RecvStamp>, TraceError> {
 pub fn write(path: &Path, stamps: &[RecvStamp]) -> Result<(), TraceError> {
     let io = |source| TraceError::Io {
         path: path.display().to_string(),
-        source,
+        error: source,
     };
     let file = std::fs::File::create(path).map_err(io)?;
     let mut w = std::io::BufWriter::new(file);

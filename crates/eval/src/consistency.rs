@@ -124,24 +124,24 @@ pub enum ConsistencyError {
         min_eigenvalue: f64,
     },
     /// The filter refused a predict.
-    #[error("run {run}, epoch {epoch}: {source}")]
+    #[error("run {run}, epoch {epoch}: {error}")]
     Predict {
         /// Run index (0-based).
         run: u32,
         /// Update epoch (0-based).
         epoch: u32,
         /// Why.
-        source: PredictError,
+        error: PredictError,
     },
     /// The filter refused an update.
-    #[error("run {run}, epoch {epoch}: {source}")]
+    #[error("run {run}, epoch {epoch}: {error}")]
     Update {
         /// Run index (0-based).
         run: u32,
         /// Update epoch (0-based).
         epoch: u32,
         /// Why.
-        source: UpdateError,
+        error: UpdateError,
     },
     /// The NEES could not be computed (the filter's covariance of states 0..4 is not positive definite).
     #[error("run {run}, epoch {epoch}: position-velocity covariance is not positive definite, NEES undefined")]
@@ -225,12 +225,20 @@ pub fn run_consistency_with(
                 x = f * x + l_q * gauss::<N_STATES>(&mut rng_w);
                 filter
                     .predict(dt_s, 0.0, 0.0)
-                    .map_err(|source| ConsistencyError::Predict { run, epoch, source })?;
+                    .map_err(|source| ConsistencyError::Predict {
+                        run,
+                        epoch,
+                        error: source,
+                    })?;
             }
             let z = h * x + l_r * gauss::<N_MEAS>(&mut rng_v);
             let report = filter
                 .update(&z)
-                .map_err(|source| ConsistencyError::Update { run, epoch, source })?;
+                .map_err(|source| ConsistencyError::Update {
+                    run,
+                    epoch,
+                    error: source,
+                })?;
             let nees = nees4(&x, filter.state(), filter.covariance())
                 .ok_or(ConsistencyError::Nees { run, epoch })?;
             *nees_acc += nees;

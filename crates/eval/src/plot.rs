@@ -37,12 +37,12 @@ const TRAJECTORY_SIZE: (u32, u32) = (800, 800);
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {
     /// The output directory could not be created.
-    #[error("cannot create the figure directory {}: {source}", dir.display())]
+    #[error("cannot create the figure directory {}: {error}", dir.display())]
     CreateDir {
         /// The directory.
         dir: PathBuf,
         /// Why.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// `plotters` failed to draw a figure.
     #[error("drawing {figure} failed: {message}")]
@@ -53,12 +53,12 @@ pub enum PlotError {
         message: String,
     },
     /// A drawn figure could not be written.
-    #[error("cannot write the figure {}: {source}", path.display())]
+    #[error("cannot write the figure {}: {error}", path.display())]
     Write {
         /// The file.
         path: PathBuf,
         /// Why.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -286,7 +286,7 @@ pub fn write_figures(
 ) -> Result<Vec<PathBuf>, PlotError> {
     std::fs::create_dir_all(dir).map_err(|source| PlotError::CreateDir {
         dir: dir.to_path_buf(),
-        source,
+        error: source,
     })?;
     let track = TruthTrack::new(truth, TRUTH_MAX_GAP_NS);
     let t0_ns = report
@@ -459,7 +459,7 @@ pub fn write_summary_figure(
 ) -> Result<PathBuf, PlotError> {
     std::fs::create_dir_all(dir).map_err(|source| PlotError::CreateDir {
         dir: dir.to_path_buf(),
-        source,
+        error: source,
     })?;
     let title = format!(
         "{}: horizontal RMSE per flight (INS-only left out)",
@@ -894,7 +894,7 @@ fn write_svg(dir: &Path, file: &str, mut svg: String, title: &str) -> Result<Pat
     let path = dir.join(file);
     std::fs::write(&path, svg).map_err(|source| PlotError::Write {
         path: path.clone(),
-        source,
+        error: source,
     })?;
     Ok(path)
 }

@@ -41,12 +41,12 @@ pub enum EvalError {
     #[error(transparent)]
     Run(#[from] RunError),
     /// Metrics could not be computed for a solution.
-    #[error("{solution}: {source}")]
+    #[error("{solution}: {error}")]
     Metrics {
         /// The solution.
         solution: String,
         /// Why.
-        source: MetricsError,
+        error: MetricsError,
     },
     /// The UWB system produced no fix at all.
     #[error("no UWB fix could be computed from {tdoa} TDOA measurements")]
@@ -126,7 +126,7 @@ fn solution(
 ) -> Result<Solution, EvalError> {
     let metrics = compute(&track, truth, segment, nis).map_err(|source| EvalError::Metrics {
         solution: key.to_owned(),
-        source,
+        error: source,
     })?;
     Ok(Solution {
         key: key.to_owned(),

@@ -36,10 +36,16 @@ pub enum ScenarioRunError {
     },
     /// The simulation failed.
     #[error("simulation: {0}")]
-    Sim(#[from] insuwb_sim::SimError),
+    Sim(insuwb_sim::SimError),
     /// The evaluation failed.
     #[error(transparent)]
     Eval(#[from] EvalError),
+}
+
+impl From<insuwb_sim::SimError> for ScenarioRunError {
+    fn from(e: insuwb_sim::SimError) -> Self {
+        Self::Sim(e)
+    }
 }
 
 impl ScenarioFile {

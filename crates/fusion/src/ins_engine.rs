@@ -116,7 +116,7 @@ pub struct InsEngineConfig {
 pub enum InsEngineError {
     /// The mechanisation config or initial state was refused.
     #[error("ins: {0}")]
-    Ins(#[from] insuwb_nav::ins::InsNewError),
+    Ins(insuwb_nav::ins::InsNewError),
     /// A value out of range.
     #[error("ins engine: {key} {message}")]
     Invalid {
@@ -125,6 +125,12 @@ pub enum InsEngineError {
         /// What is wrong.
         message: String,
     },
+}
+
+impl From<insuwb_nav::ins::InsNewError> for InsEngineError {
+    fn from(e: insuwb_nav::ins::InsNewError) -> Self {
+        Self::Ins(e)
+    }
 }
 
 /// Counters of what the INS engine dropped or did.

@@ -49,13 +49,13 @@ pub enum RunError {
     Ins(#[from] InsEngineError),
     /// The fix builder config was refused.
     #[error("fix: {0}")]
-    Fix(#[from] insuwb_uwb::fix::FixConfigError),
+    Fix(insuwb_uwb::fix::FixConfigError),
     /// The error model config was refused.
     #[error("model: {0}")]
-    Model(#[from] insuwb_filter::ModelConfigError),
+    Model(insuwb_filter::ModelConfigError),
     /// A filter could not be built.
     #[error("filter: {0}")]
-    Filter(#[from] insuwb_filter::BuildError),
+    Filter(insuwb_filter::BuildError),
     /// The loose-coupling settings were refused.
     #[error(transparent)]
     Loose(#[from] LooseConfigError),
@@ -69,6 +69,24 @@ pub enum RunError {
     /// names the key, `engine.monitor.*`).
     #[error("engine.{0}")]
     Engine(insuwb_filter::MonitorConfigError),
+}
+
+impl From<insuwb_uwb::fix::FixConfigError> for RunError {
+    fn from(e: insuwb_uwb::fix::FixConfigError) -> Self {
+        Self::Fix(e)
+    }
+}
+
+impl From<insuwb_filter::ModelConfigError> for RunError {
+    fn from(e: insuwb_filter::ModelConfigError) -> Self {
+        Self::Model(e)
+    }
+}
+
+impl From<insuwb_filter::BuildError> for RunError {
+    fn from(e: insuwb_filter::BuildError) -> Self {
+        Self::Filter(e)
+    }
 }
 
 impl From<insuwb_filter::MonitorConfigError> for RunError {
@@ -270,4 +288,22 @@ pub fn run_fixes(tdoa: &[UwbTdoa], cfg: &FusionConfig) -> Result<Vec<UwbFix>, Ru
     }
     out.extend(fixb.flush());
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A chain printed with `{:#}` (anyhow, the binaries) names each cause
+    /// once: a variant that shows its inner error does not also expose it
+    /// as its source.
+    #[test]
+    fn an_error_shows_its_cause_once() {
+        let mut cfg = FusionConfig::default();
+        cfg.fix.period_s = -1.0;
+        let e = run(&[], &[], &cfg, FilterKind::Kf).unwrap_err();
+        let text = e.to_string();
+        assert!(text.starts_with("fix: period_s"), "{text}");
+        assert!(std::error::Error::source(&e).is_none(), "{text}");
+    }
 }

@@ -210,14 +210,14 @@ pub enum LaunchError {
     },
     /// A stage's program could not be spawned. The stages started before it
     /// keep running: call [`Supervisor::shutdown`].
-    #[error("cannot start stage {stage} ({program:?}): {source}")]
+    #[error("cannot start stage {stage} ({program:?}): {error}")]
     Spawn {
         /// Stage name.
         stage: String,
         /// The program (lossy).
         program: String,
         /// The operating system's error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -231,7 +231,7 @@ pub enum KillError {
     #[error("stage {0:?} has no running process")]
     NotRunning(String),
     /// kill(2) failed.
-    #[error("cannot send signal {signal} to stage {stage} (pid {pid}): {source}")]
+    #[error("cannot send signal {signal} to stage {stage} (pid {pid}): {error}")]
     Signal {
         /// Stage name.
         stage: String,
@@ -240,7 +240,7 @@ pub enum KillError {
         /// The signal.
         signal: i32,
         /// The operating system's error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -390,7 +390,7 @@ impl Supervisor {
                     result = Err(LaunchError::Spawn {
                         stage: slot.spec.name.clone(),
                         program: slot.spec.program.to_string_lossy().into_owned(),
-                        source,
+                        error: source,
                     });
                     break;
                 }
@@ -527,7 +527,7 @@ impl Supervisor {
             stage: stage.to_owned(),
             pid,
             signal,
-            source,
+            error: source,
         })
     }
 

@@ -29,20 +29,20 @@ pub enum CleanupError {
     Prefix(String),
     /// iceoryx2 could not list the nodes.
     #[error("cannot list iceoryx2 nodes: {0}")]
-    List(#[source] NodeListFailure),
+    List(NodeListFailure),
     /// iceoryx2 could not list the services.
     #[error("cannot list iceoryx2 services: {0}")]
-    ListServices(#[source] ServiceListError),
+    ListServices(ServiceListError),
     /// The inspection node could not be created.
     #[error("cannot create the inspection node: {0}")]
-    Node(#[source] NodeCreationFailure),
+    Node(NodeCreationFailure),
     /// A file or folder could not be read or removed.
-    #[error("cannot remove {path:?}: {source}")]
+    #[error("cannot remove {path:?}: {error}")]
     Io {
         /// The file or folder.
         path: PathBuf,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -346,7 +346,7 @@ pub fn remove_prefix_files(
 fn io_err(path: &StdPath) -> impl FnOnce(std::io::Error) -> CleanupError + '_ {
     move |source| CleanupError::Io {
         path: path.to_path_buf(),
-        source,
+        error: source,
     }
 }
 

@@ -28,14 +28,14 @@ pub const OWNER_ONLY_FILE: u32 = 0o600;
 pub enum RestrictError {
     /// The shared-memory folder cannot be listed.
     #[error("cannot list {SHM_DIR}: {0}")]
-    List(#[source] std::io::Error),
+    List(std::io::Error),
     /// A file's mode cannot be changed.
-    #[error("cannot make {path:?} owner-only: {source}")]
+    #[error("cannot make {path:?} owner-only: {error}")]
     Chmod {
         /// The file.
         path: PathBuf,
         /// The operating system's error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -79,8 +79,12 @@ fn restrict_files_in(dir: &Path, prefix: &str, suffix: &str) -> Result<usize, Re
         if !meta.is_file() || meta.permissions().mode() & 0o077 == 0 {
             continue;
         }
-        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(OWNER_ONLY_FILE))
-            .map_err(|source| RestrictError::Chmod { path, source })?;
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(OWNER_ONLY_FILE)).map_err(
+            |source| RestrictError::Chmod {
+                path,
+                error: source,
+            },
+        )?;
         changed += 1;
     }
     Ok(changed)

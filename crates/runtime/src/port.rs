@@ -33,52 +33,52 @@ pub enum PortError {
     InvalidTopic(String),
     /// The publish-subscribe service could not be opened or created (another
     /// process created it with other settings or another type, or it is full).
-    #[error("cannot open service {topic:?}: {source}")]
+    #[error("cannot open service {topic:?}: {error}")]
     Service {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: PublishSubscribeOpenOrCreateError,
+        error: PublishSubscribeOpenOrCreateError,
     },
     /// The companion event service could not be opened or created.
-    #[error("cannot open event service {name:?}: {source}")]
+    #[error("cannot open event service {name:?}: {error}")]
     Event {
         /// The event service name.
         name: String,
         /// iceoryx2's reason.
-        source: EventOpenOrCreateError,
+        error: EventOpenOrCreateError,
     },
     /// The publisher could not be created (too many publishers?).
-    #[error("cannot create publisher on {topic:?}: {source}")]
+    #[error("cannot create publisher on {topic:?}: {error}")]
     Publisher {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: PublisherCreateError,
+        error: PublisherCreateError,
     },
     /// The subscriber could not be created (too many subscribers?).
-    #[error("cannot create subscriber on {topic:?}: {source}")]
+    #[error("cannot create subscriber on {topic:?}: {error}")]
     Subscriber {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: SubscriberCreateError,
+        error: SubscriberCreateError,
     },
     /// The notifier of the event service could not be created.
-    #[error("cannot create notifier on {topic:?}: {source}")]
+    #[error("cannot create notifier on {topic:?}: {error}")]
     Notifier {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: NotifierCreateError,
+        error: NotifierCreateError,
     },
     /// The listener of the event service could not be created.
-    #[error("cannot create listener on {topic:?}: {source}")]
+    #[error("cannot create listener on {topic:?}: {error}")]
     Listener {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: ListenerCreateError,
+        error: ListenerCreateError,
     },
 }
 
@@ -86,36 +86,36 @@ pub enum PortError {
 #[derive(Debug, thiserror::Error)]
 pub enum PublishError {
     /// No shared-memory chunk could be loaned.
-    #[error("cannot loan a sample on {topic:?}: {source}")]
+    #[error("cannot loan a sample on {topic:?}: {error}")]
     Loan {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: LoanError,
+        error: LoanError,
     },
     /// The sample could not be delivered.
-    #[error("cannot send on {topic:?}: {source}")]
+    #[error("cannot send on {topic:?}: {error}")]
     Send {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: SendError,
+        error: SendError,
     },
     /// Connections to new subscribers could not be established.
-    #[error("cannot connect new subscribers of {topic:?}: {source}")]
+    #[error("cannot connect new subscribers of {topic:?}: {error}")]
     Connect {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: ConnectionFailure,
+        error: ConnectionFailure,
     },
     /// The sample was sent but the listeners could not be woken.
-    #[error("sample sent on {topic:?} but notify failed: {source}")]
+    #[error("sample sent on {topic:?} but notify failed: {error}")]
     Notify {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: NotifierNotifyError,
+        error: NotifierNotifyError,
     },
 }
 
@@ -123,20 +123,20 @@ pub enum PublishError {
 #[derive(Debug, thiserror::Error)]
 pub enum ReceiveError {
     /// iceoryx2 failed to receive (a connection to a publisher failed).
-    #[error("cannot receive on {topic:?}: {source}")]
+    #[error("cannot receive on {topic:?}: {error}")]
     Receive {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: IoxReceiveError,
+        error: IoxReceiveError,
     },
     /// The pending wake-ups of the topic's listener could not be consumed.
-    #[error("cannot consume wake-ups of {topic:?}: {source}")]
+    #[error("cannot consume wake-ups of {topic:?}: {error}")]
     Listener {
         /// The topic.
         topic: String,
         /// iceoryx2's reason.
-        source: ListenerWaitError,
+        error: ListenerWaitError,
     },
 }
 
@@ -160,7 +160,7 @@ where
         .open_or_create()
         .map_err(|source| PortError::Service {
             topic: topic.to_owned(),
-            source,
+            error: source,
         })
 }
 
@@ -227,8 +227,10 @@ pub(crate) fn open_event(
     topic: &str,
 ) -> Result<EvFactory, PortError> {
     let (name, b) = event_builder(node, topic)?;
-    b.open_or_create()
-        .map_err(|source| PortError::Event { name, source })
+    b.open_or_create().map_err(|source| PortError::Event {
+        name,
+        error: source,
+    })
 }
 
 /// Opens (never creates) the event service of `topic`.
@@ -290,14 +292,14 @@ where
                 .create()
                 .map_err(|source| PortError::Publisher {
                     topic: topic.to_owned(),
-                    source,
+                    error: source,
                 })?;
         let notifier = event
             .notifier_builder()
             .create()
             .map_err(|source| PortError::Notifier {
                 topic: topic.to_owned(),
-                source,
+                error: source,
             })?;
         Ok(Self {
             topic: topic.to_owned(),
@@ -357,7 +359,7 @@ where
             .loan_uninit()
             .map_err(|source| PublishError::Loan {
                 topic: self.topic.clone(),
-                source,
+                error: source,
             })?;
         sample.header_mut().pub_time_ns = monotonic_ns();
         uninit
@@ -365,14 +367,14 @@ where
             .send()
             .map_err(|source| PublishError::Send {
                 topic: self.topic.clone(),
-                source,
+                error: source,
             })?;
         self.published += 1;
         self.notifier
             .notify()
             .map_err(|source| PublishError::Notify {
                 topic: self.topic.clone(),
-                source,
+                error: source,
             })?;
         Ok(())
     }
@@ -386,7 +388,7 @@ where
             .update_connections()
             .map_err(|source| PublishError::Connect {
                 topic: self.topic.clone(),
-                source,
+                error: source,
             })
     }
 
@@ -598,7 +600,7 @@ where
             .create()
             .map_err(|source| PortError::Listener {
                 topic: topic.to_owned(),
-                source,
+                error: source,
             })?;
         let subscriber = service
             .subscriber_builder()
@@ -606,7 +608,7 @@ where
             .create()
             .map_err(|source| PortError::Subscriber {
                 topic: topic.to_owned(),
-                source,
+                error: source,
             })?;
         Ok(Self {
             topic: topic.to_owned(),
@@ -664,7 +666,7 @@ where
             .map(|o| o.map(|s| *s.payload()))
             .map_err(|source| ReceiveError::Receive {
                 topic: self.topic.clone(),
-                source,
+                error: source,
             })
     }
 
@@ -676,7 +678,7 @@ where
             .try_wait(|_| {})
             .map_err(|source| ReceiveError::Listener {
                 topic: self.topic.clone(),
-                source,
+                error: source,
             })?;
         self.take()
     }

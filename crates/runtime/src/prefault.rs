@@ -35,11 +35,11 @@ const LATE_PERIOD_NS: u64 = 5_000_000_000;
 pub enum PrefaultError {
     /// `/proc/self/maps` could not be read.
     #[error("cannot read /proc/self/maps: {0}")]
-    Maps(#[source] std::io::Error),
+    Maps(std::io::Error),
     /// The kernel does not know `MADV_POPULATE_*` (Linux before 5.14):
     /// pages are faulted in on first use, as without the prefault.
     #[error("madvise(MADV_POPULATE_*) is not supported by this kernel: {0}")]
-    Unsupported(#[source] std::io::Error),
+    Unsupported(std::io::Error),
 }
 
 /// What one scan did.

@@ -28,23 +28,23 @@ pub enum RealtimeError {
         max: usize,
     },
     /// `sched_setaffinity` refused.
-    #[error("cannot pin to cpus {cpus:?}: {source}")]
+    #[error("cannot pin to cpus {cpus:?}: {error}")]
     Affinity {
         /// The CPUs asked for.
         cpus: Vec<usize>,
         /// The OS's reason.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// A priority outside 1..=99.
     #[error("SCHED_FIFO priority must be in 1..=99, got {0}")]
     Priority(i32),
     /// `sched_setscheduler` refused (no CAP_SYS_NICE or RLIMIT_RTPRIO).
-    #[error("cannot switch to SCHED_FIFO priority {priority}: {source} (needs CAP_SYS_NICE or LimitRTPRIO)")]
+    #[error("cannot switch to SCHED_FIFO priority {priority}: {error} (needs CAP_SYS_NICE or LimitRTPRIO)")]
     Fifo {
         /// The priority asked for.
         priority: i32,
         /// The OS's reason.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -88,7 +88,7 @@ impl RealtimeConfig {
             if rc != 0 {
                 return Err(RealtimeError::Affinity {
                     cpus: self.cpus.clone(),
-                    source: std::io::Error::last_os_error(),
+                    error: std::io::Error::last_os_error(),
                 });
             }
         }
@@ -102,7 +102,7 @@ impl RealtimeConfig {
             if rc != 0 {
                 return Err(RealtimeError::Fifo {
                     priority,
-                    source: std::io::Error::last_os_error(),
+                    error: std::io::Error::last_os_error(),
                 });
             }
         }

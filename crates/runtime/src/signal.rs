@@ -29,15 +29,15 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 pub enum SignalError {
     /// `eventfd` failed.
     #[error("cannot create the termination eventfd: {0}")]
-    EventFd(#[source] std::io::Error),
+    EventFd(std::io::Error),
     /// `sigaction` failed.
-    #[error("cannot install the handler of signal {signal}: {source}")]
+    #[error("cannot install the handler of signal {signal}: {error}")]
     Sigaction {
         /// The signal number.
         signal: i32,
         /// The error.
         #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -130,7 +130,7 @@ pub fn install() -> Result<(), SignalError> {
         if rc != 0 {
             return Err(SignalError::Sigaction {
                 signal,
-                source: std::io::Error::last_os_error(),
+                error: std::io::Error::last_os_error(),
             });
         }
     }

@@ -32,23 +32,23 @@ pub enum StageError {
         value: String,
     },
     /// The root folder could not be created.
-    #[error("cannot create runtime.root_path {path:?}: {source}")]
+    #[error("cannot create runtime.root_path {path:?}: {error}")]
     RootPath {
         /// The folder.
         path: String,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// `INSUWB_GENERATION` is set but is not a u32.
     #[error("{GENERATION_ENV} must be an unsigned 32-bit integer, got {0:?}")]
     GenerationEnv(String),
     /// The iceoryx2 node could not be created.
-    #[error("cannot create iceoryx2 node {name:?}: {source}")]
+    #[error("cannot create iceoryx2 node {name:?}: {error}")]
     Node {
         /// The stage name.
         name: String,
         /// iceoryx2's reason.
-        source: NodeCreationFailure,
+        error: NodeCreationFailure,
     },
     /// The SIGINT/SIGTERM handler could not be installed.
     #[error(transparent)]
@@ -58,12 +58,12 @@ pub enum StageError {
     #[error("shutdown requested (SIGINT/SIGTERM) while starting stage {0:?}")]
     ShutdownRequested(String),
     /// The configured CPU affinity or SCHED_FIFO priority was refused.
-    #[error("stage {stage:?}: real-time setting refused: {source}")]
+    #[error("stage {stage:?}: real-time setting refused: {error}")]
     Realtime {
         /// The stage.
         stage: String,
         /// What was refused.
-        source: crate::realtime::RealtimeError,
+        error: crate::realtime::RealtimeError,
     },
 }
 
@@ -159,7 +159,7 @@ impl Stage {
             .apply()
             .map_err(|source| StageError::Realtime {
                 stage: cfg.stage_name.clone(),
-                source,
+                error: source,
             })?;
         if let Some(root) = &cfg.root_path {
             // Created now under the umask: 0700. An existing folder is left as
@@ -168,7 +168,7 @@ impl Stage {
             let existed = root.is_dir();
             std::fs::create_dir_all(root).map_err(|source| StageError::RootPath {
                 path: root.to_string_lossy().into_owned(),
-                source,
+                error: source,
             })?;
             if existed && crate::perm::is_shared(root) {
                 tracing::warn!(stage = %cfg.stage_name, "the iceoryx2 root {} has group or other permission bits", root.display());
@@ -194,7 +194,7 @@ impl Stage {
             .create::<crate::service::Ipc>()
             .map_err(|source| StageError::Node {
                 name: cfg.stage_name.clone(),
-                source,
+                error: source,
             })?;
         // iceoryx2 makes its global management segment world-writable.
         let suffix = String::from_utf8_lossy(iox.global.node.global_mgmt_suffix.as_bytes());

@@ -40,17 +40,17 @@ pub const MAX_ATTACHMENTS: usize = 32;
 pub enum WaitError {
     /// The epoll set could not be created.
     #[error("cannot create the epoll set: {0}")]
-    Create(#[source] std::io::Error),
+    Create(std::io::Error),
     /// The SIGINT/SIGTERM handler could not be installed.
     #[error(transparent)]
     Signal(#[from] crate::signal::SignalError),
     /// The listener could not be added to the epoll set.
-    #[error("cannot attach {what}: {source}")]
+    #[error("cannot attach {what}: {error}")]
     Attach {
         /// What was attached (topic or interval).
         what: String,
         /// The OS's reason.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// More than [`MAX_ATTACHMENTS`] attachments.
     #[error("cannot attach {what}: the waiter already holds {max} attachments")]
@@ -71,7 +71,7 @@ pub enum WaitError {
     NoAttachments,
     /// `epoll_wait` failed.
     #[error("epoll_wait failed: {0}")]
-    Run(#[source] std::io::Error),
+    Run(std::io::Error),
 }
 
 /// What a [`Waiter::wait`] returned.
@@ -262,7 +262,7 @@ impl Waiter {
         epoll_ctl(epfd.0, libc::EPOLL_CTL_ADD, timer.0, TIMER_TOKEN).map_err(|source| {
             WaitError::Attach {
                 what: "the deadline timer".to_owned(),
-                source,
+                error: source,
             }
         })?;
         crate::signal::install()?;
@@ -270,7 +270,7 @@ impl Waiter {
             epoll_ctl(epfd.0, libc::EPOLL_CTL_ADD, fd, SIGNAL_TOKEN).map_err(|source| {
                 WaitError::Attach {
                     what: "the termination eventfd".to_owned(),
-                    source,
+                    error: source,
                 }
             })?;
         }
@@ -309,7 +309,10 @@ impl Waiter {
         };
         if let Slot::Listener(fd) = slot {
             if let Err(source) = epoll_ctl(self.epfd.0, libc::EPOLL_CTL_ADD, fd, u64::from(index)) {
-                return Err(WaitError::Attach { what, source });
+                return Err(WaitError::Attach {
+                    what,
+                    error: source,
+                });
             }
         }
         if let Some(s) = slots.get_mut(i) {

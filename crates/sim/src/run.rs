@@ -34,16 +34,22 @@ const DEG: f64 = core::f64::consts::PI / 180.0;
 pub enum SimError {
     /// The scenario does not validate.
     #[error("invalid scenario: {0}")]
-    Invalid(#[from] ScenarioConfigError),
+    Invalid(ScenarioConfigError),
     /// The trajectory cannot be evaluated at some time (e.g. zero speed on a Lissajous curve).
-    #[error("trajectory at t = {t_s} s: {source}")]
+    #[error("trajectory at t = {t_s} s: {error}")]
     Trajectory {
         /// Time of the failure, s.
         t_s: f64,
         /// What failed.
         #[source]
-        source: TrajectoryError,
+        error: TrajectoryError,
     },
+}
+
+impl From<ScenarioConfigError> for SimError {
+    fn from(e: ScenarioConfigError) -> Self {
+        Self::Invalid(e)
+    }
 }
 
 /// How each UWB difference was made: `diff_m = geometric_m + anchor_bias_m + nlos_m + noise_m`.
@@ -176,11 +182,16 @@ impl Scenario {
     /// independent of those used by [`simulate`]).
     pub fn initial_ins_state(&self, seed: u64) -> Result<InitialState, SimError> {
         self.validate()?;
-        let model = TrajectoryModel::new(&self.trajectory, self.height_m)
-            .map_err(|source| SimError::Trajectory { t_s: 0.0, source })?;
-        let k = model
-            .eval(0.0)
-            .map_err(|source| SimError::Trajectory { t_s: 0.0, source })?;
+        let model = TrajectoryModel::new(&self.trajectory, self.height_m).map_err(|source| {
+            SimError::Trajectory {
+                t_s: 0.0,
+                error: source,
+            }
+        })?;
+        let k = model.eval(0.0).map_err(|source| SimError::Trajectory {
+            t_s: 0.0,
+            error: source,
+        })?;
         let mut rng = Rng::stream(seed, STREAM_INITIAL);
         let e = &self.initial_error;
         let dp = [rng.normal(e.pos_m), rng.normal(e.pos_m)];
@@ -216,8 +227,13 @@ struct NlosEvent {
 /// Runs the scenario with `seed`.
 pub fn simulate(scenario: &Scenario, seed: u64) -> Result<SimOutput, SimError> {
     scenario.validate()?;
-    let model = TrajectoryModel::new(&scenario.trajectory, scenario.height_m)
-        .map_err(|source| SimError::Trajectory { t_s: 0.0, source })?;
+    let model =
+        TrajectoryModel::new(&scenario.trajectory, scenario.height_m).map_err(|source| {
+            SimError::Trajectory {
+                t_s: 0.0,
+                error: source,
+            }
+        })?;
     let (imu, truth, imu_errors) = simulate_imu(scenario, &model, seed)?;
     let (tdoa, tdoa_truth) = simulate_uwb(scenario, &model, seed)?;
     Ok(SimOutput {
@@ -268,7 +284,7 @@ fn simulate_imu(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Imu
         let t_s = t_ns as f64 * 1e-9;
         let kin = model
             .eval(t_s)
-            .map_err(|source| SimError::Trajectory { t_s, source })?;
+            .map_err(|source| SimError::Trajectory { t_s, error: source })?;
         let mut gt = GroundTruth {
             header: Header::new(k, t_ns),
             pos_m: kin.pos_m,
@@ -380,7 +396,7 @@ fn simulate_uwb(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Uwb
         let t_s = t_ns as f64 * 1e-9;
         let kin = model
             .eval(t_s)
-            .map_err(|source| SimError::Trajectory { t_s, source })?;
+            .map_err(|source| SimError::Trajectory { t_s, error: source })?;
         let p = kin.pos_m;
         for (j, a) in u.anchors.iter().enumerate() {
             let d = [p[0] - a.pos_m[0], p[1] - a.pos_m[1], p[2] - a.pos_m[2]];

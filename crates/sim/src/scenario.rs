@@ -509,22 +509,22 @@ pub enum ScenarioError {
         message: String,
     },
     /// The values parse but are not acceptable.
-    #[error("{origin}: {source}")]
+    #[error("{origin}: {error}")]
     Invalid {
         /// File name or other origin of the text.
         origin: String,
         /// What is wrong.
         #[source]
-        source: ScenarioConfigError,
+        error: ScenarioConfigError,
     },
     /// The file could not be read.
-    #[error("{origin}: cannot read: {source}")]
+    #[error("{origin}: cannot read: {error}")]
     Io {
         /// The path.
         origin: String,
         /// The I/O error.
         #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// No built-in scenario has this name.
     #[error("no built-in scenario named {name:?} (known: {known})")]
@@ -570,7 +570,7 @@ impl Scenario {
             .validate()
             .map_err(|source| ScenarioError::Invalid {
                 origin: origin.to_owned(),
-                source,
+                error: source,
             })?;
         Ok(doc.sim)
     }
@@ -580,7 +580,7 @@ impl Scenario {
         let origin = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
             origin: origin.clone(),
-            source,
+            error: source,
         })?;
         Self::from_toml_str(&text, &origin)
     }

@@ -132,16 +132,22 @@ pub enum DeviceSetupError {
         reason: String,
     },
     /// The reconnection settings were refused.
-    #[error("DeviceSetupError::Link: devices.{sensor}: {source}")]
+    #[error("DeviceSetupError::Link: devices.{sensor}: {error}")]
     Link {
         /// `imu` or `uwb`.
         sensor: &'static str,
         /// The link's reason.
-        source: LinkConfigError,
+        error: LinkConfigError,
     },
     /// The velocity regression settings were refused.
-    #[error("DeviceSetupError::Velocity: fusion.fix.{0}")]
-    Velocity(#[from] VelocityConfigError),
+    #[error("fusion.fix.{0}")]
+    Velocity(VelocityConfigError),
+}
+
+impl From<VelocityConfigError> for DeviceSetupError {
+    fn from(e: VelocityConfigError) -> Self {
+        Self::Velocity(e)
+    }
 }
 
 /// What a device driver needs from its `[devices.*]` table, checked.
@@ -548,7 +554,7 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
     )
     .map_err(|source| DeviceSetupError::Link {
         sensor: name,
-        source,
+        error: source,
     })?;
     let mut decoder = setup.decoder(dev.tag_id);
     let baud = setup.wire_baud;

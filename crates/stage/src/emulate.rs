@@ -98,13 +98,13 @@ impl Recording {
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
     /// The scenario did not load or simulate.
-    #[error("LoadError::Scenario: scenario {name:?}: {source}")]
+    #[error("LoadError::Scenario: scenario {name:?}: {error}")]
     Scenario {
         /// The name or file given.
         name: String,
         /// What went wrong.
         #[source]
-        source: insuwb_eval::scenario::ScenarioRunError,
+        error: insuwb_eval::scenario::ScenarioRunError,
     },
     /// The log could not be read.
     #[error("LoadError::Log: {path}: {message}")]
@@ -115,8 +115,14 @@ pub enum LoadError {
         message: String,
     },
     /// The fix builder settings do not validate.
-    #[error("LoadError::FixConfig: {0}")]
-    FixConfig(#[from] FixConfigError),
+    #[error("fix: {0}")]
+    FixConfig(FixConfigError),
+}
+
+impl From<FixConfigError> for LoadError {
+    fn from(e: FixConfigError) -> Self {
+        Self::FixConfig(e)
+    }
 }
 
 /// The fixes the UWB driver computes from `tdoa`: each measurement pushed
@@ -142,7 +148,7 @@ pub fn fixes_from_tdoa(tdoa: &[UwbTdoa], cfg: &FixConfig) -> Result<Vec<UwbFix>,
 pub fn from_scenario(name: &str, seed: u64) -> Result<Recording, LoadError> {
     let scenario_err = |source| LoadError::Scenario {
         name: name.to_owned(),
-        source,
+        error: source,
     };
     let sc = insuwb_eval::scenario::ScenarioFile::load(name).map_err(scenario_err)?;
     let fusion = sc.fusion_for_seed(seed).map_err(scenario_err)?;

@@ -192,12 +192,12 @@ pub enum LockError {
         value: String,
     },
     /// A lock file (or the run directory) cannot be created, opened, locked or written.
-    #[error("cannot lock {path}: {source}", path = .path.display())]
+    #[error("cannot lock {path}: {error}", path = .path.display())]
     Io {
         /// The file or folder.
         path: PathBuf,
         /// The operating system's error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -329,7 +329,7 @@ fn create_run_dir(dir: &Path) -> Result<(), LockError> {
         .create(dir)
         .map_err(|source| LockError::Io {
             path: dir.to_owned(),
-            source,
+            error: source,
         })
 }
 
@@ -352,7 +352,7 @@ fn take(
 ) -> Result<Held, LockError> {
     let io = |source| LockError::Io {
         path: path.to_owned(),
-        source,
+        error: source,
     };
     let deadline = Instant::now() + wait;
     let mut replaced = 0;

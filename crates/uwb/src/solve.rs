@@ -321,7 +321,7 @@ impl core::fmt::Display for GeometryCheck {
 pub enum SolveError {
     /// The solver settings are invalid.
     #[error("invalid solver configuration: {0}")]
-    Config(#[from] SolverConfigError),
+    Config(SolverConfigError),
     /// An observation holds a NaN or infinity.
     #[error("observation {index}: {field} is not finite ({value})")]
     NonFiniteObs {
@@ -414,6 +414,12 @@ pub enum SolveError {
         /// Configured limit, m.
         max_m: f64,
     },
+}
+
+impl From<SolverConfigError> for SolveError {
+    fn from(e: SolverConfigError) -> Self {
+        Self::Config(e)
+    }
 }
 
 /// Solves for a 3D position (needs 4+ distinct anchors, 3+ independent
