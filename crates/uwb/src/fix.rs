@@ -60,10 +60,12 @@
 //! used; `FLAG_2D` marks 2D fixes and `FLAG_VEL_VALID` a valid regression
 //! velocity ([`crate::velocity`]). Epochs without a fix are counted per reason
 //! in [`FixStats`], and the last reason is kept ([`FixBuilder::last_skip`]).
-//! Measurements with a non-finite value, equal anchor ids, a time before the
-//! previous accepted measurement, or no room left in the epoch's pair table
-//! are dropped, counted, and reported as a [`PushError`]; the builder stays
-//! usable after any error.
+//! Measurements with a non-finite value, equal anchor ids, a difference
+//! longer than the distance between its anchors (impossible), a time before
+//! the previous accepted measurement, or no room left in the epoch's pair
+//! table are dropped, counted, and reported as a [`PushError`]; the builder
+//! stays usable after any error. With [`FixConfig::average_pairs`] an epoch
+//! is solved from each pair's mean, weighted by its count.
 
 use insuwb_msg::{Header, UwbFix, UwbTdoa};
 use serde::{Deserialize, Serialize};
