@@ -317,27 +317,10 @@ impl FilterKind {
     }
 }
 
-impl core::fmt::Display for FilterKind {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
 /// A name that is not one of [`FilterKind::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("unknown filter '{0}' (known: kf, shaf, stf, iakf, iakf_tdoa)")]
 pub struct UnknownFilterKind(pub String);
-
-impl core::str::FromStr for FilterKind {
-    type Err = UnknownFilterKind;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
-            .into_iter()
-            .find(|k| k.name() == s)
-            .ok_or_else(|| UnknownFilterKind(s.to_owned()))
-    }
-}
 
 /// The processes of a group, each one stage of the pipeline, with their one
 /// name (configuration `stages`, binaries, health, locks, logs): `imu`,
@@ -385,27 +368,36 @@ impl StageRole {
     }
 }
 
-impl core::fmt::Display for StageRole {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
 /// A name that is not one of [`StageRole::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, logger)")]
 pub struct UnknownStageRole(pub String);
 
-impl core::str::FromStr for StageRole {
-    type Err = UnknownStageRole;
+/// `Display` as the enum's `name()`, and `FromStr` from it (`$err` for any
+/// other text).
+macro_rules! named_enum {
+    ($ty:ident, $err:ident) => {
+        impl core::fmt::Display for $ty {
+            fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                f.write_str(self.name())
+            }
+        }
 
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
-            .into_iter()
-            .find(|k| k.name() == s)
-            .ok_or_else(|| UnknownStageRole(s.to_owned()))
-    }
+        impl core::str::FromStr for $ty {
+            type Err = $err;
+
+            fn from_str(s: &str) -> Result<Self, Self::Err> {
+                Self::ALL
+                    .into_iter()
+                    .find(|k| k.name() == s)
+                    .ok_or_else(|| $err(s.to_owned()))
+            }
+        }
+    };
 }
+
+named_enum!(FilterKind, UnknownFilterKind);
+named_enum!(StageRole, UnknownStageRole);
 
 /// Filter diagnostics after each update (topic [`topics::DIAG`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]

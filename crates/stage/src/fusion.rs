@@ -47,18 +47,6 @@ pub fn checkpoint_path(run_dir: &Path) -> PathBuf {
     run_dir.join("fusion.ckpt.toml")
 }
 
-fn write_checkpoint(path: &Path, c: &Checkpoint) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, toml::to_string(c)?).with_context(|| format!("{}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("{}", path.display()))?;
-    Ok(())
-}
-
-fn read_checkpoint(path: &Path) -> Option<Checkpoint> {
-    let text = std::fs::read_to_string(path).ok()?;
-    toml::from_str(&text).ok()
-}
-
 /// The eager-update lag the stage runs with: the configured one in real
 /// time (the drivers publish each sample at its time, so a fix is never far
 /// behind the INS stream), none (lazy) at `speed = "max"`, where the drivers
@@ -89,7 +77,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     })?;
     let ckpt_path = checkpoint_path(&cfg.group.run_dir);
     if stage.generation() > 0 {
-        if let Some(c) = read_checkpoint(&ckpt_path) {
+        if let Some(c) = crate::checkpoint::read::<Checkpoint>(&ckpt_path) {
             engine.resume_correction_id(c.correction_id);
             let restored = engine.estimator_mut().restore_covariance(&c.cov);
             tracing::warn!(
@@ -151,7 +139,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
                         written_ns: m.written_ns,
                         cov: m.cov.get(..m.len).unwrap_or_default().to_vec(),
                     };
-                    if let Err(e) = write_checkpoint(&path, &c) {
+                    if let Err(e) = crate::checkpoint::write(&path, &c) {
                         tracing::warn!("checkpoint: {e:#}");
                     }
                 }

@@ -23,17 +23,6 @@ pub fn checkpoint_path(run_dir: &Path) -> PathBuf {
     run_dir.join("ins.ckpt.toml")
 }
 
-fn write_checkpoint(path: &Path, b: &InsBiases) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, toml::to_string(b)?).with_context(|| format!("{}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("{}", path.display()))?;
-    Ok(())
-}
-
-fn read_checkpoint(path: &Path) -> Option<InsBiases> {
-    toml::from_str(&std::fs::read_to_string(path).ok()?).ok()
-}
-
 /// Runs the INS stage until SIGINT/SIGTERM.
 pub fn run(cfg: &RobotConfig) -> Result<()> {
     let stage = Stage::new(cfg.runtime(StageRole::Ins.name()))?;
@@ -87,7 +76,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             // Biases are the INS's alone (alignment, corrections): without
             // them a restarted INS drifts from its first second while the
             // fusion filter believes them still removed.
-            let biases = read_checkpoint(&ckpt_path);
+            let biases = crate::checkpoint::read::<InsBiases>(&ckpt_path);
             ins.reinit_from(f.pos_m, f.vel_mps, f.quat, biases, max_id);
             min_imu_t = f.header.meas_time_ns;
             tracing::warn!(
@@ -107,7 +96,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             .name("checkpoint".into())
             .spawn(move || {
                 for b in ckpt_rx {
-                    if let Err(e) = write_checkpoint(&path, &b) {
+                    if let Err(e) = crate::checkpoint::write(&path, &b) {
                         tracing::warn!("checkpoint: {e:#}");
                     }
                 }

@@ -8,6 +8,7 @@
 //! from `insuwb-fusion`, the same code `insuwb eval` runs.
 #![warn(missing_docs)]
 
+pub mod checkpoint;
 pub mod cli;
 pub mod device;
 pub mod driver;
