@@ -23,6 +23,10 @@ pub struct EvalOptions {
     pub min_height_m: f64,
     /// Filters run when the command line names none (kf, shaf, stf, iakf, iakf_tdoa).
     pub filters: Vec<insuwb_msg::FilterKind>,
+    /// Where the solutions are evaluated: `fixes` (the UWB fix epochs, the
+    /// paper's Table 1) or `truth` (the ground-truth sample times, each
+    /// solution interpolated there, as the UTIL references are measured).
+    pub epochs: insuwb_eval::run::Epochs,
 }
 
 impl Default for EvalOptions {
@@ -30,6 +34,7 @@ impl Default for EvalOptions {
         Self {
             min_height_m: 0.0,
             filters: crate::eval_cmd::DEFAULT_FILTERS.to_vec(),
+            epochs: insuwb_eval::run::Epochs::Fixes,
         }
     }
 }

@@ -75,6 +75,10 @@ pub struct EvalArgs {
     /// Write SVG figures into this directory.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Write every solution's estimates, the truth and the error at each
+    /// epoch into this CSV file (one row per solution and epoch).
+    #[arg(long, conflicts_with = "flights")]
+    pub tracks: Option<PathBuf>,
 }
 
 /// Runs `insuwb eval`.
@@ -92,11 +96,16 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         }
         let filters = parse_filters(a.filters.as_deref(), &DEFAULT_FILTERS)?;
         let seed = a.seed.unwrap_or(file.sim.seed);
-        if let Some(dir) = &a.plot {
+        if a.plot.is_some() || a.tracks.is_some() {
             let data = file.dataset(seed)?;
             let cfg = file.fusion_for_seed(seed)?;
             let rep = evaluate(&data, &cfg, &filters)?;
-            write_plots(&rep, &data, dir)?;
+            if let Some(dir) = &a.plot {
+                write_plots(&rep, &data, dir)?;
+            }
+            if let Some(path) = &a.tracks {
+                write_tracks(&rep, &data, path)?;
+            }
         }
         let rows = monte_carlo(&file, &filters, a.runs, seed)?;
         (
@@ -117,6 +126,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         )?;
         if let Some(dir) = &a.plot {
             write_plots(&rep, &loaded.data, dir)?;
+        }
+        if let Some(p) = &a.tracks {
+            write_tracks(&rep, &loaded.data, p)?;
         }
         let rows = rep
             .solutions
@@ -225,7 +237,12 @@ pub fn evaluate_file(
     tracing::info!("config: {}", loaded.config_origin);
     let filters = parse_filters(filters, &loaded.config.eval.filters)?;
     let t0 = std::time::Instant::now();
-    let rep = evaluate(&loaded.data, &loaded.config.fusion, &filters)?;
+    let rep = insuwb_eval::run::evaluate_at(
+        &loaded.data,
+        &loaded.config.fusion,
+        &filters,
+        loaded.config.eval.epochs,
+    )?;
     let elapsed = t0.elapsed();
     let dur_s = loaded
         .data
@@ -253,6 +270,17 @@ pub fn write_plots(
     for f in files {
         tracing::info!("wrote {}", f.display());
     }
+    Ok(())
+}
+
+/// Writes every solution's estimates of one evaluation into the CSV file `path`.
+pub fn write_tracks(
+    rep: &insuwb_eval::run::EvalReport,
+    data: &insuwb_eval::run::Dataset,
+    path: &Path,
+) -> Result<()> {
+    let rows = insuwb_eval::tracks::write(rep, data, path)?;
+    tracing::info!("wrote {rows} rows into {}", path.display());
     Ok(())
 }
 

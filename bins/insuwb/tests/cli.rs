@@ -255,3 +255,77 @@ fn a_robot_config_naming_an_unknown_stage_or_filter_is_refused_before_anything_s
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// RMS of the horizontal error of one solution's in-segment rows of a
+/// `--tracks` file, and the number of those rows.
+fn tracks_rmse(csv: &str, solution: &str) -> (f64, usize) {
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some(
+            "solution,t_ns,east_m,north_m,truth_east_m,truth_north_m,err_east_m,err_north_m,in_segment"
+        )
+    );
+    let (mut sum, mut n) = (0.0, 0usize);
+    for l in lines {
+        let f: Vec<&str> = l.split(',').collect();
+        assert_eq!(f.len(), 9, "{l}");
+        if f[0] != solution || f[8] != "1" || f[6].is_empty() {
+            continue;
+        }
+        let (e, nn): (f64, f64) = (f[6].parse().unwrap(), f[7].parse().unwrap());
+        sum += e * e + nn * nn;
+        n += 1;
+    }
+    ((sum / n.max(1) as f64).sqrt(), n)
+}
+
+#[test]
+fn tracks_hold_the_evaluated_errors_at_fix_epochs_and_at_truth_times() {
+    let d = tmp("tracks");
+    let log = d.join("s.iulog");
+    let out = insuwb(&[
+        "sim",
+        "--scenario",
+        "paper-4.4-dynamic",
+        "--seed",
+        "3",
+        "--out",
+        log.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let truth_cfg = d.join("truth.toml");
+    std::fs::write(&truth_cfg, "[eval]\nepochs = \"truth\"\n").unwrap();
+    let mut epochs = Vec::new();
+    for cfg in [None, Some(&truth_cfg)] {
+        let tracks = d.join("t.csv");
+        let mut args = vec![
+            "eval",
+            log.to_str().unwrap(),
+            "--filters",
+            "kf",
+            "--json",
+            "--tracks",
+            tracks.to_str().unwrap(),
+        ];
+        if let Some(c) = cfg {
+            args.extend(["--config", c.to_str().unwrap()]);
+        }
+        let v = json(&insuwb(&args));
+        let csv = std::fs::read_to_string(&tracks).unwrap();
+        for sol in ["uwb", "kf"] {
+            let (rmse, n) = tracks_rmse(&csv, sol);
+            let want = num(&v, sol, "rmse_horizontal");
+            assert!((rmse - want).abs() < 1e-5, "{sol}: tracks {rmse} vs {want}");
+            assert_eq!(n as f64, num(&v, sol, "epochs"), "{sol}");
+        }
+        epochs.push(num(&v, "uwb", "epochs"));
+    }
+    // The truth (100 Hz in the simulation) is denser than the fixes (10 Hz).
+    assert!(epochs[1] > 5.0 * epochs[0], "{epochs:?}");
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -9,3 +9,4 @@ pub mod metrics;
 pub mod plot;
 pub mod run;
 pub mod scenario;
+pub mod tracks;

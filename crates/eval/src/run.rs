@@ -1,5 +1,7 @@
 //! Runs every solution (UWB-only, INS-only, each filter) on one dataset and
-//! evaluates them at the same epochs: the UWB fix epochs.
+//! evaluates them at the same epochs ([`Epochs`]): the UWB fix epochs, or the
+//! ground-truth sample times with each solution interpolated there (how the
+//! UTIL dataset's references are measured).
 
 use insuwb_fusion::offline::{self, FusionConfig, RunError, RunOutput};
 use insuwb_msg::{FilterKind, FusedState, GroundTruth, ImuSample, NavState, UwbFix, UwbTdoa};
@@ -70,7 +72,32 @@ pub struct EvalReport {
 /// Maximum truth gap bridged by interpolation (ns).
 const TRUTH_MAX_GAP_NS: u64 = 100_000_000;
 
-/// Runs UWB-only, INS-only and each of `filters` on `data`.
+/// Longest gap between two estimates of a solution that
+/// [`Epochs::Truth`] interpolates across (ns): 1 s, ten fix periods.
+pub const ESTIMATE_MAX_GAP_NS: u64 = 1_000_000_000;
+
+/// Truth samples closer than this to the previous one are not evaluated
+/// again (ns): motion-capture logs hold near-duplicate stamps 20 us apart.
+const TRUTH_MIN_SPACING_NS: u64 = 1_000_000;
+
+/// Where every solution is evaluated (`[eval] epochs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Epochs {
+    /// At the UWB fix epochs, each filter's state published for that epoch
+    /// (the paper's Table 1).
+    #[default]
+    Fixes,
+    /// At the ground-truth sample times, each solution linearly
+    /// interpolated between its estimates around that time (fixes, INS
+    /// states, published fused states; no extrapolation, no bridge over
+    /// [`ESTIMATE_MAX_GAP_NS`]): the UTIL dataset's references are measured
+    /// this way, so a ratio to them compares like with like.
+    Truth,
+}
+
+/// Runs UWB-only, INS-only and each of `filters` on `data`, evaluated at the
+/// UWB fix epochs ([`Epochs::Fixes`]).
 ///
 /// # Errors
 /// A configuration that does not validate, no UWB fix, or non-finite output.
@@ -79,6 +106,19 @@ pub fn evaluate(
     cfg: &FusionConfig,
     filters: &[FilterKind],
 ) -> Result<EvalReport, EvalError> {
+    evaluate_at(data, cfg, filters, Epochs::Fixes)
+}
+
+/// [`evaluate`] at the epochs `at` says.
+///
+/// # Errors
+/// As [`evaluate`].
+pub fn evaluate_at(
+    data: &Dataset,
+    cfg: &FusionConfig,
+    filters: &[FilterKind],
+    at: Epochs,
+) -> Result<EvalReport, EvalError> {
     let truth = TruthTrack::new(&data.truth, TRUTH_MAX_GAP_NS);
     let fixes = offline::run_fixes(&data.tdoa, cfg)?;
     if fixes.is_empty() {
@@ -86,10 +126,25 @@ pub fn evaluate(
             tdoa: data.tdoa.len(),
         });
     }
-    let epochs: Vec<u64> = fixes.iter().map(|f| f.header.meas_time_ns).collect();
+    let fix_epochs: Vec<u64> = fixes.iter().map(|f| f.header.meas_time_ns).collect();
+    let epochs = match at {
+        Epochs::Fixes => fix_epochs.clone(),
+        Epochs::Truth => truth_epochs(&data.truth),
+    };
+    let resample = |track: Vec<Estimate>| match at {
+        Epochs::Fixes => track,
+        Epochs::Truth => interpolate(&track, &epochs, ESTIMATE_MAX_GAP_NS),
+    };
     let mut solutions = Vec::new();
     let uwb_track: Vec<Estimate> = fixes.iter().map(fix_estimate).collect();
-    solutions.push(solution("uwb", uwb_track, &truth, data.segment, &[], None)?);
+    solutions.push(solution(
+        "uwb",
+        resample(uwb_track),
+        &truth,
+        data.segment,
+        &[],
+        None,
+    )?);
 
     let nav = offline::run_ins_only(&data.imu, cfg)?;
     let ins_track = sample_nav(&nav, &epochs);
@@ -98,7 +153,10 @@ pub fn evaluate(
     for &kind in filters {
         let est = offline::build_estimator(kind, cfg)?;
         let out = offline::run_with(&data.imu, &data.tdoa, cfg, est)?;
-        let track = sample_fused(&out.fused, &epochs);
+        let track = match at {
+            Epochs::Fixes => sample_fused(&out.fused, &fix_epochs),
+            Epochs::Truth => interpolate(&published(&out.fused), &epochs, ESTIMATE_MAX_GAP_NS),
+        };
         let nis: Vec<f64> = out.diag.iter().map(|d| d.nis).collect();
         solutions.push(solution(
             kind.name(),
@@ -174,6 +232,84 @@ fn sample_nav(nav: &[NavState], epochs: &[u64]) -> Vec<Estimate> {
         .collect()
 }
 
+/// The ground-truth sample times, near-duplicates dropped.
+fn truth_epochs(truth: &[GroundTruth]) -> Vec<u64> {
+    let mut out: Vec<u64> = Vec::with_capacity(truth.len());
+    for g in truth {
+        let t = g.header.meas_time_ns;
+        if out
+            .last()
+            .is_none_or(|&p| t >= p.saturating_add(TRUTH_MIN_SPACING_NS))
+        {
+            out.push(t);
+        }
+    }
+    out
+}
+
+/// Every published fused state as an estimate, the last one of each
+/// measurement time (an update may follow a reset at the same epoch).
+fn published(fused: &[FusedState]) -> Vec<Estimate> {
+    let mut out: Vec<Estimate> = Vec::with_capacity(fused.len());
+    for f in fused {
+        let e = fused_estimate(f);
+        match out.last_mut() {
+            Some(last) if last.t_ns == e.t_ns => *last = e,
+            Some(last) if last.t_ns > e.t_ns => {}
+            _ => out.push(e),
+        }
+    }
+    out
+}
+
+/// `track` (time-sorted) linearly interpolated at each of `epochs` between
+/// the two estimates around it: position, and velocity and covariance where
+/// both have them (a convex combination of two covariances is one). Epochs
+/// before the first or after the last estimate, or inside a gap longer than
+/// `max_gap_ns`, are skipped.
+#[must_use]
+pub fn interpolate(track: &[Estimate], epochs: &[u64], max_gap_ns: u64) -> Vec<Estimate> {
+    let mut out = Vec::with_capacity(epochs.len());
+    for &t in epochs {
+        let i = track.partition_point(|e| e.t_ns < t);
+        let Some(b) = track.get(i) else {
+            continue;
+        };
+        if b.t_ns == t {
+            out.push(*b);
+            continue;
+        }
+        let Some(a) = i.checked_sub(1).and_then(|j| track.get(j)) else {
+            continue;
+        };
+        if b.t_ns - a.t_ns > max_gap_ns {
+            continue;
+        }
+        let w = (t - a.t_ns) as f64 / (b.t_ns - a.t_ns) as f64;
+        let lerp = |x: f64, y: f64| x + w * (y - x);
+        let vel_en_mps = match (a.vel_en_mps, b.vel_en_mps) {
+            (Some(va), Some(vb)) => Some([lerp(va[0], vb[0]), lerp(va[1], vb[1])]),
+            _ => None,
+        };
+        let cov4 = match (a.cov4, b.cov4) {
+            (Some(ca), Some(cb)) => Some(std::array::from_fn(|r| {
+                std::array::from_fn(|c| lerp(ca[r][c], cb[r][c]))
+            })),
+            _ => None,
+        };
+        out.push(Estimate {
+            t_ns: t,
+            pos_en_m: [
+                lerp(a.pos_en_m[0], b.pos_en_m[0]),
+                lerp(a.pos_en_m[1], b.pos_en_m[1]),
+            ],
+            vel_en_mps,
+            cov4,
+        });
+    }
+    out
+}
+
 /// The fused state at each epoch (the state published for the update at
 /// that epoch; epochs with no update are skipped).
 fn sample_fused(fused: &[FusedState], epochs: &[u64]) -> Vec<Estimate> {
@@ -236,5 +372,74 @@ fn all_finite(v: &serde_json::Value) -> bool {
         serde_json::Value::Array(a) => a.iter().all(all_finite),
         serde_json::Value::Object(o) => o.values().all(all_finite),
         _ => true,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn est(t_ns: u64, e: f64, cov: f64) -> Estimate {
+        Estimate {
+            t_ns,
+            pos_en_m: [e, -e],
+            vel_en_mps: Some([2.0 * e, 0.0]),
+            cov4: Some([[cov; 4]; 4]),
+        }
+    }
+
+    #[test]
+    fn interpolation_is_linear_inside_and_skips_outside_and_gaps() {
+        let track = [est(100, 1.0, 1.0), est(200, 2.0, 3.0), est(5_000, 4.0, 1.0)];
+        let out = interpolate(&track, &[50, 100, 125, 200, 1_000, 6_000], 1_000);
+        let times: Vec<u64> = out.iter().map(|e| e.t_ns).collect();
+        // 50: before the first; 1000: inside the 4.8 us gap; 6000: after the last.
+        assert_eq!(times, vec![100, 125, 200]);
+        assert_eq!(out[0], track[0]);
+        assert!((out[1].pos_en_m[0] - 1.25).abs() < 1e-12);
+        assert!((out[1].pos_en_m[1] + 1.25).abs() < 1e-12);
+        assert_eq!(out[1].vel_en_mps.map(|v| v[0]), Some(2.5));
+        assert_eq!(out[1].cov4.map(|c| c[2][3]), Some(1.5));
+        assert_eq!(out[2], track[1]);
+    }
+
+    #[test]
+    fn interpolation_keeps_missing_velocity_and_covariance_missing() {
+        let a = Estimate {
+            t_ns: 0,
+            pos_en_m: [0.0, 0.0],
+            vel_en_mps: None,
+            cov4: None,
+        };
+        let b = est(10, 1.0, 1.0);
+        let out = interpolate(&[a, b], &[5], 100);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].pos_en_m, [0.5, -0.5]);
+        assert_eq!(out[0].vel_en_mps, None);
+        assert_eq!(out[0].cov4, None);
+    }
+
+    #[test]
+    fn truth_epochs_drop_near_duplicate_stamps() {
+        let g = |t: u64| {
+            let mut g = GroundTruth::default();
+            g.header.meas_time_ns = t;
+            g
+        };
+        let truth = [g(0), g(20_000), g(4_000_000), g(4_500_000), g(5_000_000)];
+        assert_eq!(truth_epochs(&truth), vec![0, 4_000_000, 5_000_000]);
+    }
+
+    #[test]
+    fn the_last_state_of_an_epoch_is_the_published_one() {
+        let f = |t: u64, x: f64| {
+            let mut f = FusedState::default();
+            f.header.meas_time_ns = t;
+            f.pos_m = [x, 0.0, 0.0];
+            f
+        };
+        let out = published(&[f(10, 1.0), f(10, 2.0), f(20, 3.0), f(15, 9.0)]);
+        let got: Vec<(u64, f64)> = out.iter().map(|e| (e.t_ns, e.pos_en_m[0])).collect();
+        assert_eq!(got, vec![(10, 2.0), (20, 3.0)]);
     }
 }
