@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use insuwb_data::cflog::Integrity;
 use insuwb_eval::run::Dataset;
-use insuwb_fusion::offline::FusionConfig;
+use insuwb_fusion::config::FusionConfig;
 use insuwb_log::Record;
 use serde::{Deserialize, Serialize};
 

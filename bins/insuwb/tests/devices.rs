@@ -239,7 +239,7 @@ fn emulated_eliko_server_streams_the_scenarios_fixes_after_the_handshake() {
     let sc = insuwb_eval::scenario::ScenarioFile::load("nlos-long").unwrap();
     let data = sc.dataset(1).unwrap();
     let fixes =
-        insuwb_fusion::offline::run_fixes(&data.tdoa, &sc.fusion_for_seed(1).unwrap()).unwrap();
+        insuwb_fusion::runner::run_fixes(&data.tdoa, &sc.fusion_for_seed(1).unwrap()).unwrap();
     for (k, ((reading, _), fix)) in got.iter().zip(&fixes).enumerate() {
         let Reading::Position {
             tag: 4660,

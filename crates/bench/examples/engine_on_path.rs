@@ -21,7 +21,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut cfg = sc.fusion_for_seed(1)?;
     cfg.engine.eager_lag_s = std::env::args().nth(1).and_then(|a| a.parse().ok());
     let sim = insuwb_sim::simulate(&sc.sim, 1)?;
-    let fixes = insuwb_fusion::offline::run_fixes(&sim.tdoa, &cfg)?;
+    let fixes = insuwb_fusion::runner::run_fixes(&sim.tdoa, &cfg)?;
     let mut junk = vec![0u8; 8 << 20];
     for (cold, idle, warm) in [
         (false, false, false),
@@ -29,7 +29,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         (false, true, false),
         (false, true, true),
     ] {
-        let est = insuwb_fusion::offline::build_estimator(FilterKind::Iakf, &cfg)?;
+        let est = insuwb_fusion::config::build_estimator(FilterKind::Iakf, &cfg)?;
         let mut ins = InsEngine::new(cfg.ins.clone())?;
         let mut eng = FusionEngine::new(cfg.engine.clone(), est);
         let mut out = Outputs::default();

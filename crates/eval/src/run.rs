@@ -3,7 +3,8 @@
 //! ground-truth sample times with each solution interpolated there (how the
 //! UTIL dataset's references are measured).
 
-use insuwb_fusion::offline::{self, FusionConfig, RunError, RunOutput};
+use insuwb_fusion::config::{build_estimator, ConfigError, FusionConfig};
+use insuwb_fusion::runner::{self, RunOutput};
 use insuwb_msg::{FilterKind, FusedState, GroundTruth, ImuSample, NavState, UwbFix, UwbTdoa};
 
 use crate::metrics::{compute, Estimate, Metrics, MetricsError, TruthTrack};
@@ -41,7 +42,7 @@ pub struct Solution {
 pub enum EvalError {
     /// A run could not start.
     #[error(transparent)]
-    Run(#[from] RunError),
+    Run(#[from] ConfigError),
     /// Metrics could not be computed for a solution.
     #[error("{solution}: {error}")]
     Metrics {
@@ -120,7 +121,7 @@ pub fn evaluate_at(
     at: Epochs,
 ) -> Result<EvalReport, EvalError> {
     let truth = TruthTrack::new(&data.truth, TRUTH_MAX_GAP_NS);
-    let fixes = offline::run_fixes(&data.tdoa, cfg)?;
+    let fixes = runner::run_fixes(&data.tdoa, cfg)?;
     if fixes.is_empty() {
         return Err(EvalError::NoFixes {
             tdoa: data.tdoa.len(),
@@ -146,13 +147,13 @@ pub fn evaluate_at(
         None,
     )?);
 
-    let nav = offline::run_ins_only(&data.imu, cfg)?;
+    let nav = runner::run_ins_only(&data.imu, cfg)?;
     let ins_track = sample_nav(&nav, &epochs);
     solutions.push(solution("ins", ins_track, &truth, data.segment, &[], None)?);
 
     for &kind in filters {
-        let est = offline::build_estimator(kind, cfg)?;
-        let out = offline::run_with(&data.imu, &data.tdoa, cfg, est)?;
+        let est = build_estimator(kind, cfg)?;
+        let out = runner::run_with(&data.imu, &data.tdoa, cfg, est)?;
         let track = match at {
             Epochs::Fixes => sample_fused(&out.fused, &fix_epochs),
             Epochs::Truth => interpolate(&published(&out.fused), &epochs, ESTIMATE_MAX_GAP_NS),

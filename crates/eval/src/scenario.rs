@@ -1,7 +1,7 @@
 //! Scenario files: the simulator's `[sim]` table and the `[fusion]` settings
 //! of the run, and Monte-Carlo evaluation over seeds.
 
-use insuwb_fusion::offline::FusionConfig;
+use insuwb_fusion::config::FusionConfig;
 use insuwb_msg::FilterKind;
 use insuwb_sim::Scenario;
 use serde::{Deserialize, Serialize};

@@ -6,73 +6,28 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use insuwb_eval::scenario::ScenarioFile;
-use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
-use insuwb_fusion::ins_engine::InsEngine;
-use insuwb_fusion::offline::{self, FusionConfig};
-use insuwb_msg::{FilterKind, FusedState, NavState};
+use insuwb_fusion::config::{build_estimator, FusionConfig};
+use insuwb_fusion::runner::{self, merged, Runner, Ties};
+use insuwb_msg::{FilterKind, FusedState};
 
-/// The chain of `offline::run_with`, fed in real-time arrival order: at equal
-/// times the TDOA of an epoch (and the fix it completes) before the IMU sample.
+/// The lockstep runner fed in real-time arrival order: at equal times the
+/// TDOA of an epoch (and the fix it completes) before the IMU sample.
 fn real_time_order(
     cfg: &FusionConfig,
     kind: FilterKind,
     sim: &insuwb_sim::SimOutput,
     warm: bool,
 ) -> Vec<FusedState> {
-    let est = offline::build_estimator(kind, cfg).unwrap();
-    let mut ins = InsEngine::new(cfg.ins.clone()).unwrap();
-    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone()).unwrap();
-    let mut fusion = FusionEngine::new(cfg.engine.clone(), est);
-    let mut o = Outputs::default();
-    let mut fused = Vec::new();
-    let mut renav: Vec<NavState> = Vec::new();
-    let settle = |ins: &mut InsEngine,
-                  fusion: &mut FusionEngine,
-                  o: &mut Outputs,
-                  renav: &mut Vec<NavState>,
-                  fused: &mut Vec<FusedState>| loop {
-        fused.extend_from_slice(&o.fused);
-        let corrections = std::mem::take(&mut o.corrections);
-        o.clear();
-        if corrections.is_empty() {
-            return;
-        }
-        for c in &corrections {
-            ins.on_correction(c, renav);
-            for n in renav.iter() {
-                fusion.on_nav(n, o);
-            }
-        }
-    };
-    let (mut i, mut j) = (0usize, 0usize);
-    loop {
-        let imu_first = match (sim.imu.get(i), sim.tdoa.get(j)) {
-            (Some(a), Some(b)) => a.header.meas_time_ns < b.header.meas_time_ns,
-            (Some(_), None) => true,
-            (None, Some(_)) => false,
-            (None, None) => break,
-        };
+    let est = build_estimator(kind, cfg).unwrap();
+    let mut r = Runner::new(cfg, est).unwrap();
+    for input in merged(&sim.imu, &sim.tdoa, Ties::UwbFirst) {
         if warm {
             // The fusion stage's warm-up, here before every sample.
-            fusion.warm_up();
+            r.engine_mut().warm_up();
         }
-        if imu_first {
-            if let Some(n) = ins.on_imu(&sim.imu[i]) {
-                fusion.on_nav(&n, &mut o);
-            }
-            i += 1;
-        } else {
-            if let Ok(fixes) = fixb.push(&sim.tdoa[j]) {
-                for f in fixes.iter() {
-                    fusion.on_measurement(Measurement::Fix(*f), &mut o);
-                    settle(&mut ins, &mut fusion, &mut o, &mut renav, &mut fused);
-                }
-            }
-            j += 1;
-        }
-        settle(&mut ins, &mut fusion, &mut o, &mut renav, &mut fused);
+        r.push(input);
     }
-    fused
+    r.finish().fused
 }
 
 #[test]
@@ -82,7 +37,7 @@ fn eager_prediction_in_real_time_order_equals_the_lazy_engine() {
     for kind in [FilterKind::Iakf, FilterKind::Kf] {
         let lazy_cfg = sc.fusion_for_seed(1).unwrap();
         assert!(lazy_cfg.engine.eager_lag_s.is_none());
-        let lazy = offline::run(&sim.imu, &sim.tdoa, &lazy_cfg, kind)
+        let lazy = runner::run(&sim.imu, &sim.tdoa, &lazy_cfg, kind)
             .unwrap()
             .fused;
         assert!(lazy.len() > 500, "{kind:?}: {} fused states", lazy.len());
@@ -106,7 +61,7 @@ fn eager_prediction_in_real_time_order_equals_the_lazy_engine() {
         for use_velocity in [true, false] {
             let mut lazy_cfg = lazy_cfg.clone();
             lazy_cfg.loose.use_velocity = use_velocity;
-            let lazy = offline::run(&sim.imu, &sim.tdoa, &lazy_cfg, kind)
+            let lazy = runner::run(&sim.imu, &sim.tdoa, &lazy_cfg, kind)
                 .unwrap()
                 .fused;
             let mut warm_cfg = lazy_cfg.clone();

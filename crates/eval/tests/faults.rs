@@ -5,7 +5,7 @@
 
 use insuwb_eval::metrics::TruthTrack;
 use insuwb_eval::scenario::ScenarioFile;
-use insuwb_fusion::offline::{self, RunOutput};
+use insuwb_fusion::runner::{self, RunOutput};
 use insuwb_msg::{FilterDiag, FilterKind, FusedState};
 
 struct Run {
@@ -36,7 +36,7 @@ fn diverging_kf(monitor_window: usize) -> Run {
     }
     cfg.engine.monitor.window = monitor_window;
     let sim = insuwb_sim::simulate(&sc.sim, 1).unwrap();
-    let out = offline::run(&sim.imu, &sim.tdoa, &cfg, FilterKind::Kf).unwrap();
+    let out = runner::run(&sim.imu, &sim.tdoa, &cfg, FilterKind::Kf).unwrap();
     let track = TruthTrack::new(&sim.truth, 100_000_000);
     let err = out
         .fused
@@ -135,7 +135,7 @@ fn nlos_bursts_do_not_trip_the_divergence_monitor() {
             FilterKind::Stf,
             FilterKind::Iakf,
         ] {
-            let out = offline::run(&sim.imu, &sim.tdoa, &cfg, kind).unwrap();
+            let out = runner::run(&sim.imu, &sim.tdoa, &cfg, kind).unwrap();
             assert_eq!(
                 out.fusion.nis_divergences, 0,
                 "{kind:?} seed {seed}: {:?}",

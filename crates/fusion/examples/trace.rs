@@ -7,7 +7,8 @@ use std::path::Path;
 
 use insuwb_data::segment::interpolate_truth;
 use insuwb_data::util::{load_util_flight, ImportOptions};
-use insuwb_fusion::offline::{self, FusionConfig};
+use insuwb_fusion::config::FusionConfig;
+use insuwb_fusion::runner;
 use insuwb_msg::FilterKind;
 
 #[derive(Debug, serde::Deserialize)]
@@ -36,7 +37,7 @@ fn main() {
         .map_or("iakf_tdoa", String::as_str)
         .parse()
         .unwrap();
-    let out = offline::run(&flight.imu, &flight.tdoa, &preset.fusion, kind).unwrap();
+    let out = runner::run(&flight.imu, &flight.tdoa, &preset.fusion, kind).unwrap();
     println!("t,x,y,z,vx,vy,vz,tx,ty,tz,sx,sy,svx,svy,yaw,flags,nees,tyaw,fading");
     let mut di = 0usize;
     for f in &out.fused {

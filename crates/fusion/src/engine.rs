@@ -290,7 +290,7 @@ pub(crate) fn prefaulted_deque<T>(n: usize) -> VecDeque<T> {
 
 impl FusionEngine {
     /// A new engine around `est`. A monitor configuration that does not
-    /// validate ([`FusionEngineConfig::validate`]; `offline::build_estimator`
+    /// validate ([`FusionEngineConfig::validate`]; `config::build_estimator`
     /// checks it) disables the monitor.
     #[must_use]
     pub fn new(cfg: FusionEngineConfig, est: Box<dyn Estimator>) -> Self {
@@ -435,7 +435,8 @@ impl FusionEngine {
     }
 
     /// A fused state built on the newest INS state alone (INS-only
-    /// coasting, published with [`FusedState::FLAG_DEGRADED`] by the caller).
+    /// coasting), flagged [`FusedState::FLAG_DEGRADED`]; when to publish it
+    /// is [`crate::output::OutputPolicy`]'s call.
     #[must_use]
     pub fn coasting_state(&mut self) -> Option<FusedState> {
         let n = *self.latest_nav()?;
@@ -945,7 +946,7 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::panic)]
 
     use super::*;
-    use crate::offline::{build_estimator, FusionConfig};
+    use crate::config::{build_estimator, FusionConfig};
     use insuwb_msg::FilterKind;
 
     fn nav(k: u64) -> NavState {

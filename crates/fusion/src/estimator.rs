@@ -577,7 +577,7 @@ mod tests {
     use nalgebra::{UnitQuaternion, Vector3};
 
     use super::*;
-    use crate::offline::{build_estimator, FusionConfig};
+    use crate::config::{build_estimator, FusionConfig};
 
     const G: f64 = 9.80665;
 

@@ -1,18 +1,33 @@
 //! The closed-loop INS/UWB fusion engine shared by `insuwb eval`, replay and
 //! the INS and fusion stages.
 //!
-//! [`ins_engine::InsEngine`] turns IMU samples into navigation states and
-//! applies corrections; [`engine::FusionEngine`] turns navigation states and
-//! UWB measurements into fused states and corrections; [`offline`] wires the
-//! two (and the UWB fix builder) together in one process, in lockstep, with
-//! exactly the code the stage processes run; [`tight`] wraps the tightly
-//! coupled error-state filter as an estimator; [`vibration`] turns the
-//! vibration the IMU measures into process noise for every filter.
+//! - [`config`]: the fusion configuration ([`config::FusionConfig`], the
+//!   `[fusion]` table), its errors and the construction of the estimator it
+//!   describes ([`config::build_estimator`]);
+//! - [`ins_engine`]: [`ins_engine::InsEngine`] turns IMU samples into
+//!   navigation states and applies corrections (the INS stage);
+//! - [`engine`]: [`engine::FusionEngine`] turns navigation states and UWB
+//!   measurements into fused states and corrections (the fusion stage);
+//! - [`output`]: [`output::OutputPolicy`], what is published besides the
+//!   updates (coasting while UWB is silent, stale INS input), used by the
+//!   fusion stage and the runner;
+//! - [`estimator`]: the [`estimator::Estimator`] interface and the paper's
+//!   loosely coupled filters behind it; [`tight`] the tightly coupled
+//!   error-state filter behind it;
+//! - [`runner`]: the lockstep runner, the INS engine, the UWB fix builder
+//!   and the fusion engine wired in one process exactly as the stage
+//!   processes are (`insuwb eval`);
+//! - [`vibration`]: the vibration the IMU measures as process noise for
+//!   every filter.
 #![warn(missing_docs)]
 
+pub mod config;
 pub mod engine;
 pub mod estimator;
 pub mod ins_engine;
+#[doc(hidden)]
 pub mod offline;
+pub mod output;
+pub mod runner;
 pub mod tight;
 pub mod vibration;

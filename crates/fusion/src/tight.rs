@@ -320,7 +320,8 @@ mod tests {
     use insuwb_msg::{Header, ImuSample, LAYOUT_VERSION};
 
     use super::*;
-    use crate::offline::{self, FusionConfig};
+    use crate::config::{build_estimator, FusionConfig};
+    use crate::runner;
 
     const G: f64 = 9.80665;
 
@@ -562,7 +563,7 @@ mod tests {
     /// A static, level vehicle whose IMU reads gravity only, 1 kHz, and
     /// noise-free TDOA differences of all pairs of six anchors at 10 Hz;
     /// the INS starts 0.3 m off and the tight filter runs through the whole
-    /// offline chain (fix builder, engine, INS).
+    /// lockstep runner (fix builder, engine, INS).
     fn static_scene(start_s: f64, end_s: f64) -> (Vec<ImuSample>, Vec<UwbTdoa>, [f64; 3]) {
         let anchors = [
             [-4.0, -4.0, 0.2],
@@ -607,12 +608,12 @@ mod tests {
     }
 
     #[test]
-    fn tight_filter_initialises_and_converges_in_the_offline_chain() {
+    fn tight_filter_initialises_and_converges_in_the_lockstep_runner() {
         let (imu, tdoa, p) = static_scene(0.0205, 3.0);
         let mut cfg = FusionConfig::default();
         cfg.fix.mode = insuwb_uwb::fix::FixMode::Mode3d;
         cfg.engine.init_from_first_fix = true;
-        let out = offline::run(&imu, &tdoa, &cfg, FilterKind::IakfTdoa).unwrap();
+        let out = runner::run(&imu, &tdoa, &cfg, FilterKind::IakfTdoa).unwrap();
         // Initialised from the first fix, then one fused state per 0.1 s epoch.
         assert_eq!(out.fusion.resets, 1, "{:?}", out.fusion);
         assert!(out.fused.len() >= 25, "{}", out.fused.len());
@@ -646,13 +647,13 @@ mod tests {
     #[test]
     fn build_estimator_gives_the_tight_filter() {
         let mut cfg = FusionConfig::default();
-        let e = offline::build_estimator(FilterKind::IakfTdoa, &cfg).unwrap();
+        let e = build_estimator(FilterKind::IakfTdoa, &cfg).unwrap();
         assert!(e.is_tight() && e.kind() == FilterKind::IakfTdoa);
         cfg.eskf.tdoa_sigma_m = 0.0;
-        let err = offline::build_estimator(FilterKind::IakfTdoa, &cfg).unwrap_err();
+        let err = build_estimator(FilterKind::IakfTdoa, &cfg).unwrap_err();
         assert!(err.to_string().contains("eskf.tdoa_sigma_m"), "{err}");
         cfg.eskf = EskfConfig::default();
         cfg.tight.lever_arm_m = [20.0, 0.0, 0.0];
-        assert!(offline::build_estimator(FilterKind::IakfTdoa, &cfg).is_err());
+        assert!(build_estimator(FilterKind::IakfTdoa, &cfg).is_err());
     }
 }

@@ -1,6 +1,6 @@
 //! The divergence monitor on a real flight: flight-a92f4787 of the UTIL data
 //! (a high-vibration vehicle, on which the tight filter once ran 8.8 m
-//! away with a mean NIS of 1993), through the offline chain with the
+//! away with a mean NIS of 1993), through the lockstep runner with the
 //! `config/util.toml` preset and its one monitor for every filter
 //! (`[fusion.engine.monitor]`).
 //!
@@ -35,7 +35,8 @@ mod common;
 use common::{data_dir, load, preset};
 use insuwb_data::segment::{flight_segment, interpolate_truth};
 use insuwb_data::util::UtilFlight;
-use insuwb_fusion::offline::{self, FusionConfig, RunOutput};
+use insuwb_fusion::config::FusionConfig;
+use insuwb_fusion::runner::{self, RunOutput};
 use insuwb_fusion::vibration::VibrationConfig;
 use insuwb_msg::{FilterDiag, FilterKind, FusedState};
 
@@ -77,7 +78,7 @@ fn run(flight: &UtilFlight, cfg: &FusionConfig, kind: FilterKind, fault: bool) -
             }
         }
     }
-    let out = offline::run(&imu, &flight.tdoa, cfg, kind).unwrap();
+    let out = runner::run(&imu, &flight.tdoa, cfg, kind).unwrap();
     let segment = flight_segment(&flight.truth, MIN_HEIGHT_M).expect("a flight segment");
     let err = out
         .fused

@@ -1,4 +1,4 @@
-//! Real flights: the four UTIL logs of `shared/data/util` through the offline
+//! Real flights: the four UTIL logs of `shared/data/util` through the lockstep
 //! runner with the `config/util.toml` preset (the one parameter set `insuwb
 //! eval` uses for Crazyflie logs), scored by the horizontal RMSE over the
 //! flight segment at the UWB fix epochs, as `insuwb eval` scores them, and
@@ -15,7 +15,8 @@ mod common;
 use common::{data_dir, load, preset, Preset};
 use insuwb_data::segment::{flight_segment, interpolate_truth};
 use insuwb_data::util::UtilFlight;
-use insuwb_fusion::offline;
+use insuwb_fusion::config::build_estimator;
+use insuwb_fusion::runner;
 use insuwb_msg::{FilterKind, FusedState, UwbFix};
 
 /// Log, anchor file, the radio alone: the least-squares TDOA fix's
@@ -101,7 +102,7 @@ fn run_log(dir: &std::path::Path, log: &str, anchors: &str, p: &Preset) -> LogRe
     let flight = load(dir, log, anchors, p);
     let segment = flight_segment(&flight.truth, min_height_m(p)).expect("a flight segment");
     let cfg = &p.fusion;
-    let fixes = offline::run_fixes(&flight.tdoa, cfg).unwrap();
+    let fixes = runner::run_fixes(&flight.tdoa, cfg).unwrap();
     let (uwb, uwb_epochs) = horizontal_rmse(
         &flight,
         segment,
@@ -111,7 +112,7 @@ fn run_log(dir: &std::path::Path, log: &str, anchors: &str, p: &Preset) -> LogRe
     );
     let mut filters = Vec::new();
     for kind in FILTERS {
-        let out = offline::run(&flight.imu, &flight.tdoa, cfg, kind).unwrap();
+        let out = runner::run(&flight.imu, &flight.tdoa, cfg, kind).unwrap();
         for s in &out.fused {
             assert!(
                 s.pos_m
@@ -137,12 +138,12 @@ fn run_log(dir: &std::path::Path, log: &str, anchors: &str, p: &Preset) -> LogRe
 fn preset_parses_and_validates() {
     let p = preset();
     for kind in FILTERS {
-        offline::build_estimator(kind, &p.fusion).unwrap();
+        build_estimator(kind, &p.fusion).unwrap();
     }
     assert!(min_height_m(&p) > 0.0);
 }
 
-/// The four logs the preset was first built on, through the offline chain
+/// The four logs the preset was first built on, through the lockstep runner
 /// (the 23 shared flights go through `insuwb eval --flights` in the
 /// `insuwb` crate's `real_flights` test): no filter diverges, every filter
 /// has an estimate at (nearly) every fix epoch, and the tight filter stays

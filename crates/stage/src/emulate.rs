@@ -51,7 +51,7 @@ use std::path::Path;
 
 use insuwb_devices::frame::wire_time_ns;
 use insuwb_devices::{eliko, mavlink, nlink, witmotion, Protocol};
-use insuwb_fusion::offline::FusionConfig;
+use insuwb_fusion::config::FusionConfig;
 use insuwb_log::Record;
 use insuwb_msg::{GroundTruth, ImuSample, UwbFix, UwbTdoa};
 use insuwb_uwb::fix::{FixBuilder, FixConfig, FixConfigError};
@@ -680,7 +680,7 @@ mod tests {
         let sc = insuwb_eval::scenario::ScenarioFile::load("nlos-long").unwrap();
         let data = sc.dataset(1).unwrap();
         let cfg = sc.fusion_for_seed(1).unwrap();
-        let expected = insuwb_fusion::offline::run_fixes(&data.tdoa, &cfg).unwrap();
+        let expected = insuwb_fusion::runner::run_fixes(&data.tdoa, &cfg).unwrap();
         // run_fixes also flushes at the end; the epochs are flagged, so the
         // flush adds nothing.
         assert_eq!(rec.fixes, expected);

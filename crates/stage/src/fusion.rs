@@ -1,13 +1,16 @@
 //! The fusion stage: runs the configured filter in the fusion engine (the
 //! code `insuwb eval` runs), publishes fused states, diagnostics and INS
-//! corrections; coasts (INS only, flagged degraded) when UWB is silent,
-//! flags stale INS input, and checkpoints so a restart resumes.
+//! corrections; coasts (INS only, flagged degraded) when UWB is silent and
+//! flags stale INS input as the engine's output policy
+//! (`insuwb_fusion::output`) says, and checkpoints so a restart resumes.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
+use insuwb_fusion::config::build_estimator;
 use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
+use insuwb_fusion::output::{OutputPolicy, OutputPolicyConfig};
 use insuwb_msg::{
     topics, FilterDiag, FusedState, Health, InsCorrection, NavState, StageRole, UwbFix, UwbTdoa,
 };
@@ -57,18 +60,109 @@ pub fn eager_lag_s(cfg: &RobotConfig) -> Option<f64> {
         .then_some(cfg.fusion.eager_lag_s)
 }
 
-/// Runs the fusion stage until SIGINT/SIGTERM; `epoch_ns` is the group's
-/// start epoch (the drivers stamp samples `epoch + t`).
-pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
-    let stage = Stage::new(cfg.runtime(StageRole::Fusion.name()))?;
+/// The coasting and stale-input policy of the robot config's `[fusion]`
+/// table (`coast_timeout_s`, `coast_rate_hz`, `stale_ins_timeout_s`).
+#[must_use]
+pub fn output_policy(cfg: &RobotConfig) -> OutputPolicyConfig {
+    OutputPolicyConfig {
+        coast_timeout_s: cfg.fusion.coast_timeout_s,
+        coast_rate_hz: cfg.fusion.coast_rate_hz,
+        stale_ins_timeout_s: cfg.fusion.stale_ins_timeout_s,
+    }
+}
+
+/// The engine the stage runs: the configured filter, eager in real time
+/// ([`eager_lag_s`]), tight epochs aligned to the group's epoch.
+fn engine_for(cfg: &RobotConfig, epoch_ns: u64) -> Result<FusionEngine> {
     let fcfg = cfg.fusion_config()?;
-    let kind = cfg.filter_kind();
-    let est = insuwb_fusion::offline::build_estimator(kind, &fcfg)?;
-    let tight = est.is_tight();
+    let est = build_estimator(cfg.filter_kind(), &fcfg)?;
     let mut ecfg = fcfg.engine.clone();
     ecfg.eager_lag_s = eager_lag_s(cfg);
     let mut engine = FusionEngine::new(ecfg, est);
     engine.align_to(epoch_ns);
+    Ok(engine)
+}
+
+/// A restarted stage (`generation` > 0) resumes from the checkpoint at
+/// `path`, if there is one: correction ids and covariance.
+fn resume(engine: &mut FusionEngine, path: &Path, generation: u32) {
+    if let Some(c) = crate::checkpoint::read::<Checkpoint>(path) {
+        engine.resume_correction_id(c.correction_id);
+        let restored = engine.estimator_mut().restore_covariance(&c.cov);
+        tracing::warn!(
+            "generation {generation}: resumed from the checkpoint (correction id {}, covariance {})",
+            c.correction_id,
+            if restored { "restored" } else { "not restored" }
+        );
+    }
+}
+
+/// The checkpoint writer thread and the stage's end of its channel: the
+/// stage hands over fixed-size messages (no file I/O, no allocation on its
+/// loop), the thread serialises and writes them.
+struct CheckpointWriter {
+    tx: crossbeam_channel::Sender<CkptMsg>,
+    thread: std::thread::JoinHandle<()>,
+    cov_buf: Vec<f64>,
+}
+
+impl CheckpointWriter {
+    fn spawn(path: PathBuf) -> Result<Self> {
+        let (tx, rx) = crossbeam_channel::bounded::<CkptMsg>(1);
+        let thread = std::thread::Builder::new()
+            .name("checkpoint".into())
+            .spawn(move || {
+                for m in rx {
+                    let c = Checkpoint {
+                        correction_id: m.correction_id,
+                        written_ns: m.written_ns,
+                        cov: m.cov.get(..m.len).unwrap_or_default().to_vec(),
+                    };
+                    if let Err(e) = crate::checkpoint::write(&path, &c) {
+                        tracing::warn!("checkpoint: {e:#}");
+                    }
+                }
+            })
+            .context("starting the checkpoint writer thread")?;
+        Ok(Self {
+            tx,
+            thread,
+            cov_buf: Vec::with_capacity(MAX_COV),
+        })
+    }
+
+    /// Hands the engine's correction id and covariance at `now_ns` over;
+    /// skipped while the previous checkpoint is still being written.
+    fn send(&mut self, engine: &FusionEngine, now_ns: u64) {
+        engine.estimator().covariance_snapshot(&mut self.cov_buf);
+        let mut msg = CkptMsg {
+            correction_id: engine.correction_id(),
+            written_ns: now_ns,
+            cov: [0.0; MAX_COV],
+            len: self.cov_buf.len().min(MAX_COV),
+        };
+        for (d, s) in msg.cov.iter_mut().zip(&self.cov_buf) {
+            *d = *s;
+        }
+        // Full: the previous checkpoint is still being written; skip this one.
+        let _ = self.tx.try_send(msg);
+    }
+
+    /// Closes the channel and waits for the last checkpoint to be written.
+    fn finish(self) {
+        drop(self.tx);
+        if self.thread.join().is_err() {
+            tracing::warn!("the checkpoint writer thread panicked");
+        }
+    }
+}
+
+/// Runs the fusion stage until SIGINT/SIGTERM; `epoch_ns` is the group's
+/// start epoch (the drivers stamp samples `epoch + t`).
+pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
+    let stage = Stage::new(cfg.runtime(StageRole::Fusion.name()))?;
+    let mut engine = engine_for(cfg, epoch_ns)?;
+    let tight = engine.estimator().is_tight();
     std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
         format!(
             "{}: cannot create the run directory",
@@ -77,16 +171,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     })?;
     let ckpt_path = checkpoint_path(&cfg.group.run_dir);
     if stage.generation() > 0 {
-        if let Some(c) = crate::checkpoint::read::<Checkpoint>(&ckpt_path) {
-            engine.resume_correction_id(c.correction_id);
-            let restored = engine.estimator_mut().restore_covariance(&c.cov);
-            tracing::warn!(
-                "generation {}: resumed from the checkpoint (correction id {}, covariance {})",
-                stage.generation(),
-                c.correction_id,
-                if restored { "restored" } else { "not restored" }
-            );
-        }
+        resume(&mut engine, &ckpt_path, stage.generation());
     }
     let nav_sub = stage.subscriber::<NavState>(topics::NAV)?;
     let fix_sub = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
@@ -117,35 +202,12 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     out.fused.reserve(64);
     out.diag.reserve(64);
     out.corrections.reserve(64);
-    let coast_ns = (cfg.fusion.coast_timeout_s * 1e9) as u64;
-    let coast_period_ns = (1e9 / cfg.fusion.coast_rate_hz) as u64;
-    let stale_ns = (cfg.fusion.stale_ins_timeout_s * 1e9) as u64;
     let ckpt_ns = (cfg.fusion.checkpoint_period_s * 1e9) as u64;
-    let mut last_update_pub = monotonic_ns();
-    let mut last_coast_pub = 0u64;
+    let mut policy = OutputPolicy::new(&output_policy(cfg), tick_ns, monotonic_ns())
+        .map_err(|e| anyhow::anyhow!("fusion.{e}"))?;
     let mut last_ckpt = 0u64;
     let mut counters = HealthCounters::default();
-    let mut stale = false;
-    let mut cov_buf: Vec<f64> = Vec::with_capacity(MAX_COV);
-    let (ckpt_tx, ckpt_rx) = crossbeam_channel::bounded::<CkptMsg>(1);
-    let writer = {
-        let path = ckpt_path.clone();
-        std::thread::Builder::new()
-            .name("checkpoint".into())
-            .spawn(move || {
-                for m in ckpt_rx {
-                    let c = Checkpoint {
-                        correction_id: m.correction_id,
-                        written_ns: m.written_ns,
-                        cov: m.cov.get(..m.len).unwrap_or_default().to_vec(),
-                    };
-                    if let Err(e) = crate::checkpoint::write(&path, &c) {
-                        tracing::warn!("checkpoint: {e:#}");
-                    }
-                }
-            })
-            .context("starting the checkpoint writer thread")?
-    };
+    let mut writer = CheckpointWriter::spawn(ckpt_path)?;
     // Shortly before the next fix is due, run the update once on a scratch
     // copy: the real update then finds its code and data in the caches.
     let mut next_fix = Anticipator::new();
@@ -190,13 +252,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
             // correction arrives, so the order changes no result.
             updated = !out.fused.is_empty();
             for s in &out.fused {
-                let mut s = *s;
-                if stale {
-                    s.header.flags =
-                        (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
-                }
-                fused_pub.publish(s)?;
-                last_update_pub = monotonic_ns();
+                fused_pub.publish(policy.on_update(*s, monotonic_ns()))?;
             }
             for c in &out.corrections {
                 corr_pub.publish(*c)?;
@@ -208,42 +264,20 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
         }
         let now = monotonic_ns();
         if f.contains(&tick) {
-            // Stale INS: the newest INS state is too old to build a pose on.
-            stale = nav_sub.age_ns(now).is_none_or(|a| a > stale_ns);
-            // Ticks come every `tick_period` (at most half the coasting
-            // period): half a tick of slack keeps the coasting rate.
-            if now.saturating_sub(last_update_pub) > coast_ns
-                && now.saturating_sub(last_coast_pub) + tick_ns / 2 >= coast_period_ns
-            {
-                if let Some(mut s) = engine.coasting_state() {
-                    if stale {
-                        s.header.flags =
-                            (s.header.flags | FusedState::FLAG_STALE) & !FusedState::FLAG_VALID;
-                    }
-                    fused_pub.publish(s)?;
-                    last_coast_pub = now;
-                }
+            // Stale INS: the newest INS state received is too old to build
+            // a pose on. Coasting: no update for the coasting timeout.
+            if let Some(s) = policy.on_tick(now, nav_sub.age_ns(now), || engine.coasting_state()) {
+                fused_pub.publish(s)?;
             }
         }
         // Checkpoint right after an update (the next fix is a period away)
         // or, while coasting, on the tick. The writer thread serialises and
         // writes it: no file I/O and no allocation on this loop.
-        let coasting = now.saturating_sub(last_update_pub) > coast_ns;
+        let coasting = policy.coasting(now);
         if (updated || (coasting && f.contains(&tick))) && now.saturating_sub(last_ckpt) >= ckpt_ns
         {
             if engine.last_fused().is_some() {
-                engine.estimator().covariance_snapshot(&mut cov_buf);
-                let mut msg = CkptMsg {
-                    correction_id: engine.correction_id(),
-                    written_ns: now,
-                    cov: [0.0; MAX_COV],
-                    len: cov_buf.len().min(MAX_COV),
-                };
-                for (d, s) in msg.cov.iter_mut().zip(&cov_buf) {
-                    *d = *s;
-                }
-                // Full: the previous checkpoint is still being written; skip this one.
-                let _ = ckpt_tx.try_send(msg);
+                writer.send(&engine, now);
             }
             last_ckpt = now;
         }
@@ -256,7 +290,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
             counters.dropped_invalid = c.dropped_invalid;
             counters.dropped_time = c.meas_late;
             counters.extra = [c.updates, c.outliers, c.resets, c.corrections];
-            let state = if stale {
+            let state = if policy.stale() {
                 Health::STATE_DEGRADED
             } else {
                 Health::STATE_OK
@@ -269,10 +303,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
             engine.warm_up();
         }
     }
-    drop(ckpt_tx);
-    if writer.join().is_err() {
-        tracing::warn!("the checkpoint writer thread panicked");
-    }
+    writer.finish();
     health.report(&counters, Health::STATE_STOPPING)?;
     Ok(())
 }

@@ -250,5 +250,5 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
 
 #[derive(serde::Serialize)]
 struct FusionWrap {
-    fusion: insuwb_fusion::offline::FusionConfig,
+    fusion: insuwb_fusion::config::FusionConfig,
 }

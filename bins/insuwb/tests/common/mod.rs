@@ -184,7 +184,7 @@ pub fn undegraded_fused(log_dir: &Path) -> Vec<insuwb_msg::FusedState> {
 
 /// A project log through `insuwb eval`'s in-process code path, with the
 /// fusion settings the log carries and filter `kind`.
-pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::offline::RunOutput {
+pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::runner::RunOutput {
     let (recs, _, header) = insuwb_log::read_all(log).unwrap();
     let (mut imu, mut tdoa) = (Vec::new(), Vec::new());
     for r in recs {
@@ -196,13 +196,13 @@ pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::o
     }
     #[derive(serde::Deserialize)]
     struct Wrap {
-        fusion: insuwb_fusion::offline::FusionConfig,
+        fusion: insuwb_fusion::config::FusionConfig,
     }
     let table: toml::Table = toml::from_str(&header.meta.entries["fusion_config"]).unwrap();
     let mut only = toml::Table::new();
     only.insert("fusion".into(), table["fusion"].clone());
     let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
-    insuwb_fusion::offline::run(&imu, &tdoa, &w.fusion, kind).unwrap()
+    insuwb_fusion::runner::run(&imu, &tdoa, &w.fusion, kind).unwrap()
 }
 
 /// The child processes of `parent`: `(pid, command name)` (the stages of a

@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use insuwb_data::util::{load_util_flight, ImportOptions, UtilFlight};
-use insuwb_fusion::offline::FusionConfig;
+use insuwb_fusion::config::FusionConfig;
 
 /// The preset, as `insuwb eval` reads it (`[fusion]`, `[import]`, `[eval]`).
 #[derive(Debug, serde::Deserialize)]

@@ -1,0 +1,433 @@
+//! The lockstep runner: the whole chain in one process on recorded samples,
+//! wired exactly as the stage processes are: the fix builder of the UWB
+//! driver, the INS engine of the INS stage and the fusion engine of the
+//! fusion stage, each correction handed to the INS at once and the states it
+//! re-propagates handed back to fusion. `insuwb eval` runs it ([`run_with`]),
+//! so eval and a replay through the pipeline give the same result.
+//!
+//! [`Runner`] takes one input at a time ([`Input`], in the order [`merged`]
+//! gives); [`run`] and [`run_with`] feed it the recording in time order,
+//! [`run_fixes`] and [`run_ins_only`] give the UWB-only and INS-only
+//! solutions. With [`FusionConfig::output`] set, the runner applies the
+//! fusion stage's coasting and stale-input policy ([`crate::output`]) on the
+//! recording's clock, ticking on every input; unset, it publishes the
+//! updates' fused states only.
+
+use insuwb_msg::{
+    FilterDiag, FilterKind, FusedState, ImuSample, InsCorrection, NavState, UwbFix, UwbTdoa,
+};
+
+use crate::config::{build_estimator, ConfigError, FusionConfig};
+use crate::engine::{FusionCounters, FusionEngine, Measurement, Outputs};
+use crate::estimator::Estimator;
+use crate::ins_engine::{InsCounters, InsEngine};
+use crate::output::{OutputPolicy, OutputPolicyConfig};
+
+/// What a run produced.
+#[derive(Debug, Clone, Default)]
+pub struct RunOutput {
+    /// Fused states, one per update (and per reset), and the coasting
+    /// states when an output policy is configured.
+    pub fused: Vec<FusedState>,
+    /// Diagnostics, one per update.
+    pub diag: Vec<FilterDiag>,
+    /// Corrections sent to the INS.
+    pub corrections: Vec<InsCorrection>,
+    /// UWB fixes built.
+    pub fixes: Vec<UwbFix>,
+    /// INS counters.
+    pub ins: InsCounters,
+    /// Fusion counters.
+    pub fusion: FusionCounters,
+}
+
+/// One input sample.
+#[derive(Debug, Clone, Copy)]
+pub enum Input<'a> {
+    /// An IMU sample (to the INS engine).
+    Imu(&'a ImuSample),
+    /// A TDOA measurement (to the fix builder, and to fusion when the
+    /// filter is tightly coupled).
+    Tdoa(&'a UwbTdoa),
+}
+
+impl Input<'_> {
+    /// Its measurement time, ns.
+    #[must_use]
+    pub fn time(&self) -> u64 {
+        match self {
+            Self::Imu(s) => s.header.meas_time_ns,
+            Self::Tdoa(m) => m.header.meas_time_ns,
+        }
+    }
+}
+
+/// Which input goes first when an IMU sample and a TDOA measurement have
+/// the same time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Ties {
+    /// The IMU sample (the recording's order; [`run_with`]).
+    #[default]
+    ImuFirst,
+    /// The TDOA measurement: the order samples reach the fusion stage in
+    /// real time, a fix one hop from its driver, the INS state of the same
+    /// epoch two.
+    UwbFirst,
+}
+
+/// Merges two time-sorted streams into one, ties broken as `ties` says.
+pub fn merged<'a>(
+    imu: &'a [ImuSample],
+    tdoa: &'a [UwbTdoa],
+    ties: Ties,
+) -> impl Iterator<Item = Input<'a>> {
+    let (mut i, mut j) = (0usize, 0usize);
+    std::iter::from_fn(move || {
+        let imu_first = match (imu.get(i), tdoa.get(j)) {
+            (Some(a), Some(b)) => match ties {
+                Ties::ImuFirst => a.header.meas_time_ns <= b.header.meas_time_ns,
+                Ties::UwbFirst => a.header.meas_time_ns < b.header.meas_time_ns,
+            },
+            (Some(_), None) => true,
+            (None, Some(_)) => false,
+            (None, None) => return None,
+        };
+        if imu_first {
+            i += 1;
+            imu.get(i - 1).map(Input::Imu)
+        } else {
+            j += 1;
+            tdoa.get(j - 1).map(Input::Tdoa)
+        }
+    })
+}
+
+/// The chain in lockstep, fed one input at a time.
+#[derive(Debug)]
+pub struct Runner {
+    ins: InsEngine,
+    fixb: insuwb_uwb::fix::FixBuilder,
+    fusion: FusionEngine,
+    tight: bool,
+    /// The output policy's settings until the first input starts it.
+    policy_cfg: Option<OutputPolicyConfig>,
+    policy: Option<OutputPolicy>,
+    /// Time of the newest INS state, ns.
+    newest_nav_ns: Option<u64>,
+    /// Time of the input being handled, ns.
+    now_ns: u64,
+    o: Outputs,
+    renav: Vec<NavState>,
+    out: RunOutput,
+}
+
+impl Runner {
+    /// The chain of `cfg` around `est`.
+    ///
+    /// # Errors
+    /// An INS, fix builder, engine or output policy configuration that does
+    /// not validate.
+    pub fn new(cfg: &FusionConfig, est: Box<dyn Estimator>) -> Result<Self, ConfigError> {
+        cfg.engine.validate()?;
+        if let Some(p) = &cfg.output {
+            p.validate()?;
+        }
+        Ok(Self {
+            ins: InsEngine::new(cfg.ins.clone())?,
+            fixb: insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?,
+            tight: est.is_tight(),
+            fusion: FusionEngine::new(cfg.engine.clone(), est),
+            policy_cfg: cfg.output.clone(),
+            policy: None,
+            newest_nav_ns: None,
+            now_ns: 0,
+            o: Outputs::default(),
+            renav: Vec::new(),
+            out: RunOutput::default(),
+        })
+    }
+
+    /// The fusion engine (for a caller that warms it up between inputs, as
+    /// the fusion stage does).
+    pub fn engine_mut(&mut self) -> &mut FusionEngine {
+        &mut self.fusion
+    }
+
+    /// Handles one input: through the INS, or the fix builder (the UWB
+    /// driver publishes the fixes a measurement completes before the
+    /// measurement itself), then fusion, until no correction is in flight;
+    /// then the output policy's tick, if one is configured.
+    pub fn push(&mut self, input: Input<'_>) {
+        self.now_ns = input.time();
+        if let Some(cfg) = self.policy_cfg.take() {
+            // Validated in `new`: cannot fail here.
+            self.policy = OutputPolicy::new(&cfg, 0, self.now_ns).ok();
+        }
+        match input {
+            Input::Imu(s) => {
+                if let Some(n) = self.ins.on_imu(s) {
+                    self.newest_nav_ns = Some(n.header.meas_time_ns);
+                    self.fusion.on_nav(&n, &mut self.o);
+                }
+            }
+            Input::Tdoa(m) => {
+                if let Ok(Some(f)) = self.fixb.push(m) {
+                    self.on_fix(f);
+                }
+                if self.tight {
+                    self.fusion
+                        .on_measurement(Measurement::Tdoa(*m), &mut self.o);
+                }
+            }
+        }
+        self.settle();
+        if let Some(p) = self.policy.as_mut() {
+            let age = self.newest_nav_ns.map(|t| self.now_ns.saturating_sub(t));
+            let fusion = &mut self.fusion;
+            if let Some(s) = p.on_tick(self.now_ns, age, || fusion.coasting_state()) {
+                self.out.fused.push(s);
+            }
+        }
+    }
+
+    /// Ends the run: the fix the builder still holds goes to fusion; what
+    /// the run produced.
+    #[must_use]
+    pub fn finish(mut self) -> RunOutput {
+        if let Some(f) = self.fixb.flush() {
+            self.on_fix(f);
+        }
+        self.out.ins = self.ins.counters();
+        self.out.fusion = self.fusion.counters();
+        self.out
+    }
+
+    fn on_fix(&mut self, f: UwbFix) {
+        self.out.fixes.push(f);
+        self.fusion.on_measurement(Measurement::Fix(f), &mut self.o);
+        self.settle();
+    }
+
+    /// Delivers corrections to the INS and the re-propagated states back to
+    /// fusion until nothing is left in flight.
+    fn settle(&mut self) {
+        loop {
+            for s in &self.o.fused {
+                let s = match self.policy.as_mut() {
+                    Some(p) => p.on_update(*s, self.now_ns),
+                    None => *s,
+                };
+                self.out.fused.push(s);
+            }
+            self.out.diag.extend_from_slice(&self.o.diag);
+            let corrections: Vec<InsCorrection> = std::mem::take(&mut self.o.corrections);
+            self.o.clear();
+            if corrections.is_empty() {
+                return;
+            }
+            for c in &corrections {
+                self.out.corrections.push(*c);
+                self.ins.on_correction(c, &mut self.renav);
+                for n in &self.renav {
+                    self.fusion.on_nav(n, &mut self.o);
+                }
+            }
+        }
+    }
+}
+
+/// Runs the closed loop with the filter `kind` over time-sorted IMU and TDOA samples.
+///
+/// # Errors
+/// A configuration that does not validate.
+pub fn run(
+    imu: &[ImuSample],
+    tdoa: &[UwbTdoa],
+    cfg: &FusionConfig,
+    kind: FilterKind,
+) -> Result<RunOutput, ConfigError> {
+    let est = build_estimator(kind, cfg)?;
+    run_with(imu, tdoa, cfg, est)
+}
+
+/// Runs the closed loop with a given estimator over time-sorted IMU and
+/// TDOA samples, in the recording's order ([`Ties::ImuFirst`]).
+///
+/// # Errors
+/// A configuration that does not validate.
+pub fn run_with(
+    imu: &[ImuSample],
+    tdoa: &[UwbTdoa],
+    cfg: &FusionConfig,
+    est: Box<dyn Estimator>,
+) -> Result<RunOutput, ConfigError> {
+    let mut r = Runner::new(cfg, est)?;
+    for input in merged(imu, tdoa, Ties::ImuFirst) {
+        r.push(input);
+    }
+    Ok(r.finish())
+}
+
+/// INS-only: integrates the IMU from the configured initial state with no correction.
+///
+/// # Errors
+/// An INS configuration that does not validate.
+pub fn run_ins_only(imu: &[ImuSample], cfg: &FusionConfig) -> Result<Vec<NavState>, ConfigError> {
+    let mut ins = InsEngine::new(cfg.ins.clone())?;
+    Ok(imu.iter().filter_map(|s| ins.on_imu(s)).collect())
+}
+
+/// The UWB fixes alone (UWB-only solution).
+///
+/// # Errors
+/// A fix-builder configuration that does not validate.
+pub fn run_fixes(tdoa: &[UwbTdoa], cfg: &FusionConfig) -> Result<Vec<UwbFix>, ConfigError> {
+    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?;
+    let mut out = Vec::new();
+    for m in tdoa {
+        if let Ok(f) = fixb.push(m) {
+            out.extend(f.iter().copied());
+        }
+    }
+    out.extend(fixb.flush());
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use insuwb_msg::{Header, LAYOUT_VERSION};
+
+    use super::*;
+
+    /// A chain printed with `{:#}` (anyhow, the binaries) names each cause
+    /// once: a variant that shows its inner error does not also expose it
+    /// as its source.
+    #[test]
+    fn an_error_shows_its_cause_once() {
+        let mut cfg = FusionConfig::default();
+        cfg.fix.period_s = -1.0;
+        let e = run(&[], &[], &cfg, FilterKind::Kf).unwrap_err();
+        let text = e.to_string();
+        assert!(text.starts_with("fix: period_s"), "{text}");
+        assert!(std::error::Error::source(&e).is_none(), "{text}");
+    }
+
+    #[test]
+    fn an_output_policy_that_does_not_validate_is_named() {
+        let cfg = FusionConfig {
+            output: Some(OutputPolicyConfig {
+                coast_rate_hz: -1.0,
+                ..OutputPolicyConfig::default()
+            }),
+            ..FusionConfig::default()
+        };
+        let e = run(&[], &[], &cfg, FilterKind::Kf).unwrap_err();
+        assert_eq!(e.to_string(), "output.coast_rate_hz: must be > 0, got -1");
+    }
+
+    fn imu(k: u64) -> ImuSample {
+        ImuSample {
+            header: Header::new(k, k * 10_000_000),
+            accel_mps2: [0.0, 0.0, 9.80665],
+            ..ImuSample::default()
+        }
+    }
+
+    fn tdoa(k: u64) -> UwbTdoa {
+        UwbTdoa {
+            header: Header::new(k, k * 10_000_000),
+            ..UwbTdoa::default()
+        }
+    }
+
+    #[test]
+    fn merged_breaks_ties_as_asked() {
+        let i = [imu(0), imu(1), imu(2)];
+        let t = [tdoa(1), tdoa(3)];
+        let order = |ties| {
+            merged(&i, &t, ties)
+                .map(|x| match x {
+                    Input::Imu(s) => ('i', s.header.meas_time_ns / 10_000_000),
+                    Input::Tdoa(m) => ('t', m.header.meas_time_ns / 10_000_000),
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            order(Ties::ImuFirst),
+            [('i', 0), ('i', 1), ('t', 1), ('i', 2), ('t', 3)]
+        );
+        assert_eq!(
+            order(Ties::UwbFirst),
+            [('i', 0), ('t', 1), ('i', 1), ('i', 2), ('t', 3)]
+        );
+    }
+
+    /// IMU alone (no UWB): with no output policy nothing is published; with
+    /// one the INS-only state coasts at the configured rate after the
+    /// timeout, flagged degraded, on the recording's clock.
+    #[test]
+    fn the_runner_coasts_only_with_an_output_policy() {
+        let samples: Vec<ImuSample> = (0..200).map(imu).collect();
+        assert!(samples
+            .iter()
+            .all(|s| s.header.layout_version == LAYOUT_VERSION));
+        let mut cfg = FusionConfig::default();
+        let out = run(&samples, &[], &cfg, FilterKind::Kf).unwrap();
+        assert!(out.fused.is_empty());
+        cfg.output = Some(OutputPolicyConfig::default());
+        let out = run(&samples, &[], &cfg, FilterKind::Kf).unwrap();
+        let times: Vec<u64> = out
+            .fused
+            .iter()
+            .map(|s| s.header.meas_time_ns / 10_000_000)
+            .collect();
+        // 100 Hz IMU: first coasting output 160 ms after the first sample,
+        // then every 100 ms.
+        assert_eq!(
+            times,
+            [
+                16, 26, 36, 46, 56, 66, 76, 86, 96, 106, 116, 126, 136, 146, 156, 166, 176, 186,
+                196
+            ]
+        );
+        for s in &out.fused {
+            assert_ne!(s.header.flags & FusedState::FLAG_DEGRADED, 0);
+            assert_eq!(s.header.flags & FusedState::FLAG_STALE, 0);
+        }
+    }
+
+    /// The IMU stops at 490 ms while TDOA measurements go on: the coasting
+    /// states built on the last INS state are flagged stale and not valid
+    /// once it is older than `stale_ins_timeout_s` (250 ms).
+    #[test]
+    fn coasting_states_on_old_ins_input_are_stale() {
+        let samples: Vec<ImuSample> = (0..50).map(imu).collect();
+        let meas: Vec<UwbTdoa> = (50..120).map(tdoa).collect();
+        let cfg = FusionConfig {
+            output: Some(OutputPolicyConfig::default()),
+            ..FusionConfig::default()
+        };
+        let out = run(&samples, &meas, &cfg, FilterKind::Kf).unwrap();
+        let at = |s: &FusedState| s.header.meas_time_ns;
+        let pub_ms: Vec<(u64, bool)> = out
+            .fused
+            .iter()
+            .map(|s| {
+                assert_ne!(s.header.flags & FusedState::FLAG_DEGRADED, 0);
+                let stale = s.header.flags & FusedState::FLAG_STALE != 0;
+                assert_eq!(stale, s.header.flags & FusedState::FLAG_VALID == 0);
+                (at(s) / 1_000_000, stale)
+            })
+            .collect();
+        // Built on the newest INS state (490 ms) once the IMU stopped;
+        // published at 560, 660 (fresh), 760, 860, ... (stale).
+        let stale: Vec<bool> = pub_ms.iter().map(|p| p.1).collect();
+        assert_eq!(
+            stale,
+            [false, false, false, false, false, false, true, true, true, true, true]
+        );
+        assert!(pub_ms.iter().skip(4).all(|p| p.0 == 490), "{pub_ms:?}");
+    }
+}
