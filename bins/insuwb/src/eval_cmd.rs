@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use insuwb_eval::metrics::Metrics;
 use insuwb_eval::run::{evaluate, EvalReport};
-use insuwb_eval::scenario::{monte_carlo, ScenarioFile};
+use insuwb_eval::scenario::{dataset as scenario_dataset, monte_carlo};
+use insuwb_group::ScenarioFile;
 use insuwb_log::{LogWriter, Metadata, Record};
 use insuwb_msg::FilterKind;
 
@@ -97,7 +98,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         let filters = parse_filters(a.filters.as_deref(), &DEFAULT_FILTERS)?;
         let seed = a.seed.unwrap_or(file.sim.seed);
         if a.plot.is_some() || a.tracks.is_some() {
-            let data = file.dataset(seed)?;
+            let data = scenario_dataset(&file, seed)?;
             let cfg = file.fusion_for_seed(seed)?;
             let rep = evaluate(&data, &cfg, &filters)?;
             if let Some(dir) = &a.plot {

@@ -1,114 +1,36 @@
-//! Scenario files: the simulator's `[sim]` table and the `[fusion]` settings
-//! of the run, and Monte-Carlo evaluation over seeds.
+//! Simulated datasets from a scenario file and Monte-Carlo evaluation over
+//! seeds.
 
-use insuwb_fusion::config::FusionConfig;
+use insuwb_group::{ScenarioError, ScenarioFile};
 use insuwb_msg::FilterKind;
-use insuwb_sim::Scenario;
-use serde::{Deserialize, Serialize};
 
 use crate::metrics::{mean_of, Metrics};
 use crate::run::{evaluate, Dataset, EvalError};
 
-/// A scenario file: what to simulate and how to fuse it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields)]
-pub struct ScenarioFile {
-    /// The simulation.
-    pub sim: Scenario,
-    /// The fusion settings (INS, fix builder, model, filters).
-    #[serde(default)]
-    pub fusion: FusionConfig,
-}
-
-/// Why a scenario could not be loaded or run.
+/// Why a scenario could not be evaluated.
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioRunError {
-    /// The file did not parse.
+    /// The scenario could not be loaded or simulated.
     #[error(transparent)]
-    Config(#[from] insuwb_config::ConfigError),
-    /// The scenario is invalid.
-    #[error("{origin}: {message}")]
-    Invalid {
-        /// The file.
-        origin: String,
-        /// What is wrong (names the key).
-        message: String,
-    },
-    /// The simulation failed.
-    #[error("simulation: {0}")]
-    Sim(insuwb_sim::SimError),
+    Scenario(#[from] ScenarioError),
     /// The evaluation failed.
     #[error(transparent)]
     Eval(#[from] EvalError),
 }
 
-impl From<insuwb_sim::SimError> for ScenarioRunError {
-    fn from(e: insuwb_sim::SimError) -> Self {
-        Self::Sim(e)
-    }
-}
-
-impl ScenarioFile {
-    /// Parses and validates a scenario file's text.
-    ///
-    /// # Errors
-    /// Parse errors name the origin and key; invalid values name the key.
-    pub fn from_str(text: &str, origin: &str) -> Result<Self, ScenarioRunError> {
-        let f: Self = insuwb_config::load_str(text, origin)?;
-        f.sim.validate().map_err(|e| ScenarioRunError::Invalid {
-            origin: origin.to_owned(),
-            message: e.to_string(),
-        })?;
-        Ok(f)
-    }
-
-    /// Loads a built-in scenario by name, or a file by path.
-    ///
-    /// # Errors
-    /// Unknown name, unreadable file, or an invalid scenario.
-    pub fn load(name_or_path: &str) -> Result<Self, ScenarioRunError> {
-        let path = std::path::Path::new(name_or_path);
-        if path.extension().is_some_and(|e| e == "toml") || path.exists() {
-            let text = std::fs::read_to_string(path).map_err(|error| {
-                insuwb_config::ConfigError::Read {
-                    path: path.to_owned(),
-                    error,
-                }
-            })?;
-            return Self::from_str(&text, name_or_path);
-        }
-        let b = insuwb_config::builtin("scenario", name_or_path)?;
-        Self::from_str(b.text, b.origin)
-    }
-
-    /// The fusion config for one Monte-Carlo run: the INS starts from the
-    /// truth plus the scenario's initial errors drawn with `seed`.
-    ///
-    /// # Errors
-    /// An invalid scenario.
-    pub fn fusion_for_seed(&self, seed: u64) -> Result<FusionConfig, ScenarioRunError> {
-        let init = self.sim.initial_ins_state(seed)?;
-        let mut cfg = self.fusion.clone();
-        cfg.ins.init.pos_m = init.pos_m;
-        cfg.ins.init.vel_mps = init.vel_mps;
-        cfg.ins.init.yaw_rad = init.yaw_rad;
-        Ok(cfg)
-    }
-
-    /// Simulates the scenario with `seed`.
-    ///
-    /// # Errors
-    /// A simulation failure.
-    pub fn dataset(&self, seed: u64) -> Result<Dataset, ScenarioRunError> {
-        let out = insuwb_sim::simulate(&self.sim, seed)?;
-        Ok(Dataset {
-            name: format!("{} (seed {seed})", self.sim.name),
-            imu: out.imu,
-            tdoa: out.tdoa,
-            truth: out.truth,
-            segment: None,
-        })
-    }
+/// The scenario of `file` simulated with `seed`, as a dataset to evaluate.
+///
+/// # Errors
+/// A simulation failure.
+pub fn dataset(file: &ScenarioFile, seed: u64) -> Result<Dataset, ScenarioError> {
+    let out = file.simulate(seed)?;
+    Ok(Dataset {
+        name: format!("{} (seed {seed})", file.sim.name),
+        imu: out.imu,
+        tdoa: out.tdoa,
+        truth: out.truth,
+        segment: None,
+    })
 }
 
 /// Mean metrics per solution over `runs` seeds starting at `seed`.
@@ -124,7 +46,7 @@ pub fn monte_carlo(
     let mut per: Vec<(String, Vec<Metrics>)> = Vec::new();
     for r in 0..u64::from(runs.max(1)) {
         let s = seed.wrapping_add(r);
-        let data = file.dataset(s)?;
+        let data = dataset(file, s)?;
         let cfg = file.fusion_for_seed(s)?;
         let rep = evaluate(&data, &cfg, filters)?;
         for sol in rep.solutions {

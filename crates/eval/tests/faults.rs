@@ -4,8 +4,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use insuwb_eval::metrics::TruthTrack;
-use insuwb_eval::scenario::ScenarioFile;
 use insuwb_fusion::runner::{self, RunOutput};
+use insuwb_group::ScenarioFile;
 use insuwb_msg::{FilterDiag, FilterKind, FusedState};
 
 struct Run {

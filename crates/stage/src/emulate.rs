@@ -104,7 +104,7 @@ pub enum LoadError {
         name: String,
         /// What went wrong.
         #[source]
-        error: insuwb_eval::scenario::ScenarioRunError,
+        error: insuwb_group::ScenarioError,
     },
     /// The log could not be read.
     #[error("LoadError::Log: {path}: {message}")]
@@ -150,12 +150,12 @@ pub fn from_scenario(name: &str, seed: u64) -> Result<Recording, LoadError> {
         name: name.to_owned(),
         error: source,
     };
-    let sc = insuwb_eval::scenario::ScenarioFile::load(name).map_err(scenario_err)?;
+    let sc = insuwb_group::ScenarioFile::load(name).map_err(scenario_err)?;
     let fusion = sc.fusion_for_seed(seed).map_err(scenario_err)?;
-    let data = sc.dataset(seed).map_err(scenario_err)?;
+    let data = sc.simulate(seed).map_err(scenario_err)?;
     let fixes = fixes_from_tdoa(&data.tdoa, &fusion.fix)?;
     Ok(Recording {
-        name: data.name,
+        name: format!("{} (seed {seed})", sc.sim.name),
         imu: data.imu,
         fixes,
         truth: data.truth,
@@ -677,8 +677,8 @@ mod tests {
     #[test]
     fn scenario_fixes_are_what_the_driver_computes() {
         let rec = from_scenario("nlos-long", 1).unwrap();
-        let sc = insuwb_eval::scenario::ScenarioFile::load("nlos-long").unwrap();
-        let data = sc.dataset(1).unwrap();
+        let sc = insuwb_group::ScenarioFile::load("nlos-long").unwrap();
+        let data = sc.simulate(1).unwrap();
         let cfg = sc.fusion_for_seed(1).unwrap();
         let expected = insuwb_fusion::runner::run_fixes(&data.tdoa, &cfg).unwrap();
         // run_fixes also flushes at the end; the epochs are flagged, so the

@@ -428,7 +428,7 @@ impl RobotConfig {
             .map_err(|e| anyhow::anyhow!("{origin}: key 'logger.segments': {e}"))?;
         if matches!(self.sources.imu.as_str(), "sim") || matches!(self.sources.uwb.as_str(), "sim")
         {
-            insuwb_eval::scenario::ScenarioFile::load(&self.sources.scenario)
+            insuwb_group::ScenarioFile::load(&self.sources.scenario)
                 .with_context(|| format!("{origin}: key 'sources.scenario'"))?;
         }
         Ok(())
@@ -504,7 +504,7 @@ impl RobotConfig {
             }
             return Ok(FusionConfig::default());
         }
-        let sc = insuwb_eval::scenario::ScenarioFile::load(&self.sources.scenario)?;
+        let sc = insuwb_group::ScenarioFile::load(&self.sources.scenario)?;
         Ok(sc.fusion_for_seed(self.sources.seed)?)
     }
 }

@@ -1,8 +1,9 @@
-//! Sensor sources of the drivers: the simulator and the replay of a
-//! recorded log. Both are *recorded* sources: every sample carries its time
-//! since the start of the recording, and the driver paces them against a
-//! start epoch. Device sources (serial, network) will be live sources: their
-//! samples are stamped when read; the trait leaves room for both.
+//! Recorded sources of the drivers: the simulator and the replay of a
+//! recorded log. Every sample carries its time since the start of the
+//! recording, and the driver paces it against a start epoch
+//! ([`crate::driver::pacing`]). Real sensors (serial, network) are read by
+//! the live loop of [`crate::device`] instead, which stamps each sample when
+//! it is read.
 
 use anyhow::{bail, Context, Result};
 use insuwb_log::Record;
@@ -151,7 +152,7 @@ impl Source for Recorded {
 pub fn open(spec: &str, scenario: &str, seed: u64, want: Want) -> Result<Recorded> {
     let mut items = Vec::new();
     if spec == "sim" {
-        let sc = insuwb_eval::scenario::ScenarioFile::load(scenario)?;
+        let sc = insuwb_group::ScenarioFile::load(scenario)?;
         let out = insuwb_sim::simulate(&sc.sim, seed).context("simulating the scenario")?;
         match want {
             Want::Imu => {

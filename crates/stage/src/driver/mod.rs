@@ -1,0 +1,63 @@
+//! The IMU and UWB driver stages: read a source, check each sample, pace
+//! recorded samples against the group's start epoch, publish.
+//!
+//! [`pacing`] holds what both drivers share (the resume after a restart,
+//! the due times, lockstep, the wait loop, the heartbeat); [`imu`] and
+//! [`uwb`] what each publishes and checks. A `device` source runs the live
+//! loop of [`crate::device`] instead.
+//!
+//! Recorded times are mapped onto CLOCK_MONOTONIC as `start_epoch + t`
+//! (an offset, never a scale: every interval the algorithms see is the
+//! recorded one); a sample is published at `start_epoch + t / speed`. The
+//! chosen epoch is a whole second plus 2.5 ms, off the kernel's tick
+//! ([`insuwb_runtime::epoch`]); the fix builder aligns its epoch windows to
+//! it, so the fix epochs fall as in the recording.
+//! At speed 1 the measurement times are real monotonic times, so ages and
+//! latencies are meaningful. A restarted driver resumes at the sample the
+//! recording has reached, so its consumers see a sequence gap.
+//!
+//! # What the heartbeat reports
+//!
+//! Both drivers drop and count (`Health::dropped_invalid`) samples with a
+//! NaN, infinite or out-of-range value (accelerometer >= 400 m/s^2, gyro >=
+//! 70 rad/s, TDOA |difference| >= 1000 m, equal anchor ids) and
+//! (`Health::dropped_time`) samples whose time goes backwards; an IMU sample
+//! at the time of the previous one, or a TDOA of the same anchor pair at the
+//! time of an earlier one, is a duplicate and counted there too (several
+//! pairs of one epoch share a time). The UWB driver's `Health::extra` holds
+//! the fix builder's figures ([`UWB_EXTRA`]): `[0]` fixes published, `[1]`
+//! epochs skipped for too few pairs, `[2]` epochs skipped for their
+//! geometry (too few distinct anchors or independent pairs, collinear or
+//! coincident anchors), `[3]` epochs the solver failed on (no convergence,
+//! a solution run away from the anchors, another solver error). Skips are
+//! also logged with their last reason, at most every [`SKIP_LOG_PERIOD_NS`].
+
+pub mod imu;
+pub mod pacing;
+pub mod uwb;
+
+use anyhow::Result;
+
+use crate::group::RobotConfig;
+use crate::source::Want;
+
+pub use imu::imu_ok;
+pub use uwb::{SKIP_LOG_PERIOD_NS, UWB_EXTRA};
+
+/// Runs a driver stage until SIGINT/SIGTERM. Source `device`: the live
+/// loop of [`crate::device`] (speed and epoch do not apply).
+pub fn run(
+    want: Want,
+    cfg: &RobotConfig,
+    source_spec: &str,
+    speed: f64,
+    epoch_ns: u64,
+) -> Result<()> {
+    if source_spec == "device" {
+        return crate::device::run(want, cfg);
+    }
+    match want {
+        Want::Imu => imu::run(cfg, source_spec, speed, epoch_ns),
+        Want::Uwb => uwb::run(cfg, source_spec, speed, epoch_ns),
+    }
+}
