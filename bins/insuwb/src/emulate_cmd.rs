@@ -1,9 +1,9 @@
 //! `insuwb emulate imu|uwb`: a device emulator. Plays a simulated scenario
 //! or a log out through a pseudo-terminal (WitMotion, MAVLink, NLink) or a
 //! loopback TCP server (Eliko), in real time against CLOCK_MONOTONIC, with
-//! optional injected faults. The byte streams come from
-//! `insuwb_stage::emulate`; the devices and the player from
-//! `insuwb_devices::emulator`.
+//! optional injected faults. What is played comes from
+//! `insuwb_group::recording`, the byte streams from `insuwb_devices::play`,
+//! the devices and the player from `insuwb_devices::emulator`.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -13,9 +13,10 @@ use anyhow::{bail, Context, Result};
 use insuwb_devices::emulator::{
     DeviceSink, Faults, Outage, PlayReport, Player, PtyEmulator, TcpEmulator, TcpEmulatorConfig,
 };
+use insuwb_devices::play::{self, Encoding};
 use insuwb_devices::{eliko, Protocol};
+use insuwb_group::recording::{self, Recording};
 use insuwb_runtime::monotonic_ns;
-use insuwb_stage::emulate::{self, Encoding, Recording};
 use insuwb_stage::group::choose_start_epoch;
 
 /// Longest garbage burst injected before a chunk, bytes.
@@ -55,7 +56,7 @@ pub struct EmulateArgs {
     #[arg(long, default_value_t = 1)]
     pub tag: u32,
     /// Serial protocols: baud rate of the modelled line; a frame is written when its last byte would have arrived (0: at once).
-    #[arg(long, default_value_t = emulate::DEFAULT_SERIAL_BAUD)]
+    #[arg(long, default_value_t = play::DEFAULT_SERIAL_BAUD)]
     pub baud: u32,
     /// Play speed (1: the recorded rate).
     #[arg(long, default_value_t = 1.0)]
@@ -106,8 +107,8 @@ pub fn run(cmd: &EmulateCmd) -> Result<()> {
         bail!("--speed must be in (0, 1000], got {}", a.speed);
     }
     let rec = match &a.log {
-        Some(p) => emulate::from_log(p)?,
-        None => emulate::from_scenario(&a.scenario, a.seed)?,
+        Some(p) => recording::from_log(p)?,
+        None => recording::from_scenario(&a.scenario, a.seed)?,
     };
     let mut enc = Encoding {
         tag: a.tag,
@@ -192,8 +193,8 @@ pub fn protocol_of(kind: Kind, name: Option<&str>) -> Result<Protocol> {
 /// The device's byte chunks: IMU samples or UWB fixes.
 pub fn chunks_for(kind: Kind, rec: &Recording, enc: &Encoding) -> Result<Vec<(u64, Vec<u8>)>> {
     Ok(match kind {
-        Kind::Imu => emulate::imu_chunks(&rec.imu, enc)?,
-        Kind::Uwb => emulate::uwb_chunks(&rec.fixes, enc)?,
+        Kind::Imu => play::imu_chunks(&rec.imu, enc)?,
+        Kind::Uwb => play::uwb_chunks(&rec.fixes, enc)?,
     })
 }
 

@@ -529,15 +529,16 @@ fn start_demo_devices(
     run_dir: &Path,
     epoch: u64,
 ) -> Result<(String, DemoDevices, Vec<GroundTruth>)> {
-    use insuwb_stage::emulate::{self, Encoding};
-    let rec = emulate::from_scenario(DEMO_SCENARIO, DEMO_SEED)?;
+    use insuwb_devices::play::{self, Encoding};
+    use insuwb_group::recording;
+    let rec = recording::from_scenario(DEMO_SCENARIO, DEMO_SEED)?;
     let imu_enc = Encoding::new(Protocol::WitMotion);
     let uwb_enc = Encoding {
         tag: DEMO_TAG,
         ..Encoding::new(Protocol::Eliko)
     };
-    let imu_chunks = emulate::imu_chunks(&rec.imu, &imu_enc)?;
-    let uwb_chunks = emulate::uwb_chunks(&rec.fixes, &uwb_enc)?;
+    let imu_chunks = play::imu_chunks(&rec.imu, &imu_enc)?;
+    let uwb_chunks = play::uwb_chunks(&rec.fixes, &uwb_enc)?;
     let link = run_dir.join("imu");
     let pty = crate::emulate_cmd::open_pty(Some(&link))?;
     let tcp = crate::emulate_cmd::start_eliko(0)?;

@@ -23,12 +23,13 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use insuwb_devices::emulator::{Faults, PlayReport, Player, PtyEmulator};
+use insuwb_devices::play::{self, Encoding};
 use insuwb_devices::Protocol;
 use insuwb_eval::metrics::TruthTrack;
+use insuwb_group::recording::{self, Recording};
 use insuwb_log::Record;
 use insuwb_msg::{FusedState, GroundTruth, Health, ImuSample};
 use insuwb_runtime::monotonic_ns;
-use insuwb_stage::emulate::{self, Encoding, Recording};
 
 mod common;
 use common::{f, one_at_a_time as lock, records, Group};
@@ -123,12 +124,12 @@ fn group_epoch(g: &Group) -> u64 {
 /// The scenario the group simulates, and its IMU samples as WitMotion
 /// chunks due (ns after the epoch) when their last byte is in at [`BAUD`].
 fn witmotion_chunks() -> (Recording, Vec<(u64, Vec<u8>)>) {
-    let rec = emulate::from_scenario("nlos-long", SEED).unwrap();
+    let rec = recording::from_scenario("nlos-long", SEED).unwrap();
     let enc = Encoding {
         baud: BAUD,
         ..Encoding::new(Protocol::WitMotion)
     };
-    let chunks = emulate::imu_chunks(&rec.imu, &enc).unwrap();
+    let chunks = play::imu_chunks(&rec.imu, &enc).unwrap();
     (rec, chunks)
 }
 

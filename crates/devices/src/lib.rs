@@ -4,7 +4,8 @@
 //! garbage plus an encoder used by the emulators; the device-clock to host
 //! CLOCK_MONOTONIC mapping ([`clock`]); byte links to the devices that
 //! survive unplugging ([`link`]); and device emulators over pseudo-terminals
-//! and loopback TCP for users and tests ([`emulator`]).
+//! and loopback TCP for users and tests ([`emulator`], playing the timed
+//! frames [`play`] encodes from IMU samples and UWB fixes).
 //!
 //! Nothing here knows about iceoryx2: the driver stage turns readings into
 //! samples.
@@ -17,6 +18,7 @@ pub mod frame;
 pub mod link;
 pub mod mavlink;
 pub mod nlink;
+pub mod play;
 pub mod witmotion;
 
 pub use clock::{ClockConfig, ClockFilter};

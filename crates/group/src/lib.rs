@@ -1,8 +1,11 @@
 //! What a process group runs, shared by the stages, the launcher, `eval`
 //! and the emulators: the scenario file ([`scenario`]), i.e. what the `sim`
-//! sources simulate and the `[fusion]` settings that go with it.
+//! sources simulate and the `[fusion]` settings that go with it, and what
+//! emulated devices play ([`recording`]: a scenario or a log as the IMU
+//! samples and UWB fixes real devices would have measured).
 #![warn(missing_docs)]
 
+pub mod recording;
 pub mod scenario;
 
 pub use scenario::{ScenarioError, ScenarioFile};

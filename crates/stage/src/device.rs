@@ -1059,10 +1059,11 @@ mod tests {
 
     #[test]
     fn the_read_decode_convert_path_allocates_nothing_per_sample() {
-        use crate::emulate::{self, Encoding};
-        let rec = emulate::from_scenario("nlos-long", 1).unwrap();
+        use insuwb_devices::play::{self, Encoding};
+        use insuwb_group::recording;
+        let rec = recording::from_scenario("nlos-long", 1).unwrap();
         // MAVLink: a device clock through the clock filter; 100 Hz.
-        let imu = emulate::imu_chunks(&rec.imu, &Encoding::new(Protocol::Mavlink)).unwrap();
+        let imu = play::imu_chunks(&rec.imu, &Encoding::new(Protocol::Mavlink)).unwrap();
         let (samples, allocations) = steady_state_allocations(Want::Imu, "mavlink", imu);
         eprintln!("mavlink IMU: {samples} samples, {allocations} allocations");
         assert!(samples >= 80, "{samples} samples");
@@ -1073,7 +1074,7 @@ mod tests {
             speed: 10.0,
             ..Encoding::new(Protocol::Nlink)
         };
-        let fixes = emulate::uwb_chunks(&rec.fixes, &enc).unwrap();
+        let fixes = play::uwb_chunks(&rec.fixes, &enc).unwrap();
         let (samples, allocations) = steady_state_allocations(Want::Uwb, "nlink", fixes);
         eprintln!("nlink UWB: {samples} fixes, {allocations} allocations");
         assert!(samples >= 80, "{samples} fixes");

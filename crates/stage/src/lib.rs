@@ -2,7 +2,7 @@
 //! configuration ([`group`]), the sensor sources ([`source`]), and one module
 //! per stage ([`driver`] for the IMU and UWB drivers, [`device`] for their
 //! loop over a real sensor, [`ins`], [`fusion`],
-//! [`logger`]), what the device emulators play ([`emulate`]) and the locks
+//! [`logger`]) and the locks
 //! that keep one group per prefix and one process per stage role ([`lock`]). The stage
 //! binaries in `bins/` are thin `main`s over [`cli`]; all the algorithms come
 //! from `insuwb-fusion`, the same code `insuwb eval` runs.
@@ -12,7 +12,6 @@ pub mod checkpoint;
 pub mod cli;
 pub mod device;
 pub mod driver;
-pub mod emulate;
 pub mod fusion;
 pub mod group;
 pub mod ins;

@@ -1,32 +1,30 @@
-//! What a device emulator plays: a simulated scenario or a recorded log
-//! turned into the [`Recording`] a real IMU and a real UWB positioning
-//! system would have measured, and that recording turned into timed byte
-//! chunks of a device protocol ([`imu_chunks`], [`uwb_chunks`]) for
-//! `insuwb_devices::emulator::Player`. `insuwb emulate` and
-//! `insuwb demo --via-devices` share it.
+//! What a device emulator sends: IMU samples and UWB position fixes turned
+//! into timed byte chunks of a device protocol ([`imu_chunks`],
+//! [`uwb_chunks`]) for [`crate::emulator::Player`]; `insuwb emulate` and
+//! `insuwb demo --via-devices` use it with the recordings of
+//! `insuwb_group::recording`.
 //!
 //! ```
+//! use insuwb_devices::play::{imu_chunks, Encoding};
 //! use insuwb_devices::Protocol;
-//! use insuwb_stage::emulate::{self, DeviceClock, Encoding};
+//! use insuwb_msg::{Header, ImuSample};
 //!
-//! let rec = emulate::from_scenario("nlos-long", 1)?;
-//! let enc = Encoding::new(Protocol::WitMotion);
-//! let chunks = emulate::imu_chunks(&rec.imu, &enc)?;
+//! let imu: Vec<ImuSample> = (0..10)
+//!     .map(|k| ImuSample {
+//!         header: Header::new(0, k * 10_000_000),
+//!         accel_mps2: [0.0, 0.0, 9.81],
+//!         gyro_rps: [0.0; 3],
+//!     })
+//!     .collect();
+//! let chunks = imu_chunks(&imu, &Encoding::new(Protocol::WitMotion))?;
 //! // One 0x51 + 0x52 cycle per IMU sample, due when its last byte is in.
-//! assert_eq!(chunks.len(), rec.imu.len());
+//! assert_eq!(chunks.len(), imu.len());
 //! assert_eq!(chunks[0].1.len(), 22);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
 //! # The device model
 //!
-//! - **Positions, not TDOA.** A UWB positioning system reports positions.
-//!   They are the fixes the UWB driver would compute from the scenario's or
-//!   the log's TDOA: `insuwb_uwb::fix::FixBuilder` with the `[fusion.fix]`
-//!   settings the group would use (the scenario's; the log's
-//!   `fusion_config` metadata, else the defaults), fed measurement by
-//!   measurement as the driver feeds it. A log without TDOA but with
-//!   recorded fixes plays those.
 //! - **When bytes leave.** A sample measured at recording time `t` (ns
 //!   since the start) is played at `t / speed` after the epoch. On a serial
 //!   line of `baud` bauds (8N1) the frame starts then and its last byte
@@ -39,22 +37,13 @@
 //!   a start value plus the time played since the epoch, scaled by a drift
 //!   in ppm. The clock runs in host time (it follows `t / speed`, not `t`),
 //!   as a real device's would. WitMotion frames carry no clock.
-//! - **Logs.** Times in a log are shifted back by whole seconds so that the
-//!   earliest sample lies in the first second (a log the logger recorded
-//!   holds CLOCK_MONOTONIC times); whole seconds keep the fix epochs on
-//!   their grid.
 //!
-//! Pure and deterministic: the same recording and encoding give the same
+//! Pure and deterministic: the same samples and encoding give the same
 //! bytes.
 
-use std::path::Path;
-
-use insuwb_devices::frame::wire_time_ns;
-use insuwb_devices::{eliko, mavlink, nlink, witmotion, Protocol};
-use insuwb_fusion::config::FusionConfig;
-use insuwb_log::Record;
-use insuwb_msg::{GroundTruth, ImuSample, UwbFix, UwbTdoa};
-use insuwb_uwb::fix::{FixBuilder, FixConfig, FixConfigError};
+use crate::frame::wire_time_ns;
+use crate::{eliko, mavlink, nlink, witmotion, Protocol};
+use insuwb_msg::{ImuSample, UwbFix};
 
 /// Temperature written in WitMotion frames, C.
 pub const WITMOTION_TEMPERATURE_C: f64 = 25.0;
@@ -69,181 +58,6 @@ pub const DEFAULT_UNIX_CLOCK_START_NS: u64 = 1_700_000_000_000_000_000;
 
 /// Default baud rate of the serial line modelled for serial protocols.
 pub const DEFAULT_SERIAL_BAUD: u32 = 115_200;
-
-/// What an emulated IMU and UWB system measured, times in ns since the
-/// start of the recording.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Recording {
-    /// What was played (`nlos-long (seed 1)`, a log's path).
-    pub name: String,
-    /// IMU samples, in time order.
-    pub imu: Vec<ImuSample>,
-    /// UWB position fixes, in time order.
-    pub fixes: Vec<UwbFix>,
-    /// Ground truth (simulation, or a log that has it), in time order.
-    pub truth: Vec<GroundTruth>,
-}
-
-impl Recording {
-    /// Time of the last sample (IMU or fix), ns.
-    #[must_use]
-    pub fn end_ns(&self) -> u64 {
-        let imu = self.imu.last().map_or(0, |s| s.header.meas_time_ns);
-        let fix = self.fixes.last().map_or(0, |s| s.header.meas_time_ns);
-        imu.max(fix)
-    }
-}
-
-/// Why a recording could not be made.
-#[derive(Debug, thiserror::Error)]
-pub enum LoadError {
-    /// The scenario did not load or simulate.
-    #[error("LoadError::Scenario: scenario {name:?}: {error}")]
-    Scenario {
-        /// The name or file given.
-        name: String,
-        /// What went wrong.
-        #[source]
-        error: insuwb_group::ScenarioError,
-    },
-    /// The log could not be read.
-    #[error("LoadError::Log: {path}: {message}")]
-    Log {
-        /// The file.
-        path: String,
-        /// What went wrong.
-        message: String,
-    },
-    /// The fix builder settings do not validate.
-    #[error("fix: {0}")]
-    FixConfig(FixConfigError),
-}
-
-impl From<FixConfigError> for LoadError {
-    fn from(e: FixConfigError) -> Self {
-        Self::FixConfig(e)
-    }
-}
-
-/// The fixes the UWB driver computes from `tdoa`: each measurement pushed
-/// into a [`FixBuilder`] in order, every fix it returns kept.
-///
-/// # Errors
-/// [`FixConfigError`] when `cfg` does not validate.
-pub fn fixes_from_tdoa(tdoa: &[UwbTdoa], cfg: &FixConfig) -> Result<Vec<UwbFix>, FixConfigError> {
-    let mut builder = FixBuilder::new(cfg.clone())?;
-    let mut out = Vec::new();
-    for m in tdoa {
-        if let Ok(Some(f)) = builder.push(m) {
-            out.push(f);
-        }
-    }
-    Ok(out)
-}
-
-/// Simulates scenario `name` (built-in name or TOML file) with `seed`.
-///
-/// # Errors
-/// [`LoadError::Scenario`], [`LoadError::FixConfig`].
-pub fn from_scenario(name: &str, seed: u64) -> Result<Recording, LoadError> {
-    let scenario_err = |source| LoadError::Scenario {
-        name: name.to_owned(),
-        error: source,
-    };
-    let sc = insuwb_group::ScenarioFile::load(name).map_err(scenario_err)?;
-    let fusion = sc.fusion_for_seed(seed).map_err(scenario_err)?;
-    let data = sc.simulate(seed).map_err(scenario_err)?;
-    let fixes = fixes_from_tdoa(&data.tdoa, &fusion.fix)?;
-    Ok(Recording {
-        name: format!("{} (seed {seed})", sc.sim.name),
-        imu: data.imu,
-        fixes,
-        truth: data.truth,
-    })
-}
-
-/// Reads an insuwb log: its IMU samples, its ground truth, and the fixes
-/// of its TDOA (or its recorded fixes when it has no TDOA).
-///
-/// # Errors
-/// [`LoadError::Log`], [`LoadError::FixConfig`].
-pub fn from_log(path: &Path) -> Result<Recording, LoadError> {
-    let log_err = |message: String| LoadError::Log {
-        path: path.display().to_string(),
-        message,
-    };
-    let (records, tail, header) = insuwb_log::read_all(path).map_err(|e| log_err(e.to_string()))?;
-    if let Some(t) = tail {
-        tracing::warn!("{}: {t}", path.display());
-    }
-    let fix_cfg = match header.meta.entries.get("fusion_config") {
-        Some(text) => fusion_of_toml(text).map_err(log_err)?.fix,
-        None => FixConfig::default(),
-    };
-    let mut rec = Recording {
-        name: path.display().to_string(),
-        ..Recording::default()
-    };
-    let mut tdoa = Vec::new();
-    let mut recorded_fixes = Vec::new();
-    for r in records {
-        match r {
-            Record::Imu(s) => rec.imu.push(s),
-            Record::Tdoa(s) => tdoa.push(s),
-            Record::Fix(s) => recorded_fixes.push(s),
-            Record::Truth(s) => rec.truth.push(s),
-            _ => {}
-        }
-    }
-    let first = [
-        rec.imu.iter().map(|s| s.header.meas_time_ns).min(),
-        tdoa.iter().map(|s| s.header.meas_time_ns).min(),
-        recorded_fixes.iter().map(|s| s.header.meas_time_ns).min(),
-    ]
-    .into_iter()
-    .flatten()
-    .min()
-    .unwrap_or(0);
-    let shift = first / 1_000_000_000 * 1_000_000_000;
-    let rebase = |t: &mut u64| *t = t.saturating_sub(shift);
-    rec.imu
-        .iter_mut()
-        .for_each(|s| rebase(&mut s.header.meas_time_ns));
-    rec.truth
-        .iter_mut()
-        .for_each(|s| rebase(&mut s.header.meas_time_ns));
-    tdoa.iter_mut()
-        .for_each(|s| rebase(&mut s.header.meas_time_ns));
-    recorded_fixes
-        .iter_mut()
-        .for_each(|s| rebase(&mut s.header.meas_time_ns));
-    rec.imu.sort_by_key(|s| s.header.meas_time_ns);
-    rec.truth.sort_by_key(|s| s.header.meas_time_ns);
-    tdoa.sort_by_key(|s| s.header.meas_time_ns);
-    recorded_fixes.sort_by_key(|s| s.header.meas_time_ns);
-    rec.fixes = if tdoa.is_empty() {
-        recorded_fixes
-    } else {
-        fixes_from_tdoa(&tdoa, &fix_cfg)?
-    };
-    Ok(rec)
-}
-
-/// The `[fusion]` table of a TOML text (other tables ignored).
-fn fusion_of_toml(text: &str) -> Result<FusionConfig, String> {
-    #[derive(serde::Deserialize)]
-    struct Wrap {
-        #[serde(default)]
-        fusion: FusionConfig,
-    }
-    let table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
-    let mut t = toml::Table::new();
-    if let Some(f) = table.get("fusion") {
-        t.insert("fusion".into(), f.clone());
-    }
-    let w: Wrap = t.try_into().map_err(|e: toml::de::Error| e.to_string())?;
-    Ok(w.fusion)
-}
 
 /// A device's own clock: `start_ns` at the epoch, then running with the
 /// host's clock `1 + drift_ppm * 1e-6` times as fast.
@@ -476,7 +290,7 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
     use super::*;
-    use insuwb_devices::frame::{AnyDecoder, Reading};
+    use crate::frame::{AnyDecoder, Reading};
     use insuwb_msg::Header;
 
     fn imu(t_ns: u64, a: f64) -> ImuSample {
@@ -643,7 +457,7 @@ mod tests {
             text,
             "$PEKIO,COORD,0,0x001A2B,0.500,-0.500,0.300,,1700000000.100000\r\n"
         );
-        let mut d = insuwb_devices::eliko::Decoder::with_tags([0x1A2B]);
+        let mut d = crate::eliko::Decoder::with_tags([0x1A2B]);
         let mut n = 0;
         for (_, b) in &chunks {
             d.push(b, &mut |_| n += 1);
@@ -672,26 +486,5 @@ mod tests {
             };
             assert_eq!(imu_chunks(&[], &enc), Err(EncodeError::BadSpeed));
         }
-    }
-
-    #[test]
-    fn scenario_fixes_are_what_the_driver_computes() {
-        let rec = from_scenario("nlos-long", 1).unwrap();
-        let sc = insuwb_group::ScenarioFile::load("nlos-long").unwrap();
-        let data = sc.simulate(1).unwrap();
-        let cfg = sc.fusion_for_seed(1).unwrap();
-        let expected = insuwb_fusion::runner::run_fixes(&data.tdoa, &cfg).unwrap();
-        // run_fixes also flushes at the end; the epochs are flagged, so the
-        // flush adds nothing.
-        assert_eq!(rec.fixes, expected);
-        assert_eq!(rec.imu.len(), 6000);
-        // 10 Hz for 60 s, less the epochs the NLOS events and the 2 s
-        // dropout leave without a fix.
-        assert!(
-            (500..=600).contains(&rec.fixes.len()),
-            "{}",
-            rec.fixes.len()
-        );
-        assert!(rec.end_ns() >= 59_900_000_000);
     }
 }
