@@ -87,13 +87,18 @@ pub struct CpuPercent {
 
 impl CpuPercent {
     fn from_named(v: &[(String, f64)]) -> Self {
-        let get = |n: &str| v.iter().find(|(m, _)| m == n).map_or(0.0, |(_, p)| *p);
+        use insuwb_msg::StageRole;
+        let get = |r: StageRole| {
+            v.iter()
+                .find(|(m, _)| m == r.name())
+                .map_or(0.0, |(_, p)| *p)
+        };
         Self {
-            imu: get("imu"),
-            uwb: get("uwb"),
-            ins: get("ins"),
-            fusion: get("fusion"),
-            logger: get("logger"),
+            imu: get(StageRole::Imu),
+            uwb: get(StageRole::Uwb),
+            ins: get(StageRole::Ins),
+            fusion: get(StageRole::Fusion),
+            logger: get(StageRole::Logger),
         }
     }
 }

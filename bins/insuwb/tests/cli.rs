@@ -113,16 +113,15 @@ fn kf_is_consistent_on_data_from_its_own_model() {
     );
 }
 
-#[test]
-fn a_simulated_log_evaluates_like_its_scenario_and_a_torn_log_still_reads() {
-    let d = tmp("sim");
-    let log = d.join("s.iulog");
+/// `insuwb sim` of paper-4.4-dynamic with `seed` into `dir/s.iulog`.
+fn simulated_log(dir: &std::path::Path, seed: &str) -> PathBuf {
+    let log = dir.join("s.iulog");
     let out = insuwb(&[
         "sim",
         "--scenario",
         "paper-4.4-dynamic",
         "--seed",
-        "2",
+        seed,
         "--out",
         log.to_str().unwrap(),
     ]);
@@ -131,6 +130,13 @@ fn a_simulated_log_evaluates_like_its_scenario_and_a_torn_log_still_reads() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    log
+}
+
+#[test]
+fn a_simulated_log_evaluates_like_its_scenario_and_a_torn_log_still_reads() {
+    let d = tmp("sim");
+    let log = simulated_log(&d, "2");
     let from_log = json(&insuwb(&[
         "eval",
         log.to_str().unwrap(),
@@ -283,21 +289,7 @@ fn tracks_rmse(csv: &str, solution: &str) -> (f64, usize) {
 #[test]
 fn tracks_hold_the_evaluated_errors_at_fix_epochs_and_at_truth_times() {
     let d = tmp("tracks");
-    let log = d.join("s.iulog");
-    let out = insuwb(&[
-        "sim",
-        "--scenario",
-        "paper-4.4-dynamic",
-        "--seed",
-        "3",
-        "--out",
-        log.to_str().unwrap(),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let log = simulated_log(&d, "3");
     let truth_cfg = d.join("truth.toml");
     std::fs::write(&truth_cfg, "[eval]\nepochs = \"truth\"\n").unwrap();
     let mut epochs = Vec::new();

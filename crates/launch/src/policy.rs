@@ -94,7 +94,7 @@ impl Default for RestartPolicy {
             startup_grace_ms: 2000,
             grace_ms: 2000,
             die_with_launcher: true,
-            optional: vec!["logger".to_owned()],
+            optional: vec![insuwb_msg::StageRole::Logger.name().to_owned()],
         }
     }
 }
