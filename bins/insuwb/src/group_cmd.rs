@@ -350,7 +350,13 @@ pub fn run_group_with(
         }
     }
     let elapsed = t0.elapsed().as_secs_f64();
-    sup.shutdown(&insuwb_msg::StageRole::NAMES);
+    // Shutdown in role order (sources first, the ROS 2 bridge after
+    // fusion, the logger last), over the stages this group runs.
+    let order: Vec<&str> = insuwb_msg::StageRole::NAMES
+        .into_iter()
+        .filter(|n| cfg.stages.iter().any(|s| s.name() == *n))
+        .collect();
+    sup.shutdown(&order);
     let restarts = sup.total_restarts();
     let mut report = summarise(&mut mon, restarts, elapsed);
     for (stage, src) in [("imu", &cfg.sources.imu), ("uwb", &cfg.sources.uwb)] {

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{f, insuwb, one_at_a_time, Group};
+use common::{f, insuwb, one_at_a_time, run_bounded, Group};
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 3";
 /// Stages of a group.
@@ -60,29 +60,6 @@ fn wait_until_running(g: &Group, launcher: &mut Child) {
         assert!(Instant::now() < deadline, "{}: stages not up", g.name);
         std::thread::sleep(Duration::from_millis(50));
     }
-}
-
-/// Runs `cmd` to its end, killing it (and failing) after [`BOUND`].
-fn run_bounded(mut cmd: Command) -> Output {
-    let mut child = cmd
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let deadline = Instant::now() + BOUND;
-    while child.try_wait().unwrap().is_none() {
-        if Instant::now() >= deadline {
-            let _ = child.kill();
-            let out = child.wait_with_output().unwrap();
-            panic!(
-                "{cmd:?} did not end: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().unwrap()
 }
 
 /// The pid of `launcher`'s child running `program` (its command name).
@@ -161,7 +138,7 @@ fn a_second_launch_of_a_running_group_is_refused_and_leaves_it_alone() {
     let pid = first.id();
 
     // The same config: refused, naming the running group and its launcher.
-    let out = run_bounded(launch_cmd(&g.dir.join("robot.toml")));
+    let out = run_bounded(&mut launch_cmd(&g.dir.join("robot.toml")), BOUND);
     let err = stderr_of(&out);
     assert!(!out.status.success(), "the second launch ran:\n{err}");
     assert!(out.stdout.is_empty(), "a report from the second launch");
@@ -178,7 +155,7 @@ fn a_second_launch_of_a_running_group_is_refused_and_leaves_it_alone() {
     // Another config with the same prefix and another run directory: the
     // same services, refused before it creates its run directory.
     let (other, other_run) = same_prefix_config(&g, "copy");
-    let out = run_bounded(launch_cmd(&other));
+    let out = run_bounded(&mut launch_cmd(&other), BOUND);
     let err = stderr_of(&out);
     assert!(!out.status.success(), "the same-prefix launch ran:\n{err}");
     for want in [
@@ -214,7 +191,7 @@ fn a_stage_started_by_hand_beside_its_group_is_refused() {
         assert!(program.is_file(), "{} not built", program.display());
         let mut cmd = Command::new(program);
         cmd.arg("--config").arg(g.dir.join("robot.toml"));
-        let out = run_bounded(cmd);
+        let out = run_bounded(&mut cmd, BOUND);
         let err = stderr_of(&out);
         assert!(!out.status.success(), "a second {role} ran:\n{err}");
         let want = format!("stage '{role}' of group 'byhand' is already running as PID {running}");

@@ -195,6 +195,10 @@ pub enum FloorError {
     /// The receive trace could not be written.
     #[error(transparent)]
     Trace(#[from] TraceError),
+    /// The role has no floor stage (the ROS 2 bridge is its own binary,
+    /// `insuwb-ros2`, off the fix path).
+    #[error("the floor has no {0} stage: the ros2 stage is its own binary insuwb-ros2")]
+    NoFloorStage(Role),
     /// The floor log could not be created or written.
     #[error("floor log {path}: {reason}")]
     Log {
@@ -214,6 +218,7 @@ pub fn run_role(role: Role, cfg: &FloorConfig) -> Result<(), FloorError> {
         Role::Ins => run_ins(cfg),
         Role::Fusion => run_fusion(cfg),
         Role::Logger => run_logger(cfg),
+        Role::Ros2 => Err(FloorError::NoFloorStage(role)),
     };
     match r {
         Err(FloorError::Stage(StageError::ShutdownRequested(_))) => Ok(()),

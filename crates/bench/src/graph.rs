@@ -47,7 +47,7 @@ pub fn fifo_ladder(stage: &str, top: i32) -> Option<i32> {
         Role::Fusion => top,
         Role::Ins => top - 1,
         Role::Imu | Role::Uwb => top - 2,
-        Role::Logger => return None,
+        Role::Logger | Role::Ros2 => return None,
     };
     (1..=99).contains(&p).then_some(p)
 }
@@ -146,7 +146,8 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
         trace_dir.display().to_string(),
         epoch.to_string(),
     );
-    let specs: Vec<StageSpec> = Role::ALL
+    // The floor's five stages: the ROS 2 bridge has no floor stage.
+    let specs: Vec<StageSpec> = Role::DEFAULT
         .iter()
         .map(|r| {
             let mut args = vec![
@@ -203,7 +204,7 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
         }
         std::thread::sleep(Duration::from_millis(20));
     }
-    sup.shutdown(&Role::NAMES);
+    sup.shutdown(&Role::DEFAULT.map(Role::name));
     if let Err(e) = cleanup::remove_prefix_files(&opts.prefix, Some(&root)) {
         tracing::warn!("removing the floor's shared-memory files: {e}");
     }

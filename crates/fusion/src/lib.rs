@@ -25,8 +25,6 @@ pub mod config;
 pub mod engine;
 pub mod estimator;
 pub mod ins_engine;
-#[doc(hidden)]
-pub mod offline;
 pub mod output;
 pub mod runner;
 pub mod tight;

@@ -324,7 +324,9 @@ pub struct UnknownFilterKind(pub String);
 
 /// The processes of a group, each one stage of the pipeline, with their one
 /// name (configuration `stages`, binaries, health, locks, logs): `imu`,
-/// `uwb`, `ins`, `fusion`, `logger`.
+/// `uwb`, `ins`, `fusion`, `ros2`, `logger`. A group runs
+/// [`StageRole::DEFAULT`] unless its `stages` lists others: the ROS 2
+/// bridge runs only where it is listed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StageRole {
@@ -336,26 +338,40 @@ pub enum StageRole {
     Ins,
     /// The fusion filter.
     Fusion,
+    /// The ROS 2 bridge (binary `insuwb-ros2`, crate `insuwb-ros2`): optional.
+    Ros2,
     /// The logger.
     Logger,
 }
 
 impl StageRole {
     /// Every role, in start order.
-    pub const ALL: [Self; 5] = [Self::Imu, Self::Uwb, Self::Ins, Self::Fusion, Self::Logger];
+    pub const ALL: [Self; 6] = [
+        Self::Imu,
+        Self::Uwb,
+        Self::Ins,
+        Self::Fusion,
+        Self::Ros2,
+        Self::Logger,
+    ];
+
+    /// The roles a group runs when its `stages` lists none: every role but
+    /// the ROS 2 bridge (nothing is opened on the network unless asked).
+    pub const DEFAULT: [Self; 5] = [Self::Imu, Self::Uwb, Self::Ins, Self::Fusion, Self::Logger];
 
     /// Their names, in start order, which is also the shutdown order of a
-    /// group: the sources first, so that nothing new enters, the logger
-    /// last, so that it records the end.
-    pub const NAMES: [&'static str; 5] = [
+    /// group: the sources first, so that nothing new enters, the ROS 2
+    /// bridge after fusion, the logger last, so that it records the end.
+    pub const NAMES: [&'static str; 6] = [
         Self::Imu.name(),
         Self::Uwb.name(),
         Self::Ins.name(),
         Self::Fusion.name(),
+        Self::Ros2.name(),
         Self::Logger.name(),
     ];
 
-    /// Its name: `imu`, `uwb`, `ins`, `fusion` or `logger`.
+    /// Its name: `imu`, `uwb`, `ins`, `fusion`, `ros2` or `logger`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -363,6 +379,7 @@ impl StageRole {
             Self::Uwb => "uwb",
             Self::Ins => "ins",
             Self::Fusion => "fusion",
+            Self::Ros2 => "ros2",
             Self::Logger => "logger",
         }
     }
@@ -370,7 +387,7 @@ impl StageRole {
 
 /// A name that is not one of [`StageRole::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, logger)")]
+#[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, ros2, logger)")]
 pub struct UnknownStageRole(pub String);
 
 /// `Display` as the enum's `name()`, and `FromStr` from it (`$err` for any
@@ -586,7 +603,15 @@ mod name_tests {
             .parse::<StageRole>()
             .unwrap_err()
             .to_string()
-            .contains("imu, uwb, ins, fusion, logger"));
+            .contains("imu, uwb, ins, fusion, ros2, logger"));
+        assert_eq!(
+            StageRole::NAMES.join(", "),
+            "imu, uwb, ins, fusion, ros2, logger"
+        );
+        assert!(!StageRole::DEFAULT.contains(&StageRole::Ros2));
+        assert!(StageRole::DEFAULT
+            .iter()
+            .all(|r| StageRole::ALL.contains(r)));
     }
 }
 

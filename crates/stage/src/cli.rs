@@ -103,6 +103,9 @@ fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
         StageRole::Ins => crate::ins::run(&cfg),
         StageRole::Fusion => crate::fusion::run(&cfg, epoch),
         StageRole::Logger => crate::logger::run(&cfg),
+        StageRole::Ros2 => Err(anyhow::anyhow!(
+            "the ros2 stage is its own binary insuwb-ros2 (crate insuwb-ros2)"
+        )),
     };
     match result {
         Err(e)

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use insuwb_fusion::offline::FusionConfig;
+use insuwb_fusion::config::FusionConfig;
 use insuwb_msg::{FilterKind, StageRole};
 use serde::{Deserialize, Serialize};
 
@@ -225,12 +225,16 @@ pub struct RobotConfig {
     pub fusion: FusionStageConfig,
     /// Logger.
     pub logger: LoggerConfig,
-    /// Stages to run, in start order (imu, uwb, ins, fusion, logger).
+    /// Stages to run, in start order (default: imu, uwb, ins, fusion,
+    /// logger; `ros2` runs only where listed, always after fusion and
+    /// always optional).
     pub stages: Vec<StageRole>,
     /// Restart policy of the launcher.
     pub launch: insuwb_launch::RestartPolicy,
     /// Real sensors (drivers whose source is `device`).
     pub devices: DevicesConfig,
+    /// The ROS 2 bridge (`insuwb-ros2`, when `stages` lists `ros2`).
+    pub ros2: insuwb_ros2::Ros2Config,
     /// Optional CPU pinning and SCHED_FIFO per stage (`[realtime.fusion]`
     /// `cpus = [1]`, `fifo_priority = 50`); none by default.
     pub realtime: std::collections::BTreeMap<String, insuwb_runtime::realtime::RealtimeConfig>,
@@ -263,8 +267,9 @@ impl RobotConfig {
 
     fn resolve(&mut self, base: &Path, origin: &str) -> Result<()> {
         if self.stages.is_empty() {
-            self.stages = StageRole::ALL.to_vec();
+            self.stages = StageRole::DEFAULT.to_vec();
         }
+        self.place_ros2();
         check_path(origin, "group.run_dir", &self.group.run_dir)?;
         if self.group.run_dir.is_relative() {
             self.group.run_dir = base.join(&self.group.run_dir);
@@ -422,6 +427,9 @@ impl RobotConfig {
                 StageRole::NAMES.join(", ")
             );
         }
+        self.ros2
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
         self.logger
             .segments
             .validate()
@@ -432,6 +440,25 @@ impl RobotConfig {
                 .with_context(|| format!("{origin}: key 'sources.scenario'"))?;
         }
         Ok(())
+    }
+
+    /// The ROS 2 bridge, when listed, starts after fusion (its input) and
+    /// is optional: a bridge that keeps failing is given up alone, the
+    /// fix path keeps running.
+    fn place_ros2(&mut self) {
+        let ros2 = StageRole::Ros2;
+        let Some(at) = self.stages.iter().position(|s| *s == ros2) else {
+            return;
+        };
+        if let Some(fusion) = self.stages.iter().position(|s| *s == StageRole::Fusion) {
+            if fusion > at {
+                self.stages.remove(at);
+                self.stages.insert(fusion, ros2);
+            }
+        }
+        if !self.launch.is_optional(ros2.name()) {
+            self.launch.optional.push(ros2.name().to_owned());
+        }
     }
 
     /// The filter to run.
@@ -536,4 +563,56 @@ pub fn start_epoch_ns() -> u64 {
 #[must_use]
 pub fn choose_start_epoch(now_ns: u64) -> u64 {
     insuwb_runtime::epoch::epoch_at_or_after(now_ns.saturating_add(500_000_000))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ROBOT: &str = include_str!("../../../config/robot.toml");
+
+    fn load(extra_top: &str, extra_tables: &str) -> Result<RobotConfig> {
+        RobotConfig::from_str(
+            &format!("{extra_top}{ROBOT}{extra_tables}"),
+            "robot.toml",
+            Path::new("/tmp"),
+        )
+    }
+
+    /// Nothing is opened on the network by default: the ROS 2 bridge runs
+    /// only where `stages` lists it, then after fusion and optional.
+    #[test]
+    fn ros2_runs_only_when_listed_after_fusion_and_optional() {
+        let plain = load("", "").unwrap();
+        assert_eq!(plain.stages, StageRole::DEFAULT);
+        assert!(!plain.stages.contains(&StageRole::Ros2));
+        assert_eq!(plain.ros2, insuwb_ros2::Ros2Config::default());
+        let listed = load(
+            "stages = [\"imu\", \"uwb\", \"ins\", \"ros2\", \"fusion\", \"logger\"]\n",
+            "",
+        )
+        .unwrap();
+        assert_eq!(listed.stages, StageRole::ALL, "ros2 moved after fusion");
+        assert!(listed.launch.is_optional("ros2"));
+        let mut c = RobotConfig::from_str(
+            "stages = [\"imu\", \"uwb\", \"ins\", \"fusion\", \"ros2\"]\n[launch]\noptional = []\n",
+            "robot.toml",
+            Path::new("/tmp"),
+        )
+        .unwrap();
+        assert!(c.launch.is_optional("ros2"), "{:?}", c.launch.optional);
+        c.place_ros2();
+        assert_eq!(c.launch.optional, ["ros2"], "added once");
+    }
+
+    #[test]
+    fn a_bad_ros2_key_is_named() {
+        let text = ROBOT.replacen("frame_id = \"map\"", "frame_id = \"/map\"", 1);
+        assert_ne!(text, ROBOT);
+        let e = RobotConfig::from_str(&text, "robot.toml", Path::new("/tmp"));
+        let msg = format!("{:#}", e.unwrap_err());
+        assert!(msg.contains("robot.toml: key 'ros2.frame_id'"), "{msg}");
+        let e = RobotConfig::from_str("[ros2]\nodom = \"x\"\n", "robot.toml", Path::new("/tmp"));
+        assert!(format!("{:#}", e.unwrap_err()).contains("ros2"));
+    }
 }

@@ -7,8 +7,9 @@
 #![allow(dead_code, clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use insuwb_log::Record;
 
@@ -229,4 +230,39 @@ pub fn child_processes(parent: u32) -> Vec<(u32, String)> {
         }
     }
     out
+}
+
+/// Runs `cmd` to its end with its output captured, killing it (and failing)
+/// after `bound`.
+pub fn run_bounded(cmd: &mut Command, bound: Duration) -> Output {
+    let mut child = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_bounded(&mut child, &format!("{cmd:?}"), bound);
+    child.wait_with_output().unwrap()
+}
+
+/// Waits for `child` to end, killing it and failing after `bound`.
+pub fn wait_bounded(child: &mut Child, what: &str, bound: Duration) {
+    let deadline = Instant::now() + bound;
+    while child.try_wait().unwrap().is_none() {
+        if Instant::now() >= deadline {
+            let _ = child.kill();
+            let err = child
+                .stderr
+                .take()
+                .map(|mut e| {
+                    let mut s = String::new();
+                    let _ = std::io::Read::read_to_string(&mut e, &mut s);
+                    s
+                })
+                .unwrap_or_default();
+            let _ = child.wait();
+            panic!("{what} did not end within {bound:?}: {err}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }

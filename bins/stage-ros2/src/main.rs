@@ -1,0 +1,93 @@
+//! The insuwb ROS 2 bridge stage (`insuwb-ros2`): reads the robot config,
+//! takes the `ros2` role's lock, and runs `insuwb_ros2::bridge` (iceoryx2
+//! `fused`, `imu`, `health` in; ROS 2 topics out over DDS) until
+//! SIGINT/SIGTERM. Normally started by `insuwb launch` when `stages` lists
+//! `ros2`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use insuwb_msg::StageRole;
+use insuwb_ros2::bridge::{Bridge, BridgeOpenError, BridgeSetup};
+use insuwb_runtime::StageError;
+use insuwb_stage::group::RobotConfig;
+use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
+
+/// Arguments.
+#[derive(Debug, Parser)]
+#[command(
+    version,
+    about = "The insuwb ROS 2 bridge stage: fused pose, TF, IMU and diagnostics as ROS 2 topics (normally started by `insuwb launch`)."
+)]
+struct Args {
+    /// The robot group configuration (config/robot.toml) with its `[ros2]` table.
+    #[arg(long)]
+    config: PathBuf,
+}
+
+/// The log filter when `RUST_LOG` is unset: RustDDS reports every socket
+/// and discovery event at `info` and warns of each datagram above 1500
+/// bytes (the diagnostics array; the IP layer fragments it), and
+/// ros2-client warns when `ROS_DISTRO` is unset (no ROS installation is
+/// the point).
+const DEFAULT_FILTER: &str = "info,rustdds=warn,rustdds::network::udp_sender=error,\
+ros2_client=warn,ros2_client::distributions=error";
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    if std::env::var_os("RUST_LOG").is_none_or(|v| v.is_empty()) {
+        // Single-threaded still: nothing reads the environment concurrently.
+        std::env::set_var("RUST_LOG", DEFAULT_FILTER);
+    }
+    let _ = insuwb_runtime::init_tracing(StageRole::Ros2.name());
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<()> {
+    let cfg = RobotConfig::load(&args.config)?;
+    let role = StageRole::Ros2.name();
+    // One bridge per group, before anything of the group is opened.
+    let _lock = StageLock::acquire(&cfg.group, role, STAGE_LOCK_WAIT)?;
+    let lever_arm = match cfg.ros2.antenna_lever_arm_m {
+        Some(l) => l,
+        None => {
+            cfg.fusion_config()
+                .context("reading the fusion settings for the antenna lever arm")?
+                .loose
+                .lever_arm_m
+        }
+    };
+    let setup = BridgeSetup {
+        runtime: cfg.runtime(role),
+        ros2: cfg.ros2.clone(),
+        stages: cfg.stages.iter().map(|s| s.name().to_owned()).collect(),
+        hardware_id: cfg.group.name.clone(),
+        antenna_lever_arm_m: lever_arm,
+    };
+    let bridge = match Bridge::open(setup) {
+        Ok(b) => b,
+        // SIGTERM while starting: a clean stop.
+        Err(BridgeOpenError::Stage(StageError::ShutdownRequested(_))) => return Ok(()),
+        Err(e) => return Err(e).context("opening the ROS 2 bridge"),
+    };
+    let stats = bridge.run().context("the ROS 2 bridge")?;
+    tracing::info!(
+        "ros2: published {} odometry, {} tf, {} imu, {} diagnostics; {} invalid samples, {} too old, {} failed writes",
+        stats.odometry,
+        stats.tf,
+        stats.imu,
+        stats.diagnostics,
+        stats.invalid,
+        stats.old,
+        stats.write_failures
+    );
+    Ok(())
+}

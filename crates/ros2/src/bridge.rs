@@ -1,0 +1,626 @@
+//! The bridge loop: subscribes to `fused`, `imu` and `health` over
+//! iceoryx2 and publishes them as a ROS 2 node over DDS (`ros2-client` on
+//! RustDDS; no ROS installation):
+//!
+//! | ROS topic | type | QoS | from |
+//! |---|---|---|---|
+//! | `<ns>/odom` | `nav_msgs/Odometry` | reliable, volatile, keep-last 10 | each fused state |
+//! | `/tf` | `tf2_msgs/TFMessage` | reliable, volatile, keep-last 100 | each fused state (`publish_tf`) |
+//! | `/tf_static` | `tf2_msgs/TFMessage` | reliable, transient-local, keep-last 1 | once: every static transform in one message |
+//! | `<ns>/imu` | `sensor_msgs/Imu` | reliable, volatile, keep-last 10 | each IMU sample (`publish_imu`) |
+//! | `/diagnostics` | `diagnostic_msgs/DiagnosticArray` | reliable, volatile, keep-last 10 | every `diagnostics_period_s`: one status per stage |
+//!
+//! The loop sleeps in the stage's `Waiter`: it wakes for each fused state,
+//! drains the IMU samples and heartbeats then (or [`DRAIN_PERIOD_NS`] after
+//! the last drain while no fused state comes), publishes the diagnostics on
+//! their own interval and its own heartbeat on `health` like every stage.
+//! A DDS write never blocks the loop (a full reliable send window drops
+//! the message and counts it). Stamps: see [`crate::convert`].
+//!
+//! Samples published (on iceoryx2) before the bridge opened are not
+//! republished: a restarted bridge's subscribers first get the topics'
+//! history, which its previous run published already.
+//!
+//! Heartbeat counters: `received` what the subscribers got, `published` the
+//! DDS messages written, `dropped_invalid` samples no conversion accepts,
+//! `dropped_time` samples too old to republish, `extra = [odometry, imu,
+//! tf, write failures]`.
+
+use std::time::Duration;
+
+use insuwb_msg::{topics, FusedState, Health, ImuSample};
+use insuwb_runtime::drain::DrainClock;
+use insuwb_runtime::{
+    monotonic_ns, HealthCounters, HealthReporter, PortError, PublishError, ReceiveError,
+    RuntimeConfig, Stage, StageError, Sub, WaitError, Wake,
+};
+use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::{
+    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
+};
+
+use crate::config::{Ros2Config, Ros2ConfigError};
+use crate::convert::{self, ClockOffset, ConvertError, Frames, StageSeen};
+use crate::msgs::{
+    DiagnosticArray, Header, Imu, Odometry, RosMessage, TfMessage, TransformStamped,
+};
+
+/// Longest time IMU samples and heartbeats wait undrained while no fused
+/// state wakes the loop.
+pub const DRAIN_PERIOD_NS: u64 = 20_000_000;
+
+/// What the bridge needs besides `[ros2]`.
+#[derive(Debug, Clone)]
+pub struct BridgeSetup {
+    /// The iceoryx2 node of the stage (prefix, root, name `ros2`).
+    pub runtime: RuntimeConfig,
+    /// `[ros2]`.
+    pub ros2: Ros2Config,
+    /// The stages of the group, each reported on `/diagnostics`.
+    pub stages: Vec<String>,
+    /// `hardware_id` of the diagnostics (the group's name).
+    pub hardware_id: String,
+    /// Antenna position in the body frame, m (`/tf_static`).
+    pub antenna_lever_arm_m: [f64; 3],
+}
+
+/// Opening the bridge failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeOpenError {
+    /// `[ros2]` is invalid.
+    #[error("BridgeOpenError::Config: {0}")]
+    Config(#[from] Ros2ConfigError),
+    /// The iceoryx2 node.
+    #[error("BridgeOpenError::Stage: {0}")]
+    Stage(#[from] StageError),
+    /// A subscriber or the heartbeat publisher.
+    #[error("BridgeOpenError::Port: {0}")]
+    Port(#[from] PortError),
+    /// A DDS entity (participant, node, topic, writer).
+    #[error("BridgeOpenError::Dds: {what}: {reason}")]
+    Dds {
+        /// What was being created.
+        what: String,
+        /// The middleware's error.
+        reason: String,
+    },
+    /// The static transforms.
+    #[error("BridgeOpenError::StaticTransform: {0}")]
+    StaticTransform(ConvertError),
+}
+
+/// The bridge loop ended with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeRunError {
+    /// Waiting (epoll, timers, signals).
+    #[error("BridgeRunError::Wait: {0}")]
+    Wait(#[from] WaitError),
+    /// Receiving from iceoryx2.
+    #[error("BridgeRunError::Receive: {0}")]
+    Receive(#[from] ReceiveError),
+    /// Publishing the heartbeat.
+    #[error("BridgeRunError::Heartbeat: {0}")]
+    Heartbeat(#[from] PublishError),
+}
+
+/// What the bridge published, for the log line at its end.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct BridgeStats {
+    /// `nav_msgs/Odometry` messages.
+    pub odometry: u64,
+    /// `sensor_msgs/Imu` messages.
+    pub imu: u64,
+    /// `/tf` messages.
+    pub tf: u64,
+    /// `/diagnostics` messages.
+    pub diagnostics: u64,
+    /// Samples no conversion accepted.
+    pub invalid: u64,
+    /// Samples published before the bridge opened (the history a restarted
+    /// bridge's subscribers get first): not republished.
+    pub old: u64,
+    /// DDS writes that failed (full send window, middleware error).
+    pub write_failures: u64,
+}
+
+type Publisher<M> = ros2_client::Publisher<M>;
+
+/// The open bridge: iceoryx2 subscribers and DDS writers.
+pub struct Bridge {
+    stage: Stage,
+    inputs: Inputs,
+    health: HealthReporter,
+    out: Outputs,
+}
+
+/// The iceoryx2 subscribers.
+struct Inputs {
+    fused: Sub<FusedState>,
+    imu: Sub<ImuSample>,
+    health: Sub<Health>,
+}
+
+/// The DDS side: node, writers, what was written.
+struct Outputs {
+    setup: BridgeSetup,
+    frames: Frames,
+    /// When the bridge opened (CLOCK_MONOTONIC ns): samples published
+    /// earlier are history.
+    opened_ns: u64,
+    stats: BridgeStats,
+    // Fields drop in order: the writers before the node and the node
+    // before the participant (context) that removes them.
+    odom_pub: Publisher<Odometry>,
+    tf_pub: Option<Publisher<TfMessage>>,
+    _tf_static_pub: Publisher<TfMessage>,
+    imu_pub: Option<Publisher<Imu>>,
+    diag_pub: Publisher<DiagnosticArray>,
+    _node: ros2_client::Node,
+    _context: Context,
+}
+
+impl std::fmt::Debug for Bridge {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Bridge")
+            .field("setup", &self.out.setup)
+            .field("stats", &self.out.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+fn dds<T, E: std::fmt::Display>(what: &str, r: Result<T, E>) -> Result<T, BridgeOpenError> {
+    r.map_err(|e| BridgeOpenError::Dds {
+        what: what.to_owned(),
+        reason: e.to_string(),
+    })
+}
+
+/// Reliable, never blocking the writer, volatile, keep-last `depth`.
+fn reliable(depth: usize, durability: Durability) -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::Fail)
+        .durability(durability)
+        .history(History::KeepLast { depth })
+}
+
+fn publisher<M: RosMessage>(
+    node: &mut ros2_client::Node,
+    topic: &str,
+    qos: &QosProfile,
+) -> Result<Publisher<M>, BridgeOpenError> {
+    let name = dds(&format!("topic name {topic}"), Name::parse(topic))?;
+    let ty = MessageTypeName::new(M::DEF.package, M::DEF.name);
+    let t = dds(
+        &format!("topic {topic} ({})", M::type_name()),
+        node.create_topic(&name, ty, qos),
+    )?;
+    dds(
+        &format!("writer on {topic}"),
+        node.create_publisher::<M>(&t, None),
+    )
+}
+
+impl Bridge {
+    /// Opens the iceoryx2 node and its ports, the DDS participant, the node
+    /// and its writers, and publishes the static transforms.
+    ///
+    /// # Errors
+    /// [`BridgeOpenError`] naming what could not be opened.
+    pub fn open(setup: BridgeSetup) -> Result<Self, BridgeOpenError> {
+        let c = &setup.ros2;
+        c.validate()?;
+        let stage = Stage::new(setup.runtime.clone())?;
+        let fused = stage.subscriber::<FusedState>(topics::FUSED)?;
+        let imu = stage.subscriber::<ImuSample>(topics::IMU)?;
+        let health_sub = stage.subscriber::<Health>(topics::HEALTH)?;
+        let health = stage.health_reporter()?;
+        with_signals_blocked(|| Self::open_dds(setup, stage, fused, imu, health_sub, health))
+    }
+
+    /// The DDS half of [`Bridge::open`] (run with signals blocked).
+    fn open_dds(
+        setup: BridgeSetup,
+        stage: Stage,
+        fused: Sub<FusedState>,
+        imu: Sub<ImuSample>,
+        health_sub: Sub<Health>,
+        health: HealthReporter,
+    ) -> Result<Self, BridgeOpenError> {
+        let c = &setup.ros2;
+        let context = dds(
+            &format!("DDS participant in domain {}", c.domain_id),
+            Context::with_options(ContextOptions::new().domain_id(c.domain_id)),
+        )?;
+        let mut node = dds(
+            &format!("node {}/{}", c.namespace, c.node_name),
+            NodeName::new(&c.namespace, &c.node_name)
+                .map_err(|e| e.to_string())
+                .and_then(|n| {
+                    context
+                        .new_node(
+                            n,
+                            NodeOptions::new()
+                                .enable_rosout(false)
+                                .start_parameter_services(false),
+                        )
+                        .map_err(|e| e.to_string())
+                }),
+        )?;
+        let volatile10 = reliable(10, Durability::Volatile);
+        let odom_pub = publisher::<Odometry>(&mut node, &c.odom_topic_name(), &volatile10)?;
+        let tf_pub = if c.publish_tf {
+            Some(publisher::<TfMessage>(
+                &mut node,
+                "/tf",
+                &reliable(100, Durability::Volatile),
+            )?)
+        } else {
+            None
+        };
+        let tf_static_pub = publisher::<TfMessage>(
+            &mut node,
+            "/tf_static",
+            &reliable(1, Durability::TransientLocal),
+        )?;
+        let imu_pub = if c.publish_imu {
+            Some(publisher::<Imu>(
+                &mut node,
+                &c.imu_topic_name(),
+                &volatile10,
+            )?)
+        } else {
+            None
+        };
+        let diag_pub =
+            publisher::<DiagnosticArray>(&mut node, &c.diagnostics_topic_name(), &volatile10)?;
+        let frames = Frames {
+            frame_id: c.frame_id.clone(),
+            child_frame_id: c.child_frame_id.clone(),
+            imu_frame_id: c.imu_frame_id.clone(),
+        };
+        let statics = static_transforms(&setup, ClockOffset::measure(c.stamp_clock))
+            .map_err(BridgeOpenError::StaticTransform)?;
+        let n = statics.transforms.len();
+        dds("the /tf_static message", tf_static_pub.publish(statics))?;
+        tracing::info!(
+            "ROS 2 node {}/{} in domain {}: {} (frames {} -> {}), {n} static transform(s)",
+            c.namespace,
+            c.node_name,
+            c.domain_id,
+            c.odom_topic_name(),
+            c.frame_id,
+            c.child_frame_id
+        );
+        Ok(Self {
+            stage,
+            inputs: Inputs {
+                fused,
+                imu,
+                health: health_sub,
+            },
+            health,
+            out: Outputs {
+                frames,
+                _node: node,
+                _context: context,
+                odom_pub,
+                tf_pub,
+                _tf_static_pub: tf_static_pub,
+                imu_pub,
+                diag_pub,
+                stats: BridgeStats::default(),
+                opened_ns: monotonic_ns(),
+                setup,
+            },
+        })
+    }
+
+    /// Runs until SIGINT/SIGTERM; returns what it published.
+    ///
+    /// # Errors
+    /// [`BridgeRunError`] when waiting, receiving or the heartbeat fails.
+    pub fn run(self) -> Result<BridgeStats, BridgeRunError> {
+        let Self {
+            stage,
+            inputs,
+            mut health,
+            mut out,
+        } = self;
+        let waiter = stage.waiter()?;
+        let fused_a = waiter.attach(&inputs.fused)?;
+        let hb = waiter.attach_interval(health.period())?;
+        let diag_period = Duration::from_secs_f64(out.setup.ros2.diagnostics_period_s);
+        let diag_a = waiter.attach_interval(diag_period)?;
+        let stale_after_ns = (out.setup.ros2.stale_after_s * 1e9) as u64;
+        let mut clock = ClockOffset::measure(out.setup.ros2.stamp_clock);
+        let mut drain = DrainClock::new(DRAIN_PERIOD_NS, monotonic_ns());
+        let mut seen: Vec<(String, Option<StageSeen>)> =
+            out.setup.stages.iter().map(|s| (s.clone(), None)).collect();
+        let mut coasting = false;
+        let mut counters = HealthCounters::default();
+        let result = loop {
+            let wake = match waiter.wait_deadline(drain.deadline()) {
+                Ok(w) => w,
+                Err(e) => break Err(e.into()),
+            };
+            let now = monotonic_ns();
+            let Some(next) = drain.after(&wake, &fused_a, &hb, now) else {
+                break Ok(());
+            };
+            if next.drain {
+                if let Err(e) = out.drain(&inputs, &clock, &mut seen, &mut coasting) {
+                    break Err(e);
+                }
+                drain.drained(monotonic_ns());
+            }
+            if matches!(&wake, Wake::Fired(f) if f.contains(&diag_a)) {
+                clock = ClockOffset::measure(out.setup.ros2.stamp_clock);
+                out.publish_diagnostics(&clock, &seen, coasting, monotonic_ns(), stale_after_ns);
+            }
+            if next.beat {
+                counters = out.counters(&inputs);
+                if let Err(e) = health.report(&counters, Health::STATE_OK) {
+                    break Err(e.into());
+                }
+            }
+        };
+        let _ = health.report(&counters, Health::STATE_STOPPING);
+        result.map(|()| out.stats)
+    }
+}
+
+impl Outputs {
+    /// Drains the three subscribers and publishes what they held.
+    fn drain(
+        &mut self,
+        inputs: &Inputs,
+        clock: &ClockOffset,
+        seen: &mut [(String, Option<StageSeen>)],
+        coasting: &mut bool,
+    ) -> Result<(), BridgeRunError> {
+        let Inputs {
+            fused,
+            imu,
+            health: health_sub,
+        } = inputs;
+        let Self {
+            setup,
+            frames,
+            opened_ns,
+            odom_pub,
+            tf_pub,
+            imu_pub,
+            stats,
+            ..
+        } = self;
+        let only_valid = setup.ros2.only_valid;
+        let opened_ns = *opened_ns;
+        fused.drain(|s| {
+            if s.header.pub_time_ns < opened_ns {
+                stats.old += 1;
+                return;
+            }
+            *coasting = s.header.flags & (FusedState::FLAG_DEGRADED | FusedState::FLAG_STALE) != 0;
+            if only_valid && s.header.flags & FusedState::FLAG_VALID == 0 {
+                return;
+            }
+            match convert::fused_to_odometry(&s, frames, clock) {
+                Ok(o) => {
+                    let tf = tf_pub.as_ref().map(|p| {
+                        (
+                            p,
+                            TransformStamped {
+                                header: o.header.clone(),
+                                child_frame_id: o.child_frame_id.clone(),
+                                transform: crate::msgs::Transform {
+                                    translation: crate::msgs::Vector3 {
+                                        x: o.pose.pose.position.x,
+                                        y: o.pose.pose.position.y,
+                                        z: o.pose.pose.position.z,
+                                    },
+                                    rotation: o.pose.pose.orientation,
+                                },
+                            },
+                        )
+                    });
+                    write(odom_pub, o, &mut stats.odometry, &mut stats.write_failures);
+                    if let Some((p, t)) = tf {
+                        let m = TfMessage {
+                            transforms: vec![t],
+                        };
+                        write(p, m, &mut stats.tf, &mut stats.write_failures);
+                    }
+                }
+                Err(e) => {
+                    stats.invalid += 1;
+                    tracing::debug!("fused state {} not published: {e}", s.header.seq);
+                }
+            }
+        })?;
+        imu.drain(|s| {
+            let Some(p) = imu_pub.as_ref() else { return };
+            if s.header.pub_time_ns < opened_ns {
+                stats.old += 1;
+                return;
+            }
+            match convert::imu_to_ros(&s, frames, clock) {
+                Ok(m) => write(p, m, &mut stats.imu, &mut stats.write_failures),
+                Err(e) => {
+                    stats.invalid += 1;
+                    tracing::debug!("IMU sample {} not published: {e}", s.header.seq);
+                }
+            }
+        })?;
+        let now = monotonic_ns();
+        health_sub.drain(|h| {
+            // Aged from its publication (same host, same clock): a heartbeat
+            // of the topic's history is as old as it is.
+            let at = if h.header.pub_time_ns > 0 {
+                h.header.pub_time_ns.min(now)
+            } else {
+                now
+            };
+            let name = insuwb_msg::name_str(&h.stage);
+            if let Some((_, slot)) = seen.iter_mut().find(|(n, _)| *n == name) {
+                match slot {
+                    Some(s) => s.note(h, at),
+                    None => *slot = Some(StageSeen::new(h, at)),
+                }
+            }
+        })?;
+        Ok(())
+    }
+
+    fn publish_diagnostics(
+        &mut self,
+        clock: &ClockOffset,
+        seen: &[(String, Option<StageSeen>)],
+        coasting: bool,
+        now_ns: u64,
+        stale_after_ns: u64,
+    ) {
+        let stamp = match clock.stamp(now_ns) {
+            Ok(t) => t,
+            Err(e) => {
+                self.stats.invalid += 1;
+                tracing::debug!("diagnostics not published: {e}");
+                return;
+            }
+        };
+        let status = seen
+            .iter()
+            .map(|(name, s)| {
+                convert::stage_status(
+                    name,
+                    &self.setup.hardware_id,
+                    s.as_ref(),
+                    coasting && name == insuwb_msg::StageRole::Fusion.name(),
+                    now_ns,
+                    stale_after_ns,
+                )
+            })
+            .collect();
+        let m = DiagnosticArray {
+            header: Header {
+                stamp,
+                frame_id: String::new(),
+            },
+            status,
+        };
+        write(
+            &self.diag_pub,
+            m,
+            &mut self.stats.diagnostics,
+            &mut self.stats.write_failures,
+        );
+    }
+
+    fn counters(&self, inputs: &Inputs) -> HealthCounters {
+        let mut c = HealthCounters::default();
+        for st in [
+            inputs.fused.stats(),
+            inputs.imu.stats(),
+            inputs.health.stats(),
+        ] {
+            c.add_sub(&st);
+        }
+        let s = &self.stats;
+        c.published = s.odometry + s.imu + s.tf + s.diagnostics;
+        c.dropped_invalid = s.invalid;
+        c.dropped_time = s.old;
+        c.extra = [s.odometry, s.imu, s.tf, s.write_failures];
+        c
+    }
+}
+
+/// Runs `f` with every asynchronous signal blocked in this thread, so that
+/// the threads it starts (RustDDS's event loop and discovery) inherit the
+/// mask: the signals iceoryx2 and insuwb handle (SIGTERM, SIGINT, and the
+/// SIGCONT the launcher sends after SIGTERM, among others) then land on the
+/// stage's own thread and never interrupt RustDDS's poll, whose event loop
+/// ends on EINTR (and the participant with it). Faults (SIGSEGV, SIGBUS,
+/// SIGFPE, SIGILL, SIGTRAP, SIGSYS, SIGABRT) stay unblocked. A signal that
+/// arrives meanwhile stays pending until the mask is restored.
+fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
+    // SAFETY: a zeroed `sigset_t` is valid storage for `sigfillset`; every
+    // pointer is to a local that outlives the call.
+    #[allow(unsafe_code)]
+    let old = unsafe {
+        let mut set: libc::sigset_t = core::mem::zeroed();
+        libc::sigfillset(&mut set);
+        for sig in [
+            libc::SIGSEGV,
+            libc::SIGBUS,
+            libc::SIGFPE,
+            libc::SIGILL,
+            libc::SIGTRAP,
+            libc::SIGSYS,
+            libc::SIGABRT,
+        ] {
+            libc::sigdelset(&mut set, sig);
+        }
+        let mut old: libc::sigset_t = core::mem::zeroed();
+        (libc::pthread_sigmask(libc::SIG_BLOCK, &set, &mut old) == 0).then_some(old)
+    };
+    if old.is_none() {
+        tracing::warn!(
+            "could not block signals for the DDS threads: a signal may end RustDDS's event loop early"
+        );
+    }
+    let out = f();
+    if let Some(old) = old {
+        // SAFETY: restores the mask read above; the pointers are to locals.
+        #[allow(unsafe_code)]
+        unsafe {
+            libc::pthread_sigmask(libc::SIG_SETMASK, &old, core::ptr::null_mut());
+        }
+    }
+    out
+}
+
+/// Writes `m`, counting it in `ok` or, when the writer refuses it, in
+/// `failed` (a full reliable send window: the loop never waits for a slow
+/// reader).
+fn write<M: RosMessage>(p: &Publisher<M>, m: M, ok: &mut u64, failed: &mut u64) {
+    match p.publish(m) {
+        Ok(()) => *ok += 1,
+        Err(e) => {
+            *failed += 1;
+            // The first failure and then one in a thousand.
+            if *failed % 1000 == 1 {
+                tracing::warn!(
+                    "DDS write on {} failed ({failed} so far): {e}",
+                    M::type_name()
+                );
+            }
+        }
+    }
+}
+
+/// Every static transform in one message: the UWB antenna under the body
+/// frame, and the IMU frame (identity) when it is not the body frame.
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite lever arm or a stamp out of range.
+pub fn static_transforms(
+    setup: &BridgeSetup,
+    clock: ClockOffset,
+) -> Result<TfMessage, ConvertError> {
+    let c = &setup.ros2;
+    let stamp = clock.stamp(monotonic_ns())?;
+    let mut transforms = vec![convert::static_transform(
+        &c.child_frame_id,
+        &c.antenna_frame_id,
+        setup.antenna_lever_arm_m,
+        stamp,
+    )?];
+    if c.imu_frame_id != c.child_frame_id {
+        transforms.push(convert::static_transform(
+            &c.child_frame_id,
+            &c.imu_frame_id,
+            [0.0; 3],
+            stamp,
+        )?);
+    }
+    Ok(TfMessage { transforms })
+}

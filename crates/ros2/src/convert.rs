@@ -1,0 +1,721 @@
+//! Pure conversions from insuwb samples to ROS 2 messages: no I/O, no
+//! transport (the bridge and an MCAP writer call the same functions).
+//!
+//! - Stamps: insuwb headers hold CLOCK_MONOTONIC ns; ROS nodes stamp with
+//!   the system clock (CLOCK_REALTIME, ROS time without simulation). A
+//!   [`ClockOffset`] maps one to the other by an offset measured at start
+//!   and again at each diagnostics period ([`StampClock::Realtime`], the
+//!   default), or keeps the monotonic value ([`StampClock::Monotonic`]).
+//! - Frames: the pose is in `frame_id` (ENU, `map`), the twist in
+//!   `child_frame_id` (the body, FLU `base_link`), as `nav_msgs/Odometry`
+//!   says: the ENU velocity is rotated into the body frame, with its
+//!   covariance.
+//! - Quaternions: insuwb's `[w, x, y, z]` becomes ROS's `x, y, z, w`.
+//! - Unknown entries: `FusedState` has no attitude or angular-rate
+//!   covariance, so the rotation rows of the pose covariance and the
+//!   angular rows of the twist covariance hold [`UNKNOWN_VARIANCE`] on the
+//!   diagonal and 0 off it (a large variance, as robot_localization and
+//!   RViz read it; `-1` is a `sensor_msgs/Imu` convention only). The IMU
+//!   message carries no orientation: `orientation_covariance[0] = -1`
+//!   (sensor_msgs/Imu, REP-145), rate and acceleration covariances all zero
+//!   ("unknown").
+//!
+//! ```
+//! use insuwb_msg::{FusedState, Header};
+//! use insuwb_ros2::convert::{fused_to_odometry, ClockOffset, Frames};
+//! let mut s = FusedState { header: Header::new(0, 5_000_000_001), quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
+//! s.pos_m = [1.0, 2.0, 3.0];
+//! let odom = fused_to_odometry(&s, &Frames::default(), &ClockOffset::ZERO).unwrap();
+//! assert_eq!((odom.header.stamp.sec, odom.header.stamp.nanosec), (5, 1));
+//! assert_eq!(odom.pose.pose.position.z, 3.0);
+//! assert_eq!(odom.pose.pose.orientation.w, 1.0);
+//! ```
+
+use insuwb_msg::{name_str, FusedState, Health, ImuSample};
+use serde::{Deserialize, Serialize};
+
+use crate::msgs::{
+    Cov6, DiagnosticStatus, Header, Imu, KeyValue, Odometry, Point, Pose, PoseWithCovariance,
+    Quaternion, Time, Transform, TransformStamped, Twist, TwistWithCovariance, Vector3,
+};
+
+/// Variance of the pose and twist entries `FusedState` does not estimate
+/// (attitude, angular rate): large, so that any consumer ignores them.
+pub const UNKNOWN_VARIANCE: f64 = 1e6;
+
+/// A sample that cannot become a ROS message.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ConvertError {
+    /// A field holds NaN or an infinity.
+    #[error("ConvertError::NotFinite: field {0} is not finite")]
+    NotFinite(&'static str),
+    /// The attitude quaternion is not a rotation (norm far from 1).
+    #[error("ConvertError::BadQuaternion: norm {0}")]
+    BadQuaternion(f64),
+    /// The stamp does not fit `builtin_interfaces/Time` (before 1970 or after 2038).
+    #[error("ConvertError::StampOutOfRange: {0} ns")]
+    StampOutOfRange(i128),
+}
+
+/// The clock of the stamps (`[ros2] stamp_clock`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StampClock {
+    /// CLOCK_REALTIME (ROS system time): header time plus the offset
+    /// between the clocks.
+    #[default]
+    Realtime,
+    /// CLOCK_MONOTONIC, as in the insuwb headers (seconds since boot).
+    Monotonic,
+}
+
+/// The offset from CLOCK_MONOTONIC to the stamp clock, ns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ClockOffset {
+    /// Stamp minus CLOCK_MONOTONIC, ns.
+    pub offset_ns: i64,
+}
+
+impl ClockOffset {
+    /// No offset (monotonic stamps).
+    pub const ZERO: Self = Self { offset_ns: 0 };
+
+    /// The offset of `clock` now: for the real-time clock, the reading of
+    /// CLOCK_REALTIME between the two closest of 5 pairs of
+    /// CLOCK_MONOTONIC readings.
+    #[must_use]
+    pub fn measure(clock: StampClock) -> Self {
+        match clock {
+            StampClock::Monotonic => Self::ZERO,
+            StampClock::Realtime => {
+                let mut best = (u64::MAX, 0i64);
+                for _ in 0..5 {
+                    let m1 = insuwb_runtime::monotonic_ns();
+                    let r = realtime_ns();
+                    let m2 = insuwb_runtime::monotonic_ns();
+                    let width = m2.saturating_sub(m1);
+                    if width < best.0 {
+                        let mid = i128::from(m1) + i128::from(width / 2);
+                        let off = i128::from(r) - mid;
+                        best = (width, i64::try_from(off).unwrap_or(0));
+                    }
+                }
+                Self { offset_ns: best.1 }
+            }
+        }
+    }
+
+    /// The stamp of a CLOCK_MONOTONIC time.
+    ///
+    /// # Errors
+    /// [`ConvertError::StampOutOfRange`] when it does not fit.
+    pub fn stamp(&self, monotonic_ns: u64) -> Result<Time, ConvertError> {
+        let t = i128::from(monotonic_ns) + i128::from(self.offset_ns);
+        let sec = t.div_euclid(1_000_000_000);
+        let nanosec = t.rem_euclid(1_000_000_000);
+        match (i32::try_from(sec), u32::try_from(nanosec)) {
+            (Ok(sec), Ok(nanosec)) if sec >= 0 => Ok(Time { sec, nanosec }),
+            _ => Err(ConvertError::StampOutOfRange(t)),
+        }
+    }
+}
+
+/// CLOCK_REALTIME now, ns since 1970 (0 when the clock is before 1970).
+fn realtime_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+}
+
+/// The frame ids of the messages (from `[ros2]`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Frames {
+    /// Parent of the pose and `/tf` (`map`).
+    pub frame_id: String,
+    /// The body (`base_link`).
+    pub child_frame_id: String,
+    /// The IMU messages' frame.
+    pub imu_frame_id: String,
+}
+
+impl Default for Frames {
+    fn default() -> Self {
+        Self {
+            frame_id: "map".into(),
+            child_frame_id: "base_link".into(),
+            imu_frame_id: "base_link".into(),
+        }
+    }
+}
+
+fn finite(field: &'static str, v: &[f64]) -> Result<(), ConvertError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(ConvertError::NotFinite(field))
+    }
+}
+
+/// insuwb's `[w, x, y, z]`, normalised, in ROS order.
+///
+/// # Errors
+/// [`ConvertError::NotFinite`], or [`ConvertError::BadQuaternion`] when its
+/// norm is not within 1e-3 of 1.
+pub fn quaternion(q: &[f64; 4]) -> Result<Quaternion, ConvertError> {
+    finite("quat", q)?;
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if (n - 1.0).abs() > 1e-3 {
+        return Err(ConvertError::BadQuaternion(n));
+    }
+    Ok(Quaternion {
+        x: q[1] / n,
+        y: q[2] / n,
+        z: q[3] / n,
+        w: q[0] / n,
+    })
+}
+
+/// The rotation matrix (body to ENU) of a ROS quaternion.
+fn rotation(q: &Quaternion) -> [[f64; 3]; 3] {
+    let (w, x, y, z) = (q.w, q.x, q.y, q.z);
+    [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ]
+}
+
+/// `Rᵀ v`: an ENU vector in the body frame.
+fn to_body(r: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for (j, o) in out.iter_mut().enumerate() {
+        *o = (0..3).map(|i| r[i][j] * v[i]).sum();
+    }
+    out
+}
+
+/// `Rᵀ C R`: an ENU covariance in the body frame.
+fn cov_to_body(r: &[[f64; 3]; 3], c: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let mut out = [[0.0; 3]; 3];
+    for (a, row) in out.iter_mut().enumerate() {
+        for (b, o) in row.iter_mut().enumerate() {
+            let mut s = 0.0;
+            for i in 0..3 {
+                for j in 0..3 {
+                    s += r[i][a] * c[i][j] * r[j][b];
+                }
+            }
+            *o = s;
+        }
+    }
+    out
+}
+
+/// A 6 x 6 covariance with `block` in the top-left 3 x 3 and
+/// [`UNKNOWN_VARIANCE`] on the rest of the diagonal.
+fn cov6(block: &[[f64; 3]; 3]) -> Cov6 {
+    let mut c = [0.0; 36];
+    for i in 0..3 {
+        for j in 0..3 {
+            c[i * 6 + j] = block[i][j];
+        }
+        c[(i + 3) * 6 + i + 3] = UNKNOWN_VARIANCE;
+    }
+    Cov6(c)
+}
+
+/// `nav_msgs/Odometry` of a fused state: position and attitude in
+/// `frame_id` with the position block of the fused covariance (rotation
+/// rows unknown), velocity rotated into `child_frame_id` with its
+/// covariance (angular rows unknown, angular velocity 0).
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite field, a quaternion that is not a
+/// rotation, or a stamp out of range.
+pub fn fused_to_odometry(
+    s: &FusedState,
+    frames: &Frames,
+    clock: &ClockOffset,
+) -> Result<Odometry, ConvertError> {
+    finite("pos_m", &s.pos_m)?;
+    finite("vel_mps", &s.vel_mps)?;
+    finite("cov", s.cov.as_flattened())?;
+    let q = quaternion(&s.quat)?;
+    let r = rotation(&q);
+    let mut pos_cov = [[0.0; 3]; 3];
+    let mut vel_cov = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            pos_cov[i][j] = s.cov[i][j];
+            vel_cov[i][j] = s.cov[i + 3][j + 3];
+        }
+    }
+    let v = to_body(&r, &s.vel_mps);
+    Ok(Odometry {
+        header: Header {
+            stamp: clock.stamp(s.header.meas_time_ns)?,
+            frame_id: frames.frame_id.clone(),
+        },
+        child_frame_id: frames.child_frame_id.clone(),
+        pose: PoseWithCovariance {
+            pose: Pose {
+                position: Point {
+                    x: s.pos_m[0],
+                    y: s.pos_m[1],
+                    z: s.pos_m[2],
+                },
+                orientation: q,
+            },
+            covariance: cov6(&pos_cov),
+        },
+        twist: TwistWithCovariance {
+            twist: Twist {
+                linear: Vector3 {
+                    x: v[0],
+                    y: v[1],
+                    z: v[2],
+                },
+                angular: Vector3::default(),
+            },
+            covariance: cov6(&cov_to_body(&r, &vel_cov)),
+        },
+    })
+}
+
+/// `frame_id -> child_frame_id` on `/tf` from a fused state.
+///
+/// # Errors
+/// As [`fused_to_odometry`].
+pub fn fused_to_transform(
+    s: &FusedState,
+    frames: &Frames,
+    clock: &ClockOffset,
+) -> Result<TransformStamped, ConvertError> {
+    finite("pos_m", &s.pos_m)?;
+    Ok(TransformStamped {
+        header: Header {
+            stamp: clock.stamp(s.header.meas_time_ns)?,
+            frame_id: frames.frame_id.clone(),
+        },
+        child_frame_id: frames.child_frame_id.clone(),
+        transform: Transform {
+            translation: Vector3 {
+                x: s.pos_m[0],
+                y: s.pos_m[1],
+                z: s.pos_m[2],
+            },
+            rotation: quaternion(&s.quat)?,
+        },
+    })
+}
+
+/// A fixed transform `parent -> child` (translation only) for `/tf_static`.
+///
+/// # Errors
+/// [`ConvertError::NotFinite`] for a non-finite offset.
+pub fn static_transform(
+    parent: &str,
+    child: &str,
+    offset_m: [f64; 3],
+    stamp: Time,
+) -> Result<TransformStamped, ConvertError> {
+    finite("offset_m", &offset_m)?;
+    Ok(TransformStamped {
+        header: Header {
+            stamp,
+            frame_id: parent.to_owned(),
+        },
+        child_frame_id: child.to_owned(),
+        transform: Transform {
+            translation: Vector3 {
+                x: offset_m[0],
+                y: offset_m[1],
+                z: offset_m[2],
+            },
+            rotation: Quaternion::default(),
+        },
+    })
+}
+
+/// `sensor_msgs/Imu` of an IMU sample (body frame, specific force): no
+/// orientation (`orientation_covariance[0] = -1`), covariances unknown.
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite value or a stamp out of range.
+pub fn imu_to_ros(
+    s: &ImuSample,
+    frames: &Frames,
+    clock: &ClockOffset,
+) -> Result<Imu, ConvertError> {
+    finite("accel_mps2", &s.accel_mps2)?;
+    finite("gyro_rps", &s.gyro_rps)?;
+    let mut orientation_covariance = [0.0; 9];
+    orientation_covariance[0] = -1.0;
+    Ok(Imu {
+        header: Header {
+            stamp: clock.stamp(s.header.meas_time_ns)?,
+            frame_id: frames.imu_frame_id.clone(),
+        },
+        orientation: Quaternion::default(),
+        orientation_covariance,
+        angular_velocity: Vector3 {
+            x: s.gyro_rps[0],
+            y: s.gyro_rps[1],
+            z: s.gyro_rps[2],
+        },
+        angular_velocity_covariance: [0.0; 9],
+        linear_acceleration: Vector3 {
+            x: s.accel_mps2[0],
+            y: s.accel_mps2[1],
+            z: s.accel_mps2[2],
+        },
+        linear_acceleration_covariance: [0.0; 9],
+    })
+}
+
+/// What the bridge knows of one stage from its heartbeats.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StageSeen {
+    /// The last heartbeat.
+    pub last: Health,
+    /// When it was published or, without a publish time, arrived
+    /// (CLOCK_MONOTONIC ns).
+    pub last_rx_ns: u64,
+    /// Received and published samples per second between the last two
+    /// heartbeats of the same process.
+    pub rates_hz: Option<(f64, f64)>,
+}
+
+impl StageSeen {
+    /// The first heartbeat of a stage.
+    #[must_use]
+    pub fn new(h: Health, rx_ns: u64) -> Self {
+        Self {
+            last: h,
+            last_rx_ns: rx_ns,
+            rates_hz: None,
+        }
+    }
+
+    /// Takes a newer heartbeat, updating the rates (a new process starts
+    /// them again).
+    pub fn note(&mut self, h: Health, rx_ns: u64) {
+        let dt = h
+            .header
+            .meas_time_ns
+            .saturating_sub(self.last.header.meas_time_ns) as f64
+            * 1e-9;
+        self.rates_hz = (h.pid == self.last.pid && dt > 0.0).then(|| {
+            (
+                h.received.saturating_sub(self.last.received) as f64 / dt,
+                h.published.saturating_sub(self.last.published) as f64 / dt,
+            )
+        });
+        self.last = h;
+        self.last_rx_ns = rx_ns;
+    }
+}
+
+/// The `diagnostic_msgs/DiagnosticStatus` of stage `stage` (named
+/// `insuwb/<stage>`): ERROR when no heartbeat ever came, when the last is
+/// older than `stale_after_ns`, or says stopping or disconnected; WARN when
+/// it says degraded or `coasting` (the fusion stage's last output was
+/// flagged degraded or stale); OK otherwise. The key-values are the
+/// heartbeat's counters, its rates, its age and the stage's restarts.
+#[must_use]
+pub fn stage_status(
+    stage: &str,
+    hardware_id: &str,
+    seen: Option<&StageSeen>,
+    coasting: bool,
+    now_ns: u64,
+    stale_after_ns: u64,
+) -> DiagnosticStatus {
+    let name = format!("insuwb/{stage}");
+    let Some(s) = seen else {
+        return DiagnosticStatus {
+            level: DiagnosticStatus::ERROR,
+            name,
+            message: "down: no heartbeat received".into(),
+            hardware_id: hardware_id.to_owned(),
+            values: Vec::new(),
+        };
+    };
+    let h = &s.last;
+    let age_ns = now_ns.saturating_sub(s.last_rx_ns);
+    let (level, message) = if age_ns > stale_after_ns {
+        (
+            DiagnosticStatus::ERROR,
+            format!("stale: last heartbeat {:.1} s ago", age_ns as f64 * 1e-9),
+        )
+    } else {
+        match h.state {
+            Health::STATE_STOPPING => (DiagnosticStatus::ERROR, "down: stopping".to_owned()),
+            Health::STATE_DISCONNECTED => {
+                (DiagnosticStatus::ERROR, "input disconnected".to_owned())
+            }
+            Health::STATE_DEGRADED => (DiagnosticStatus::WARN, "degraded".to_owned()),
+            _ if coasting => (
+                DiagnosticStatus::WARN,
+                "coasting: no UWB update, INS only".to_owned(),
+            ),
+            Health::STATE_OK => (DiagnosticStatus::OK, "ok".to_owned()),
+            other => (DiagnosticStatus::WARN, format!("unknown state {other}")),
+        }
+    };
+    let kv = |k: &str, v: String| KeyValue {
+        key: k.to_owned(),
+        value: v,
+    };
+    let mut values = vec![
+        kv("stage", name_str(&h.stage)),
+        kv("pid", h.pid.to_string()),
+        kv("restarts", h.header.generation.to_string()),
+        kv("heartbeat_age_s", format!("{:.3}", age_ns as f64 * 1e-9)),
+        kv("received", h.received.to_string()),
+        kv("published", h.published.to_string()),
+    ];
+    if let Some((rx, tx)) = s.rates_hz {
+        values.push(kv("received_rate_hz", format!("{rx:.2}")));
+        values.push(kv("published_rate_hz", format!("{tx:.2}")));
+    }
+    values.extend([
+        kv("dropped_version", h.dropped_version.to_string()),
+        kv("dropped_invalid", h.dropped_invalid.to_string()),
+        kv("dropped_time", h.dropped_time.to_string()),
+        kv("seq_gaps", h.seq_gaps.to_string()),
+    ]);
+    for (i, e) in h.extra.iter().enumerate() {
+        values.push(kv(&format!("extra_{i}"), e.to_string()));
+    }
+    DiagnosticStatus {
+        level,
+        name,
+        message,
+        hardware_id: hardware_id.to_owned(),
+        values,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use insuwb_msg::{fixed_name, Header as MsgHeader};
+
+    /// Yaw of `a` rad about z as insuwb's `[w, x, y, z]`.
+    fn yaw(a: f64) -> [f64; 4] {
+        [(a / 2.0).cos(), 0.0, 0.0, (a / 2.0).sin()]
+    }
+
+    fn fused() -> FusedState {
+        let mut s = FusedState {
+            header: MsgHeader::new(4, 12_345_678_901),
+            pos_m: [1.5, -2.0, 0.25],
+            vel_mps: [0.0, 2.0, 0.1],
+            quat: yaw(std::f64::consts::FRAC_PI_2),
+            ..FusedState::default()
+        };
+        for i in 0..6 {
+            for j in 0..6 {
+                s.cov[i][j] = (10 * i + j) as f64 * 1e-3;
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn quaternion_order_is_x_y_z_w() {
+        let q = quaternion(&[0.5, 0.5, -0.5, 0.5]).unwrap();
+        assert_eq!((q.x, q.y, q.z, q.w), (0.5, -0.5, 0.5, 0.5));
+        assert!(matches!(
+            quaternion(&[0.0; 4]),
+            Err(ConvertError::BadQuaternion(_))
+        ));
+        assert!(matches!(
+            quaternion(&[f64::NAN, 0.0, 0.0, 1.0]),
+            Err(ConvertError::NotFinite("quat"))
+        ));
+    }
+
+    #[test]
+    fn pose_covariance_is_the_position_block_with_rotation_unknown() {
+        let s = fused();
+        let o = fused_to_odometry(&s, &Frames::default(), &ClockOffset::ZERO).unwrap();
+        let c = &o.pose.covariance;
+        for i in 0..6 {
+            for j in 0..6 {
+                let want = match (i < 3, j < 3) {
+                    (true, true) => s.cov[i][j],
+                    _ if i == j => UNKNOWN_VARIANCE,
+                    _ => 0.0,
+                };
+                assert_eq!(c.at(i, j), want, "({i}, {j})");
+            }
+        }
+        // Row-major: entry (0, 1) is index 1, (1, 0) index 6.
+        assert_eq!(c.0[1], s.cov[0][1]);
+        assert_eq!(c.0[6], s.cov[1][0]);
+    }
+
+    #[test]
+    fn twist_is_in_the_body_frame() {
+        // Facing north (yaw 90 deg), moving north at 2 m/s: forward 2 m/s.
+        let mut s = fused();
+        s.cov = [[0.0; 6]; 6];
+        s.cov[3][3] = 0.04; // east
+        s.cov[4][4] = 0.09; // north
+        s.cov[5][5] = 0.01;
+        let o = fused_to_odometry(&s, &Frames::default(), &ClockOffset::ZERO).unwrap();
+        let v = o.twist.twist.linear;
+        assert!((v.x - 2.0).abs() < 1e-12 && v.y.abs() < 1e-12 && (v.z - 0.1).abs() < 1e-12);
+        let c = &o.twist.covariance;
+        // Body x is north, body y is west.
+        assert!((c.at(0, 0) - 0.09).abs() < 1e-12);
+        assert!((c.at(1, 1) - 0.04).abs() < 1e-12);
+        assert!((c.at(2, 2) - 0.01).abs() < 1e-12);
+        assert_eq!(c.at(3, 3), UNKNOWN_VARIANCE);
+        assert_eq!(c.at(5, 5), UNKNOWN_VARIANCE);
+        assert_eq!(o.twist.twist.angular, Vector3::default());
+    }
+
+    #[test]
+    fn frames_and_stamps_come_from_config_and_header() {
+        let s = fused();
+        let frames = Frames {
+            frame_id: "odom".into(),
+            child_frame_id: "base_footprint".into(),
+            imu_frame_id: "imu_link".into(),
+        };
+        let clock = ClockOffset {
+            offset_ns: 1_700_000_000_000_000_000,
+        };
+        let o = fused_to_odometry(&s, &frames, &clock).unwrap();
+        assert_eq!(o.header.frame_id, "odom");
+        assert_eq!(o.child_frame_id, "base_footprint");
+        assert_eq!(o.header.stamp.sec, 1_700_000_012);
+        assert_eq!(o.header.stamp.nanosec, 345_678_901);
+        let t = fused_to_transform(&s, &frames, &clock).unwrap();
+        assert_eq!(
+            (t.header.frame_id.as_str(), t.child_frame_id.as_str()),
+            ("odom", "base_footprint")
+        );
+        assert_eq!(t.transform.translation.x, 1.5);
+        assert_eq!(t.transform.rotation, o.pose.pose.orientation);
+        assert_eq!(t.header.stamp, o.header.stamp);
+        let imu = ImuSample {
+            header: MsgHeader::new(1, 2_000_000_000),
+            accel_mps2: [0.1, 0.2, 9.81],
+            gyro_rps: [0.01, 0.02, 0.03],
+        };
+        let m = imu_to_ros(&imu, &frames, &ClockOffset::ZERO).unwrap();
+        assert_eq!(m.header.frame_id, "imu_link");
+        assert_eq!((m.header.stamp.sec, m.header.stamp.nanosec), (2, 0));
+        assert_eq!(m.orientation_covariance[0], -1.0);
+        assert_eq!(m.linear_acceleration.z, 9.81);
+        assert_eq!(m.angular_velocity.y, 0.02);
+    }
+
+    #[test]
+    fn bad_inputs_are_errors_not_panics() {
+        let mut s = fused();
+        s.pos_m[1] = f64::INFINITY;
+        assert_eq!(
+            fused_to_odometry(&s, &Frames::default(), &ClockOffset::ZERO),
+            Err(ConvertError::NotFinite("pos_m"))
+        );
+        let s = fused();
+        let far = ClockOffset {
+            offset_ns: i64::MAX,
+        };
+        assert!(matches!(
+            fused_to_odometry(&s, &Frames::default(), &far),
+            Err(ConvertError::StampOutOfRange(_))
+        ));
+        let before = ClockOffset {
+            offset_ns: -20_000_000_000,
+        };
+        assert!(before.stamp(1).is_err());
+    }
+
+    #[test]
+    fn realtime_offset_maps_now_to_now() {
+        let off = ClockOffset::measure(StampClock::Realtime);
+        let t = off.stamp(insuwb_runtime::monotonic_ns()).unwrap();
+        let real = realtime_ns();
+        let stamp = i64::from(t.sec) * 1_000_000_000 + i64::from(t.nanosec);
+        assert!((real - stamp).abs() < 50_000_000, "{real} vs {stamp}");
+        assert_eq!(
+            ClockOffset::measure(StampClock::Monotonic),
+            ClockOffset::ZERO
+        );
+    }
+
+    #[test]
+    fn health_levels_follow_state_age_and_coasting() {
+        let mut h = Health {
+            header: MsgHeader::new(0, 1_000_000_000),
+            stage: fixed_name("fusion"),
+            pid: 42,
+            state: Health::STATE_OK,
+            received: 100,
+            published: 10,
+            ..Health::default()
+        };
+        h.header.generation = 2;
+        let mut seen = StageSeen::new(h, 1_000_000_000);
+        h.header.meas_time_ns = 1_200_000_000;
+        h.received = 120;
+        h.published = 12;
+        seen.note(h, 1_200_000_000);
+        let st = |seen: Option<&StageSeen>, coasting, now| {
+            stage_status("fusion", "robot", seen, coasting, now, 1_000_000_000)
+        };
+        let ok = st(Some(&seen), false, 1_300_000_000);
+        assert_eq!(ok.level, DiagnosticStatus::OK);
+        assert_eq!(ok.name, "insuwb/fusion");
+        assert_eq!(ok.hardware_id, "robot");
+        let get = |s: &DiagnosticStatus, k: &str| {
+            s.values
+                .iter()
+                .find(|v| v.key == k)
+                .map(|v| v.value.clone())
+        };
+        assert_eq!(get(&ok, "restarts").as_deref(), Some("2"));
+        assert_eq!(get(&ok, "received_rate_hz").as_deref(), Some("100.00"));
+        assert_eq!(get(&ok, "published_rate_hz").as_deref(), Some("10.00"));
+        assert_eq!(
+            st(Some(&seen), true, 1_300_000_000).level,
+            DiagnosticStatus::WARN
+        );
+        assert_eq!(
+            st(Some(&seen), false, 2_300_000_000).level,
+            DiagnosticStatus::ERROR
+        );
+        assert_eq!(st(None, false, 0).level, DiagnosticStatus::ERROR);
+        for (state, level) in [
+            (Health::STATE_DEGRADED, DiagnosticStatus::WARN),
+            (Health::STATE_DISCONNECTED, DiagnosticStatus::ERROR),
+            (Health::STATE_STOPPING, DiagnosticStatus::ERROR),
+        ] {
+            let mut s = seen;
+            s.last.state = state;
+            assert_eq!(st(Some(&s), false, 1_300_000_000).level, level);
+        }
+        // A new process: no rate until its second heartbeat.
+        h.pid = 43;
+        seen.note(h, 1_400_000_000);
+        assert_eq!(seen.rates_hz, None);
+    }
+}

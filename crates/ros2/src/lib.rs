@@ -1,0 +1,30 @@
+//! The ROS 2 bridge of insuwb: the fused pose, the IMU samples and the
+//! stages' health as ROS 2 topics, with no ROS installation.
+//!
+//! - [`msgs`]: the ROS 2 messages (serde structs in `.msg` field order),
+//!   their type names and `ros2msg` definitions;
+//! - [`convert`]: pure conversions from insuwb samples (stamps, frames,
+//!   covariance layout, quaternion order, diagnostics levels);
+//! - [`config`]: the `[ros2]` table of the robot config;
+//! - `bridge` (feature `dds`, on by default through `jazzy`): the stage's
+//!   loop, iceoryx2 in, DDS out through `ros2-client` (RustDDS). Feature
+//!   `humble` (without the default features) builds it for ROS 2 Humble.
+//!
+//! ```
+//! use insuwb_msg::{FusedState, Header};
+//! use insuwb_ros2::convert::{fused_to_odometry, ClockOffset, Frames};
+//! use insuwb_ros2::msgs::{Odometry, RosMessage};
+//! let s = FusedState { header: Header::new(0, 1_000_000_000), quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
+//! let odom = fused_to_odometry(&s, &Frames::default(), &ClockOffset::ZERO).unwrap();
+//! assert_eq!((odom.header.frame_id.as_str(), odom.child_frame_id.as_str()), ("map", "base_link"));
+//! assert_eq!(Odometry::dds_type_name(), "nav_msgs::msg::dds_::Odometry_");
+//! ```
+#![warn(missing_docs)]
+
+#[cfg(feature = "dds")]
+pub mod bridge;
+pub mod config;
+pub mod convert;
+pub mod msgs;
+
+pub use config::{Ros2Config, Ros2ConfigError};
