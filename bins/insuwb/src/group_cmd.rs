@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use insuwb_devices::emulator::{DeviceSink, Faults, PlayReport, Player, PtyEmulator, TcpEmulator};
 use insuwb_devices::Protocol;
 use insuwb_launch::{Event, StageSpec, Supervisor, SupervisorState};
-use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, UwbFix};
+use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, StageRole, UwbFix};
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
 use insuwb_stage::group::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
 
@@ -329,7 +329,10 @@ pub fn run_group_with(
             last_live = now;
             let (upd, p) = mon.live();
             let c = (mon.imu.n(), mon.fixes.n(), upd);
-            let outliers: u64 = mon.health.get("fusion").map_or(0, |h| h.extra[1]);
+            let outliers: u64 = mon
+                .health
+                .get(StageRole::Fusion.name())
+                .map_or(0, |h| h.extra[1]);
             eprintln!(
                 "[{:5.1} s] imu {:6.1} Hz  uwb {:5.1} Hz  fused {:5.1} Hz  pos ({:6.2}, {:6.2})  outliers {outliers}  restarts {}",
                 now.duration_since(t0).as_secs_f64(),
@@ -359,7 +362,10 @@ pub fn run_group_with(
     sup.shutdown(&order);
     let restarts = sup.total_restarts();
     let mut report = summarise(&mut mon, restarts, elapsed);
-    for (stage, src) in [("imu", &cfg.sources.imu), ("uwb", &cfg.sources.uwb)] {
+    for (stage, src) in [
+        (StageRole::Imu.name(), &cfg.sources.imu),
+        (StageRole::Uwb.name(), &cfg.sources.uwb),
+    ] {
         if src == "device" {
             if let Some(f) = report.stages.get_mut(stage) {
                 (f.clock_offset_ns, f.clock_drift_ppb) =
@@ -390,7 +396,10 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         .values()
         .map(|h| h.dropped_invalid + h.dropped_time + h.dropped_version)
         .sum::<u64>()
-        + mon.health.get("logger").map_or(0, |h| h.extra[1]);
+        + mon
+            .health
+            .get(StageRole::Logger.name())
+            .map_or(0, |h| h.extra[1]);
     GroupReport {
         rmse_horizontal: fig.rmse_horizontal,
         rmse_states: fig.compared,
@@ -401,7 +410,10 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         latency_p50_us: fig.latency_p50_us,
         latency_p99_us: fig.latency_p99_us,
         dropped,
-        outliers: mon.health.get("fusion").map_or(0, |h| h.extra[1]),
+        outliers: mon
+            .health
+            .get(StageRole::Fusion.name())
+            .map_or(0, |h| h.extra[1]),
         degraded: fig.degraded,
         max_gap_ms: fig.max_gap_ms,
         duration_s: elapsed,
@@ -483,7 +495,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 20.0)]
     pub duration: f64,
     /// Filter (kf, shaf, stf, iakf, iakf_tdoa).
-    #[arg(long, default_value = "iakf")]
+    #[arg(long, default_value_t = insuwb_msg::FilterKind::Iakf)]
     pub filter: insuwb_msg::FilterKind,
     /// Print one JSON object on standard output.
     #[arg(long)]

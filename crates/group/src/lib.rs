@@ -8,4 +8,4 @@
 pub mod recording;
 pub mod scenario;
 
-pub use scenario::{ScenarioError, ScenarioFile};
+pub use scenario::{fusion_table, ScenarioError, ScenarioFile};

@@ -17,7 +17,6 @@
 
 use std::path::Path;
 
-use insuwb_fusion::config::FusionConfig;
 use insuwb_log::Record;
 use insuwb_msg::{GroundTruth, ImuSample, UwbFix, UwbTdoa};
 use insuwb_uwb::fix::{FixBuilder, FixConfig, FixConfigError};
@@ -128,7 +127,11 @@ pub fn from_log(path: &Path) -> Result<Recording, LoadError> {
         tracing::warn!("{}: {t}", path.display());
     }
     let fix_cfg = match header.meta.entries.get("fusion_config") {
-        Some(text) => fusion_of_toml(text).map_err(log_err)?.fix,
+        Some(text) => {
+            crate::fusion_table(text, &path.display().to_string())
+                .map_err(|e| log_err(e.to_string()))?
+                .fix
+        }
         None => FixConfig::default(),
     };
     let mut rec = Recording {
@@ -178,22 +181,6 @@ pub fn from_log(path: &Path) -> Result<Recording, LoadError> {
         fixes_from_tdoa(&tdoa, &fix_cfg)?
     };
     Ok(rec)
-}
-
-/// The `[fusion]` table of a TOML text (other tables ignored).
-fn fusion_of_toml(text: &str) -> Result<FusionConfig, String> {
-    #[derive(serde::Deserialize)]
-    struct Wrap {
-        #[serde(default)]
-        fusion: FusionConfig,
-    }
-    let table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
-    let mut t = toml::Table::new();
-    if let Some(f) = table.get("fusion") {
-        t.insert("fusion".into(), f.clone());
-    }
-    let w: Wrap = t.try_into().map_err(|e: toml::de::Error| e.to_string())?;
-    Ok(w.fusion)
 }
 
 #[cfg(test)]

@@ -96,3 +96,41 @@ impl ScenarioFile {
         Ok(insuwb_sim::simulate(&self.sim, seed)?)
     }
 }
+
+/// The `[fusion]` table of a config text (a robot's fusion file, a log's
+/// `fusion_config` metadata), every other table ignored; defaults where it
+/// has none.
+///
+/// # Errors
+/// [`insuwb_config::ConfigError`] naming `origin`, the key and the line.
+pub fn fusion_table(text: &str, origin: &str) -> Result<FusionConfig, insuwb_config::ConfigError> {
+    #[derive(Deserialize)]
+    struct FusionOnly {
+        #[serde(default)]
+        fusion: FusionConfig,
+    }
+    Ok(insuwb_config::load_str::<FusionOnly>(text, origin)?.fusion)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_fusion_table_alone_is_read_and_its_errors_name_file_and_key() {
+        let text = "[sim]\nname = \"x\"\n[other]\nanything = 1\n[fusion.fix]\nperiod_s = 0.2\n";
+        let f = fusion_table(text, "f.toml");
+        assert!(
+            matches!(&f, Ok(c) if (c.fix.period_s - 0.2).abs() < 1e-12),
+            "{f:?}"
+        );
+        assert!(matches!(fusion_table("[sim]\n", "f.toml"), Ok(c) if c == FusionConfig::default()));
+        let bad = fusion_table("[fusion.fix]\nperiod_z = 0.2\n", "f.toml");
+        let msg = bad
+            .map(|_| ())
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(msg.contains("f.toml") && msg.contains("period_z"), "{msg}");
+    }
+}

@@ -500,36 +500,19 @@ impl RobotConfig {
     }
 
     fn fusion_config_file(&self) -> Result<FusionConfig> {
-        #[derive(Deserialize)]
-        struct Wrap {
-            #[serde(default)]
-            fusion: FusionConfig,
-        }
         if !self.fusion.config.is_empty() {
             let text = std::fs::read_to_string(&self.fusion.config)
                 .with_context(|| format!("{}: cannot read", self.fusion.config))?;
             // Only the [fusion] table matters here; other tables are the file's business.
-            let table: toml::Table = insuwb_config::load_str(&text, &self.fusion.config)?;
-            let mut t = toml::Table::new();
-            if let Some(f) = table.get("fusion") {
-                t.insert("fusion".into(), f.clone());
-            }
-            let w: Wrap = insuwb_config::load_str(&toml::to_string(&t)?, &self.fusion.config)?;
-            return Ok(w.fusion);
+            return Ok(insuwb_group::fusion_table(&text, &self.fusion.config)?);
         }
         if let Some(file) = self.sources.imu.strip_prefix("replay:") {
             let (_, _, header) =
                 insuwb_log::read_all(file).with_context(|| format!("{file}: cannot read"))?;
-            if let Some(text) = header.meta.entries.get("fusion_config") {
-                let table: toml::Table = insuwb_config::load_str(text, file)?;
-                let mut t = toml::Table::new();
-                if let Some(f) = table.get("fusion") {
-                    t.insert("fusion".into(), f.clone());
-                }
-                let w: Wrap = insuwb_config::load_str(&toml::to_string(&t)?, file)?;
-                return Ok(w.fusion);
-            }
-            return Ok(FusionConfig::default());
+            return Ok(match header.meta.entries.get("fusion_config") {
+                Some(text) => insuwb_group::fusion_table(text, file)?,
+                None => FusionConfig::default(),
+            });
         }
         let sc = insuwb_group::ScenarioFile::load(&self.sources.scenario)?;
         Ok(sc.fusion_for_seed(self.sources.seed)?)
