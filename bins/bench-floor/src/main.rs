@@ -1,4 +1,4 @@
-//! `insuwb-floor`: one process of the latency benchmark's floor graph (a
+//! `insuwb-bench-floor`: one process of the latency benchmark's floor graph (a
 //! thin `main` over `insuwb_bench::floor`; normally started by
 //! `insuwb bench latency`). It forwards samples with bare iceoryx2 through
 //! the runtime's ports, with no maths and no logging, until SIGINT/SIGTERM.
@@ -11,7 +11,7 @@ use insuwb_bench::floor::{run_role, FloorConfig, Role};
 
 /// One role of the floor graph of `insuwb bench latency`.
 #[derive(Debug, Parser)]
-#[command(name = "insuwb-floor", version, about)]
+#[command(name = "insuwb-bench-floor", version, about)]
 struct Args {
     /// Role: imu, uwb, ins, fusion or logger.
     #[arg(long)]

@@ -3,7 +3,7 @@ use std::process::Command;
 
 #[test]
 fn help_lists_the_flags() {
-    let out = Command::new(env!("CARGO_BIN_EXE_insuwb-floor"))
+    let out = Command::new(env!("CARGO_BIN_EXE_insuwb-bench-floor"))
         .arg("--help")
         .output()
         .unwrap();
@@ -22,14 +22,14 @@ fn help_lists_the_flags() {
 
 #[test]
 fn an_unknown_role_and_a_bad_rate_are_refused_by_name() {
-    let out = Command::new(env!("CARGO_BIN_EXE_insuwb-floor"))
+    let out = Command::new(env!("CARGO_BIN_EXE_insuwb-bench-floor"))
         .args(["--role", "gps"])
         .output()
         .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("gps"), "{err}");
-    let out = Command::new(env!("CARGO_BIN_EXE_insuwb-floor"))
+    let out = Command::new(env!("CARGO_BIN_EXE_insuwb-bench-floor"))
         .args(["--role", "imu", "--imu-rate-hz", "0"])
         .output()
         .unwrap();

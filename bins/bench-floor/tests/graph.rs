@@ -1,4 +1,4 @@
-//! The floor graph with real processes: five `insuwb-floor` roles over
+//! The floor graph with real processes: five `insuwb-bench-floor` roles over
 //! iceoryx2 shared memory for a few seconds, then its recording checked.
 
 use std::time::Duration;
@@ -14,7 +14,7 @@ fn the_floor_forwards_every_fix_with_the_ins_state_covering_its_epoch() {
     let _ = std::fs::remove_dir_all(&run_dir);
     let prefix = format!("iufloortest{id}_");
     let run = run_floor_graph(&FloorGraphOptions {
-        program: env!("CARGO_BIN_EXE_insuwb-floor").into(),
+        program: env!("CARGO_BIN_EXE_insuwb-bench-floor").into(),
         run_dir: run_dir.clone(),
         prefix: prefix.clone(),
         duration: Duration::from_secs(8),

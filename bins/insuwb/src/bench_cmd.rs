@@ -1,6 +1,6 @@
 //! `insuwb bench latency`: the latency of the 10 Hz loop against bare iceoryx2.
 //!
-//! In one run: the floor (`insuwb-floor`, the same process graph with bare
+//! In one run: the floor (`insuwb-bench-floor`, the same process graph with bare
 //! forwarding processes: same payloads, rates, wake-ups and waiting rule at
 //! the fusion node, no maths, no logging) and the real group on simulated
 //! sensors (scenario nlos-long, real time), alternating in `--rounds`
@@ -232,7 +232,7 @@ fn measure(
             if floor_turn {
                 // The floor: bare forwarding processes.
                 let floor = run_floor_graph(&FloorGraphOptions {
-                    program: program_beside("insuwb-floor")?,
+                    program: program_beside("insuwb-bench-floor")?,
                     run_dir: base.join(format!("floor{round}")),
                     prefix: format!("insuwb_bfl{id}r{round}_"),
                     duration,
@@ -387,7 +387,8 @@ fn mean_cpu(rounds: &[Vec<(String, f64)>]) -> Vec<(String, f64)> {
         .collect()
 }
 
-/// Samples the CPU time of this process's stage children (`insuwb-*`) at
+/// Samples the CPU time of this process's stage children (by their process
+/// names, [`insuwb_msg::StageRole::process_name`]) at
 /// `from` and `to` after now; returns percent of one core per stage name.
 fn spawn_cpu_sampler(from: Duration, to: Duration) -> std::thread::JoinHandle<Vec<(String, f64)>> {
     std::thread::spawn(move || {
@@ -395,7 +396,10 @@ fn spawn_cpu_sampler(from: Duration, to: Duration) -> std::thread::JoinHandle<Ve
         let stages = || -> Vec<(String, u32)> {
             insuwb_bench::cpu::children(std::process::id())
                 .into_iter()
-                .filter_map(|(pid, comm)| Some((comm.strip_prefix("insuwb-")?.to_owned(), pid)))
+                .filter_map(|(pid, comm)| {
+                    let role = insuwb_msg::StageRole::from_process_name(&comm)?;
+                    Some((role.name().to_owned(), pid))
+                })
                 .collect()
         };
         std::thread::sleep(from);

@@ -21,13 +21,13 @@ mod libc_sig {
     pub const CONT: i32 = 18;
 }
 
-/// The stage binaries live next to this executable.
-fn stage_program(stage: &str) -> Result<PathBuf> {
+/// The stage binaries ([`StageRole::program`]) live next to this executable.
+fn stage_program(stage: StageRole) -> Result<PathBuf> {
     let exe = std::env::current_exe().context("locating the insuwb executable")?;
     let dir = exe
         .parent()
         .context("the insuwb executable has no folder")?;
-    let p = dir.join(format!("insuwb-{stage}"));
+    let p = dir.join(stage.program());
     if !p.is_file() {
         bail!(
             "stage binary {} not found (build the workspace: cargo build --release)",
@@ -221,7 +221,7 @@ pub fn run_group_with(
     let cfg_arg = cfg_path.display().to_string();
     let mut specs = Vec::new();
     for s in &cfg.stages {
-        let mut spec = StageSpec::new(s.name(), stage_program(s.name())?, &["--config", &cfg_arg]);
+        let mut spec = StageSpec::new(s.name(), stage_program(*s)?, &["--config", &cfg_arg]);
         spec.env
             .push((START_EPOCH_ENV.to_owned(), epoch.to_string()));
         spec.env.extend(opts.env.iter().cloned());

@@ -195,7 +195,7 @@ fn a_write_refused_at_run_time_stops_the_logger_with_a_clear_error() {
     let logger = run
         .processes()
         .into_iter()
-        .find(|(_, comm)| comm == "insuwb-logger")
+        .find(|(_, comm)| comm == insuwb_msg::StageRole::Logger.process_name())
         .map(|(pid, _)| pid)
         .expect("no logger process");
     // The disk "fills up" under the running logger: from now on it may not

@@ -19,11 +19,15 @@ fn rss_anon_kib(pid: u32) -> Option<u64> {
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
 }
 
-/// The launcher and its stage processes (its children), by name.
+/// The launcher and its stage processes (its children), by role name.
 fn group_processes(launcher: u32) -> BTreeMap<String, u32> {
     let mut out: BTreeMap<String, u32> = common::child_processes(launcher)
         .into_iter()
-        .map(|(pid, name)| (name, pid))
+        .map(|(pid, comm)| {
+            let name = insuwb_msg::StageRole::from_process_name(&comm)
+                .map_or(comm, |r| r.name().to_owned());
+            (name, pid)
+        })
         .collect();
     out.insert("launcher".to_owned(), launcher);
     out
@@ -108,14 +112,7 @@ fn resident_memory_stays_flat_over_a_long_run_at_full_speed() {
         states > 30.0 * run_s,
         "{states} states in {run_s} s at speed max: {v}"
     );
-    for name in [
-        "launcher",
-        "insuwb-imu",
-        "insuwb-uwb",
-        "insuwb-ins",
-        "insuwb-fusion",
-        "insuwb-logger",
-    ] {
+    for name in ["launcher", "imu", "uwb", "ins", "fusion", "logger"] {
         let (Some(a), Some(b)) = (start.get(name), end.get(name)) else {
             panic!("{name}: no memory figures (start {start:?}, end {end:?})");
         };

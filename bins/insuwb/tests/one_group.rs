@@ -19,6 +19,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{f, insuwb, one_at_a_time, run_bounded, Group};
+use insuwb_msg::StageRole;
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 3";
 /// Stages of a group.
@@ -185,9 +186,9 @@ fn a_stage_started_by_hand_beside_its_group_is_refused() {
     let mut launcher = start(&g, 10.0);
     wait_until_running(&g, &mut launcher);
     let bin_dir = insuwb().parent().unwrap().to_owned();
-    for role in ["ins", "fusion", "imu"] {
-        let running = child_pid(&launcher, &format!("insuwb-{role}"));
-        let program = bin_dir.join(format!("insuwb-{role}"));
+    for role in [StageRole::Ins, StageRole::Fusion, StageRole::Imu] {
+        let running = child_pid(&launcher, role.process_name());
+        let program = bin_dir.join(role.program());
         assert!(program.is_file(), "{} not built", program.display());
         let mut cmd = Command::new(program);
         cmd.arg("--config").arg(g.dir.join("robot.toml"));

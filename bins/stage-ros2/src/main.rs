@@ -1,4 +1,4 @@
-//! The insuwb ROS 2 bridge stage (`insuwb-ros2`): reads the robot config,
+//! The insuwb ROS 2 bridge stage (`insuwb-stage-ros2`): reads the robot config,
 //! takes the `ros2` role's lock, and runs `insuwb_ros2::bridge` (iceoryx2
 //! `fused`, `imu`, `health` in; ROS 2 topics out over DDS) until
 //! SIGINT/SIGTERM. Normally started by `insuwb launch` when `stages` lists

@@ -6,7 +6,7 @@
 
 use std::process::Command;
 
-const BIN: &str = env!("CARGO_BIN_EXE_insuwb-ros2");
+const BIN: &str = env!("CARGO_BIN_EXE_insuwb-stage-ros2");
 
 #[test]
 fn help_lists_the_config_flag() {

@@ -196,8 +196,8 @@ pub enum FloorError {
     #[error(transparent)]
     Trace(#[from] TraceError),
     /// The role has no floor stage (the ROS 2 bridge is its own binary,
-    /// `insuwb-ros2`, off the fix path).
-    #[error("the floor has no {0} stage: the ros2 stage is its own binary insuwb-ros2")]
+    /// `insuwb-stage-ros2`, off the fix path).
+    #[error("the floor has no {0} stage: the ros2 stage is its own binary insuwb-stage-ros2")]
     NoFloorStage(Role),
     /// The floor log could not be created or written.
     #[error("floor log {path}: {reason}")]

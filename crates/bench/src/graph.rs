@@ -1,4 +1,4 @@
-//! Running the floor graph: one `insuwb-floor` process per role under the
+//! Running the floor graph: one `insuwb-bench-floor` process per role under the
 //! launcher's supervisor (no restarts, no watchdog: a floor process that
 //! exits fails the run), for a fixed time, then an orderly SIGTERM shutdown
 //! in the pipeline's order; the floor logger's records and receive trace are
@@ -19,7 +19,7 @@ use crate::trace::{self, RecvStamp, TraceError};
 /// How to run the floor graph.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FloorGraphOptions {
-    /// The `insuwb-floor` program.
+    /// The `insuwb-bench-floor` program.
     pub program: PathBuf,
     /// Run folder (created): iceoryx2 root (`iox2`) and the logger's trace (`trace`).
     pub run_dir: PathBuf,
@@ -268,7 +268,7 @@ mod tests {
     #[test]
     fn a_missing_program_is_refused_by_path() {
         let e = run_floor_graph(&FloorGraphOptions {
-            program: "/nonexistent/insuwb-floor".into(),
+            program: "/nonexistent/insuwb-bench-floor".into(),
             run_dir: std::env::temp_dir().join("insuwb-bench-never"),
             prefix: "x_".into(),
             duration: Duration::from_secs(1),
@@ -276,6 +276,6 @@ mod tests {
             fifo_priority: None,
         })
         .unwrap_err();
-        assert!(e.to_string().contains("/nonexistent/insuwb-floor"), "{e}");
+        assert!(e.to_string().contains("/nonexistent/insuwb-bench-floor"), "{e}");
     }
 }

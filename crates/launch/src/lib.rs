@@ -18,8 +18,8 @@
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let stages = vec![
-//!     StageSpec::new("imu", "/usr/bin/insuwb-imu", &["--config", "robot.toml"]),
-//!     StageSpec::new("logger", "/usr/bin/insuwb-logger", &[]),
+//!     StageSpec::new("imu", "/usr/bin/insuwb-stage-imu", &["--config", "robot.toml"]),
+//!     StageSpec::new("logger", "/usr/bin/insuwb-stage-logger", &[]),
 //! ];
 //! let mut sup = Supervisor::new(RestartPolicy::default(), stages)?;
 //! sup.set_before_restart(Box::new(|stage| eprintln!("cleaning {stage}")));

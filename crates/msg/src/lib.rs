@@ -338,7 +338,8 @@ pub enum StageRole {
     Ins,
     /// The fusion filter.
     Fusion,
-    /// The ROS 2 bridge (binary `insuwb-ros2`, crate `insuwb-ros2`): optional.
+    /// The ROS 2 bridge (binary `insuwb-stage-ros2`, library `insuwb-ros2`):
+    /// optional.
     Ros2,
     /// The logger.
     Logger,
@@ -383,7 +384,42 @@ impl StageRole {
             Self::Logger => "logger",
         }
     }
+
+    /// The program of its process, in the folder of the `insuwb`
+    /// executable (and of its cargo package): `insuwb-stage-imu`,
+    /// `insuwb-stage-uwb`, `insuwb-stage-ins`, `insuwb-stage-fusion`,
+    /// `insuwb-stage-ros2`, `insuwb-stage-logger`.
+    #[must_use]
+    pub const fn program(self) -> &'static str {
+        match self {
+            Self::Imu => "insuwb-stage-imu",
+            Self::Uwb => "insuwb-stage-uwb",
+            Self::Ins => "insuwb-stage-ins",
+            Self::Fusion => "insuwb-stage-fusion",
+            Self::Ros2 => "insuwb-stage-ros2",
+            Self::Logger => "insuwb-stage-logger",
+        }
+    }
+
+    /// The name the kernel gives its process (`/proc/PID/comm`, `ps`,
+    /// `top`): the program's name cut to 15 bytes, e.g. `insuwb-stage-fu`,
+    /// distinct for every role.
+    #[must_use]
+    pub fn process_name(self) -> &'static str {
+        let p = self.program();
+        p.get(..COMM_LEN).unwrap_or(p)
+    }
+
+    /// The role whose process the kernel names `comm`
+    /// ([`StageRole::process_name`]).
+    #[must_use]
+    pub fn from_process_name(comm: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| r.process_name() == comm)
+    }
 }
+
+/// The longest process name the kernel keeps (`TASK_COMM_LEN` less its nul).
+const COMM_LEN: usize = 15;
 
 /// A name that is not one of [`StageRole::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -612,6 +648,18 @@ mod name_tests {
         assert!(StageRole::DEFAULT
             .iter()
             .all(|r| StageRole::ALL.contains(r)));
+    }
+
+    #[test]
+    fn every_stage_process_has_its_own_kernel_name() {
+        for r in StageRole::ALL {
+            assert_eq!(r.program(), format!("insuwb-stage-{}", r.name()));
+            assert!(r.process_name().len() <= 15);
+            assert_eq!(StageRole::from_process_name(r.process_name()), Some(r));
+        }
+        assert_eq!(StageRole::Fusion.process_name(), "insuwb-stage-fu");
+        assert_eq!(StageRole::from_process_name("insuwb-stage-fusion"), None);
+        assert_eq!(StageRole::from_process_name("insuwb"), None);
     }
 }
 

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::convert::StampClock;
 
-/// `[ros2]`: the ROS 2 bridge stage (`insuwb-ros2`, run when `stages`
+/// `[ros2]`: the ROS 2 bridge stage (`insuwb-stage-ros2`, run when `stages`
 /// lists `ros2`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

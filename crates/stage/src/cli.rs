@@ -104,7 +104,7 @@ fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
         StageRole::Fusion => crate::fusion::run(&cfg, epoch),
         StageRole::Logger => crate::logger::run(&cfg),
         StageRole::Ros2 => Err(anyhow::anyhow!(
-            "the ros2 stage is its own binary insuwb-ros2 (crate insuwb-ros2)"
+            "the ros2 stage is its own binary insuwb-stage-ros2"
         )),
     };
     match result {

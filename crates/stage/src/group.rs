@@ -233,7 +233,7 @@ pub struct RobotConfig {
     pub launch: insuwb_launch::RestartPolicy,
     /// Real sensors (drivers whose source is `device`).
     pub devices: DevicesConfig,
-    /// The ROS 2 bridge (`insuwb-ros2`, when `stages` lists `ros2`).
+    /// The ROS 2 bridge (`insuwb-stage-ros2`, when `stages` lists `ros2`).
     pub ros2: insuwb_ros2::Ros2Config,
     /// Optional CPU pinning and SCHED_FIFO per stage (`[realtime.fusion]`
     /// `cpus = [1]`, `fifo_priority = 50`); none by default.
