@@ -276,6 +276,9 @@ mod tests {
             fifo_priority: None,
         })
         .unwrap_err();
-        assert!(e.to_string().contains("/nonexistent/insuwb-bench-floor"), "{e}");
+        assert!(
+            e.to_string().contains("/nonexistent/insuwb-bench-floor"),
+            "{e}"
+        );
     }
 }
