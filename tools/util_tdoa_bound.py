@@ -1,0 +1,193 @@
+#!/usr/bin/env python3
+"""How far IMU + UWB fusion can go on a UTIL TDOA flight: a bound from truth.
+
+For every TDOA difference of a flight (UTIL's binary log, dataset README),
+the error against motion capture is e = z - h(truth antenna position). Each
+anchor pair's error splits into a fast part (above about 1 Hz: e minus its
+centred 1 s mean), a slow part (the 1 s mean) and its flight mean (the
+pair's constant bias). Least-squares fixes every 0.1 s (3D Gauss-Newton,
+started at the truth, the last difference of each pair in the epoch, no
+difference more than 1 m off used) are then made from:
+
+  meas        the measured differences;
+  slow        truth + the slow part only: what a filter would reach if its
+              IMU bridged 1 s perfectly and removed every fast error;
+  slow-const  truth + the slow part less each pair's flight mean: the same,
+              with every pair's constant bias also known.
+
+An epoch where any of the three leaves the truth by more than 3 m (a
+geometry that does not fix 3D) is skipped for all three and counted.
+Printed: the horizontal RMSE of each over the flight segment (truth height
+above 0.3 m) and the ratios slow/meas and slow-const/meas, per flight and
+their medians. Truth is used throughout: this is an analysis of the data,
+not an estimator.
+
+Usage: python3 tools/util_tdoa_bound.py DATA_DIR [FLIGHT ...]
+(DATA_DIR holds flights.csv; numpy required.)
+"""
+import csv
+import struct
+import sys
+from pathlib import Path
+
+import numpy as np
+
+# UWB antenna in the Crazyflie body frame (dataset README), as config/util.toml.
+LEVER = np.array([-0.01245, 0.00127, 0.0908])
+
+
+def load(path):
+    """UTIL's binary log: {event name: array (time_us, values...)}."""
+    b = Path(path).read_bytes()
+    if not b or b[0] != 0xBC:
+        raise SystemExit(f"{path}: not a UTIL binary log")
+    _, ntypes = struct.unpack_from("<HH", b, 1)
+    o = 5
+    types = {}
+    for _ in range(ntypes):
+        (eid,) = struct.unpack_from("<H", b, o)
+        o += 2
+        e = b.index(b"\0", o)
+        name = b[o:e].decode()
+        o = e + 1
+        (nv,) = struct.unpack_from("<H", b, o)
+        o += 2
+        fmt = "<"
+        for _ in range(nv):
+            e = b.index(b"\0", o)
+            fmt += b[o:e].decode()[-2]
+            o = e + 1
+        types[eid] = (name, struct.Struct(fmt))
+    out = {}
+    end = len(b) - 4
+    while o < end:
+        eid, ts = struct.unpack_from("<HQ", b, o)
+        o += 10
+        name, st = types[eid]
+        out.setdefault(name, []).append((ts,) + st.unpack_from(b, o))
+        o += st.size
+    return {k: np.array(v, dtype=float) for k, v in out.items()}
+
+
+def anchors(path):
+    a = {}
+    for line in Path(path).read_text().splitlines():
+        k, *v = line.strip().split(",")
+        if k.endswith("_p"):
+            a[int(k[2:-2])] = np.array([float(x) for x in v])
+    return a
+
+
+def rotate(q, v):
+    """Rotates v (n x 3) by unit quaternions q (n x 4, x y z w)."""
+    x, y, z, w = q.T
+    r = np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+    return np.einsum("nij,nj->ni", r, v)
+
+
+def solve(x, pa, pb, z):
+    x = x.copy()
+    for _ in range(10):
+        ra = np.linalg.norm(x - pa, axis=1)
+        rb = np.linalg.norm(x - pb, axis=1)
+        h = (x - pb) / rb[:, None] - (x - pa) / ra[:, None]
+        dx = np.linalg.lstsq(h, z - (rb - ra), rcond=None)[0]
+        x += dx
+        if np.linalg.norm(dx) < 1e-6:
+            break
+    return x
+
+
+def flight(data_dir, name, anchor_file):
+    d = load(data_dir / name)
+    anc = anchors(data_dir / anchor_file)
+    t0 = d["estAcceleration"][0, 0]
+    p = d["estPose"]
+    tp = (p[:, 0] - t0) * 1e-6
+    keep = np.concatenate([[True], np.diff(tp) > 1e-4])
+    tp, p = tp[keep], p[keep]
+    td = d["estTDOA"]
+    tt = (td[:, 0] - t0) * 1e-6
+    m = (tt > tp[0]) & (tt < tp[-1])
+    td, tt = td[m], tt[m]
+    pos = np.stack([np.interp(tt, tp, p[:, 1 + i]) for i in range(3)], -1)
+    q = np.stack([np.interp(tt, tp, p[:, 4 + i]) for i in range(4)], -1)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    ant = pos + rotate(q, np.broadcast_to(LEVER, pos.shape))
+    a, b = td[:, 1].astype(int), td[:, 2].astype(int)
+    pa = np.array([anc[i] for i in a])
+    pb = np.array([anc[i] for i in b])
+    h = np.linalg.norm(ant - pb, axis=1) - np.linalg.norm(ant - pa, axis=1)
+    e = td[:, 3] - h
+    ok = np.abs(e) < 1.0
+    slow = np.zeros_like(e)
+    const = np.zeros_like(e)
+    for key in set(zip(a, b)):
+        s = np.where((a == key[0]) & (b == key[1]) & ok)[0]
+        if len(s) < 5:
+            continue
+        cs = np.concatenate([[0], np.cumsum(e[s])])
+        lo = np.searchsorted(tt[s], tt[s] - 0.5)
+        hi = np.searchsorted(tt[s], tt[s] + 0.5)
+        slow[s] = (cs[hi] - cs[lo]) / np.maximum(hi - lo, 1)
+        air = pos[s, 2] > 0.3
+        const[s] = e[s][air].mean() if air.any() else e[s].mean()
+    sq = {"meas": [], "slow": [], "slow-const": []}
+    skipped = 0
+    for tk in np.arange(tt[0] + 0.1, tt[-1], 0.1):
+        last = {}
+        for i in np.where((tt > tk - 0.1) & (tt <= tk) & ok)[0]:
+            last[(a[i], b[i])] = i
+        idx = np.array(list(last.values()))
+        if len(idx) < 4 or pos[idx[-1], 2] <= 0.3:
+            continue
+        truth = ant[idx[-1]]
+        xs = {
+            k: solve(truth, pa[idx], pb[idx], z)
+            for k, z in (
+                ("meas", td[idx, 3]),
+                ("slow", h[idx] + slow[idx]),
+                ("slow-const", h[idx] + slow[idx] - const[idx]),
+            )
+        }
+        # A degenerate geometry (the differences do not fix 3D) sends
+        # Gauss-Newton away: such an epoch counts for none of the three.
+        if any(not np.all(np.abs(x - truth) < 3.0) for x in xs.values()):
+            skipped += 1
+            continue
+        for k, x in xs.items():
+            sq[k].append(np.sum((x[:2] - truth[:2]) ** 2))
+    out = {k: float(np.sqrt(np.mean(v))) for k, v in sq.items()}
+    out["skipped"] = skipped
+    out["epochs"] = len(sq["meas"])
+    return out
+
+
+def main():
+    if len(sys.argv) < 2:
+        raise SystemExit(__doc__)
+    data_dir = Path(sys.argv[1])
+    rows = list(csv.DictReader(open(data_dir / "flights.csv")))
+    want = set(sys.argv[2:])
+    ratios = []
+    print(f"{'flight':18s} {'meas':>6s} {'slow':>6s} {'s-c':>6s} {'slow/meas':>9s} {'s-c/meas':>8s} {'epochs':>7s} {'skipped':>7s}")
+    for r in rows:
+        if want and r["file"] not in want:
+            continue
+        f = flight(data_dir, r["file"], r["anchors"])
+        rs, rc = f["slow"] / f["meas"], f["slow-const"] / f["meas"]
+        ratios.append((rs, rc))
+        print(f"{r['file']:18s} {f['meas']:6.3f} {f['slow']:6.3f} {f['slow-const']:6.3f} {rs:9.2f} {rc:8.2f} {f['epochs']:7d} {f['skipped']:7d}", flush=True)
+    if ratios:
+        print(f"{'median':18s} {'':6s} {'':6s} {'':6s} {np.median([x for x, _ in ratios]):9.2f} {np.median([y for _, y in ratios]):8.2f}")
+
+
+if __name__ == "__main__":
+    main()
