@@ -1,7 +1,7 @@
-//! `insuwb log info` and `insuwb log cat`.
+//! `insuwb log info`, `insuwb log cat` and `insuwb log export`.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use insuwb_log::{LogReader, Record};
@@ -27,6 +27,16 @@ pub enum LogCmd {
         #[arg(long)]
         csv: bool,
     },
+    /// Write every record of a log into an MCAP file (profile ros2, ROS 2
+    /// CDR messages with ros2msg schemas) for Foxglove and the ROS 2 tools;
+    /// topics, types and times: docs/MCAP_EXPORT.md.
+    Export {
+        /// The log file (or a run directory of segments).
+        file: PathBuf,
+        /// The MCAP file to write (replaced if it exists).
+        #[arg(long)]
+        mcap: PathBuf,
+    },
 }
 
 /// Runs a log subcommand.
@@ -34,7 +44,33 @@ pub fn run(c: &LogCmd) -> Result<()> {
     match c {
         LogCmd::Info { file } => info(file),
         LogCmd::Cat { file, topic, csv } => cat(file, topic.as_deref(), *csv),
+        LogCmd::Export { file, mcap } => export(file, mcap),
     }
+}
+
+fn export(file: &Path, mcap: &Path) -> Result<()> {
+    let s = insuwb_mcap::export_log(file, mcap, &insuwb_mcap::ExportOptions::default())?;
+    for c in &s.cuts {
+        eprintln!("warning: {c}");
+    }
+    let skipped: u64 = s.stats.skipped.values().sum();
+    if let Some(first) = &s.stats.first_skip {
+        eprintln!("warning: {skipped} messages not converted; the first: {first}");
+    }
+    let mut out = std::io::stdout().lock();
+    writeln!(
+        out,
+        "{}: {} messages on {} topics from {} records of {} file(s)",
+        mcap.display(),
+        s.stats.total_messages(),
+        s.stats.messages.len(),
+        s.stats.total_records(),
+        s.files.len()
+    )?;
+    for (topic, n) in &s.stats.messages {
+        writeln!(out, "  {topic:<20} {n:>9} messages")?;
+    }
+    Ok(())
 }
 
 fn files_of(path: &PathBuf) -> Result<Vec<PathBuf>> {
