@@ -22,6 +22,7 @@ use insuwb_bench::analysis::{
     samples, AnalysisConfig, Cycle, Hops, LatencySamples, Percentiles, RunLatency,
 };
 use insuwb_bench::graph::{cpu_percent, cpu_snapshot, run_floor_graph, FloorGraphOptions};
+use insuwb_msg::StageRole;
 use insuwb_runtime::monotonic_ns;
 use insuwb_stage::group::RobotConfig;
 
@@ -68,6 +69,13 @@ pub struct LatencyArgs {
     /// a robot's default configuration.
     #[arg(long, value_name = "PRIORITY", value_parser = clap::value_parser!(i32).range(1..=99))]
     pub fifo_priority: Option<i32>,
+    /// Also run this optional stage in the group's rounds (repeatable; e.g.
+    /// `ros2`, with its `[ros2]` defaults): a bridge subscribes beside the
+    /// logger, so the ratio shows what it costs the fix path, and the CPU
+    /// table its own share. The ROS 2 bridge discovers peers by multicast:
+    /// run it inside a private network namespace (BENCHMARKS.md).
+    #[arg(long = "with", value_name = "STAGE")]
+    pub with: Vec<insuwb_msg::StageRole>,
 }
 
 /// CPU time of each stage over the steady window, percent of one core.
@@ -83,22 +91,22 @@ pub struct CpuPercent {
     pub fusion: f64,
     /// Logger.
     pub logger: f64,
+    /// The ROS 2 bridge, when the group ran it (`--with ros2`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ros2: Option<f64>,
 }
 
 impl CpuPercent {
     fn from_named(v: &[(String, f64)]) -> Self {
-        use insuwb_msg::StageRole;
-        let get = |r: StageRole| {
-            v.iter()
-                .find(|(m, _)| m == r.name())
-                .map_or(0.0, |(_, p)| *p)
-        };
+        let find = |r: StageRole| v.iter().find(|(m, _)| m == r.name()).map(|(_, p)| *p);
+        let get = |r: StageRole| find(r).unwrap_or(0.0);
         Self {
             imu: get(StageRole::Imu),
             uwb: get(StageRole::Uwb),
             ins: get(StageRole::Ins),
             fusion: get(StageRole::Fusion),
             logger: get(StageRole::Logger),
+            ros2: find(StageRole::Ros2),
         }
     }
 }
@@ -246,7 +254,7 @@ fn measure(
                 fl_cpu.push(floor.cpu_percent);
             } else {
                 // The group on simulated sensors, its logger noting fused receive times.
-                let (s, cpu) = group_round(round, duration, id, base, &acfg, a.fifo_priority)?;
+                let (s, cpu) = group_round(round, duration, id, base, &acfg, a)?;
                 write_cycles(a.samples.as_deref(), &format!("group{round}.csv"), &s)?;
                 gr.extend(&s);
                 gr_cpu.push(cpu);
@@ -284,17 +292,23 @@ fn group_round(
     id: &str,
     base: &Path,
     acfg: &AnalysisConfig,
-    fifo_priority: Option<i32>,
+    a: &LatencyArgs,
 ) -> Result<(LatencySamples, Vec<(String, f64)>)> {
     let run_dir = base.join(format!("group{round}"));
     private_dir(&run_dir)?;
+    let stages: Vec<String> = StageRole::ALL
+        .into_iter()
+        .filter(|r| StageRole::DEFAULT.contains(r) || a.with.contains(r))
+        .map(|r| format!("\"{r}\""))
+        .collect();
     let mut text = format!(
-        "[group]\nname = \"bench\"\nprefix = \"insuwb_bgr{id}r{round}_\"\nrun_dir = \"{}\"\n\
+        "stages = [{}]\n[group]\nname = \"bench\"\nprefix = \"insuwb_bgr{id}r{round}_\"\nrun_dir = \"{}\"\n\
          [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1\nspeed = 1.0\n\
          [fusion]\nfilter = \"iakf\"\n",
+        stages.join(", "),
         run_dir.display()
     );
-    if let Some(p) = fifo_priority {
+    if let Some(p) = a.fifo_priority {
         // The floor's roles are the stages, by the same names.
         for stage in insuwb_bench::floor::Role::ALL.map(|r| r.name()) {
             if let Some(q) = insuwb_bench::graph::fifo_ladder(stage, p) {
