@@ -94,6 +94,9 @@ pub struct CpuPercent {
     /// The ROS 2 bridge, when the group ran it (`--with ros2`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ros2: Option<f64>,
+    /// The Foxglove live view, when the group ran it (`--with foxglove`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub foxglove: Option<f64>,
 }
 
 impl CpuPercent {
@@ -107,6 +110,7 @@ impl CpuPercent {
             fusion: get(StageRole::Fusion),
             logger: get(StageRole::Logger),
             ros2: find(StageRole::Ros2),
+            foxglove: find(StageRole::Foxglove),
         }
     }
 }
@@ -140,6 +144,26 @@ pub struct LatencyReport {
     pub ratio_p99: f64,
     /// Rounds the figures pool (each graph ran this many times, in turn).
     pub rounds: u32,
+    /// With `--with ros2`: UWB fix publish -> the bridge's odometry received
+    /// by a DDS reader in this process, p50 / p99, us (the same fixes'
+    /// fix-to-fused beside it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dds: Option<DdsLatency>,
+}
+
+/// Fix-to-DDS delivery against fix-to-fused, over the same fixes.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct DdsLatency {
+    /// Fixes whose odometry the reader received.
+    pub count: usize,
+    /// UWB fix publish -> odometry received, p50, us.
+    pub fix_to_dds_p50_us: f64,
+    /// Same, p99, us.
+    pub fix_to_dds_p99_us: f64,
+    /// UWB fix publish -> fused publish for those fixes, p50, us.
+    pub fix_to_fused_p50_us: f64,
+    /// Same, p99, us.
+    pub fix_to_fused_p99_us: f64,
 }
 
 /// Start of the CPU window after a graph starts (past process start-up and
@@ -228,6 +252,7 @@ fn measure(
     );
     let (mut fl, mut gr) = (LatencySamples::default(), LatencySamples::default());
     let (mut fl_cpu, mut gr_cpu) = (Vec::new(), Vec::new());
+    let (mut to_dds, mut to_fused) = (Vec::new(), Vec::new());
     if let Some(dir) = &a.samples {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the samples folder", dir.display()))?;
@@ -254,7 +279,9 @@ fn measure(
                 fl_cpu.push(floor.cpu_percent);
             } else {
                 // The group on simulated sensors, its logger noting fused receive times.
-                let (s, cpu) = group_round(round, duration, id, base, &acfg, a)?;
+                let (s, cpu, dds) = group_round(round, duration, id, base, &acfg, a)?;
+                to_dds.extend(dds.iter().map(|d| d.0));
+                to_fused.extend(dds.iter().map(|d| d.1));
                 write_cycles(a.samples.as_deref(), &format!("group{round}.csv"), &s)?;
                 gr.extend(&s);
                 gr_cpu.push(cpu);
@@ -267,6 +294,20 @@ fn measure(
     print_table("group", &gr, &gr_cpu);
 
     let ratio = |g: f64, f: f64| if f > 0.0 { g / f } else { f64::INFINITY };
+    let dds = (!to_dds.is_empty()).then(|| {
+        let (d, f) = (Percentiles::of(to_dds.iter().copied()), Percentiles::of(to_fused.iter().copied()));
+        eprintln!(
+            "  fix -> DDS reader       p50 {:>8.1}  p99 {:>8.1} us  (fix -> fused p50 {:.1}, p99 {:.1} us; n = {})",
+            d.p50_us, d.p99_us, f.p50_us, f.p99_us, to_dds.len()
+        );
+        DdsLatency {
+            count: to_dds.len(),
+            fix_to_dds_p50_us: d.p50_us,
+            fix_to_dds_p99_us: d.p99_us,
+            fix_to_fused_p50_us: f.p50_us,
+            fix_to_fused_p99_us: f.p99_us,
+        }
+    });
     Ok(LatencyReport {
         floor_p50_us: fl.e2e_uwb_fused.p50_us,
         floor_p99_us: fl.e2e_uwb_fused.p99_us,
@@ -281,8 +322,13 @@ fn measure(
         ratio_p50: ratio(gr.e2e_uwb_fused.p50_us, fl.e2e_uwb_fused.p50_us),
         ratio_p99: ratio(gr.e2e_uwb_fused.p99_us, fl.e2e_uwb_fused.p99_us),
         rounds,
+        dds,
     })
 }
+
+/// A group round's samples, each stage's CPU share, and with `--with ros2`
+/// each odometry's `(fix -> DDS, fix -> fused)`, ns.
+type GroupRound = (LatencySamples, Vec<(String, f64)>, Vec<(u64, u64)>);
 
 /// One run of the group (round `round`): its samples and the CPU time of
 /// each stage over the steady window.
@@ -293,7 +339,7 @@ fn group_round(
     base: &Path,
     acfg: &AnalysisConfig,
     a: &LatencyArgs,
-) -> Result<(LatencySamples, Vec<(String, f64)>)> {
+) -> Result<GroupRound> {
     let run_dir = base.join(format!("group{round}"));
     private_dir(&run_dir)?;
     let stages: Vec<String> = StageRole::ALL
@@ -308,6 +354,12 @@ fn group_round(
         stages.join(", "),
         run_dir.display()
     );
+    let with_ros2 = a.with.contains(&StageRole::Ros2);
+    if with_ros2 {
+        // Stamps in CLOCK_MONOTONIC: the odometry's stamp is then the fused
+        // state's measurement time, which finds its fix in the recording.
+        text.push_str("[ros2]\nstamp_clock = \"monotonic\"\n");
+    }
     if let Some(p) = a.fifo_priority {
         // The floor's roles are the stages, by the same names.
         for stage in insuwb_bench::floor::Role::ALL.map(|r| r.name()) {
@@ -320,6 +372,8 @@ fn group_round(
     std::fs::write(&cfg_path, &text)?;
     let cfg = RobotConfig::load(&cfg_path)?;
     let trace_path = run_dir.join("fused_recv.txt");
+    let probe =
+        with_ros2.then(|| DdsProbe::start(cfg.ros2.clone(), duration + Duration::from_secs(10)));
     let sampler = spawn_cpu_sampler(
         CPU_FROM,
         duration.saturating_sub(Duration::from_millis(200)),
@@ -339,6 +393,10 @@ fn group_round(
         },
     )?;
     let cpu = sampler.join().unwrap_or_default();
+    let odom = match probe {
+        Some(p) => p.finish()?,
+        None => Vec::new(),
+    };
     if group.restarts > 0 {
         eprintln!(
             "warning: {} stage restart(s) during the group run of round {}",
@@ -352,7 +410,7 @@ fn group_round(
     let recv = insuwb_bench::trace::read(&trace_path)?;
     let s = samples(&records, &recv, acfg)
         .with_context(|| format!("the group run of round {}", round + 1))?;
-    Ok((s, cpu))
+    Ok((s, cpu, fix_to_dds(&records, &odom, acfg.warmup_s)))
 }
 
 /// Writes the cycles of one run as CSV to `dir/name` (nothing without `dir`).
@@ -443,6 +501,105 @@ fn print_table(what: &str, r: &RunLatency, cpu: &[(String, f64)]) {
     row("period - 100 ms", &r.jitter);
     let cpu: Vec<String> = cpu.iter().map(|(n, p)| format!("{n} {p:.2} %")).collect();
     eprintln!("  cpu (one core): {}", cpu.join(", "));
+}
+
+/// A DDS reader of the ROS 2 bridge's odometry in this process, on its own
+/// thread: `(stamp, receive time)` of each message, CLOCK_MONOTONIC ns.
+struct DdsProbe {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    handle: std::thread::JoinHandle<Result<Vec<(u64, u64)>>>,
+}
+
+impl DdsProbe {
+    /// Starts reading; the thread ends when told to or after `bound`.
+    fn start(ros2: insuwb_ros2::Ros2Config, bound: Duration) -> Self {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let flag = stop.clone();
+        let handle = std::thread::spawn(move || -> Result<Vec<(u64, u64)>> {
+            use insuwb_ros2::msgs::Odometry;
+            use insuwb_ros2::subscribe::{odometry_qos, Subscriber};
+            let mut sub = Subscriber::<Odometry>::open_with(
+                &ros2,
+                "insuwb_bench_probe",
+                &ros2.odom_topic,
+                &odometry_qos(),
+            )
+            .context("opening the DDS reader of the bridge's odometry")?;
+            let t0 = std::time::Instant::now();
+            let mut out = Vec::new();
+            while !flag.load(Ordering::Relaxed) && t0.elapsed() < bound {
+                let mut next = sub.recv_timeout(Duration::from_millis(20));
+                while let Ok(Some(m)) = next {
+                    let rx = monotonic_ns();
+                    let s = m.header.stamp;
+                    let stamp =
+                        u64::try_from(s.sec).unwrap_or(0) * 1_000_000_000 + u64::from(s.nanosec);
+                    out.push((stamp, rx));
+                    next = sub.try_recv();
+                }
+                if let Err(e) = next {
+                    if !e.is_recoverable() {
+                        return Err(e).context("reading the bridge's odometry");
+                    }
+                }
+            }
+            Ok(out)
+        });
+        Self { stop, handle }
+    }
+
+    /// Stops the reader and returns what it received.
+    fn finish(self) -> Result<Vec<(u64, u64)>> {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("the DDS reader thread panicked"))?
+    }
+}
+
+/// `(fix -> odometry received, fix -> fused published)`, ns, for every
+/// odometry message whose stamp is the measurement time of a fused update
+/// more than `warmup_s` after the first one.
+fn fix_to_dds(
+    records: &[insuwb_log::Record],
+    odom: &[(u64, u64)],
+    warmup_s: f64,
+) -> Vec<(u64, u64)> {
+    use insuwb_log::Record;
+    use std::collections::HashMap;
+    let fix_pub: HashMap<u64, u64> = records
+        .iter()
+        .filter_map(|r| match r {
+            Record::Fix(f) => Some((f.header.seq, f.header.pub_time_ns)),
+            _ => None,
+        })
+        .collect();
+    // Fused updates by measurement time: (fix pub, fused pub).
+    let mut fused: HashMap<u64, (u64, u64)> = HashMap::new();
+    for r in records {
+        if let Record::Fused(f) = r {
+            if f.header.flags & insuwb_msg::FusedState::FLAG_DEGRADED != 0 {
+                continue;
+            }
+            if let Some(&fp) = fix_pub.get(&f.uwb_seq) {
+                fused
+                    .entry(f.header.meas_time_ns)
+                    .or_insert((fp, f.header.pub_time_ns));
+            }
+        }
+    }
+    let Some(first) = fused.keys().min().copied() else {
+        return Vec::new();
+    };
+    let from = first.saturating_add((warmup_s * 1e9) as u64);
+    odom.iter()
+        .filter(|(stamp, _)| *stamp >= from)
+        .filter_map(|(stamp, rx)| {
+            let (fix, fused_pub) = fused.get(stamp)?;
+            Some((rx.checked_sub(*fix)?, fused_pub.checked_sub(*fix)?))
+        })
+        .collect()
 }
 
 #[cfg(test)]

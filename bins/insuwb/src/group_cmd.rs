@@ -353,8 +353,9 @@ pub fn run_group_with(
         }
     }
     let elapsed = t0.elapsed().as_secs_f64();
-    // Shutdown in role order (sources first, the ROS 2 bridge after
-    // fusion, the logger last), over the stages this group runs.
+    // Shutdown in role order (sources first, the ROS 2 bridge and the
+    // Foxglove live view after fusion, the logger last), over the stages
+    // this group runs.
     let order: Vec<&str> = insuwb_msg::StageRole::NAMES
         .into_iter()
         .filter(|n| cfg.stages.iter().any(|s| s.name() == *n))
@@ -503,6 +504,12 @@ pub struct DemoArgs {
     /// Feed the drivers through emulated devices: the IMU driver reads WitMotion frames from a pseudo-terminal, the UWB driver Eliko `$PEKIO` lines from a loopback TCP port, both played from the same scenario and seed.
     #[arg(long)]
     pub via_devices: bool,
+    /// Run the Foxglove live view too (stage `foxglove`) and print its address: open it in the Foxglove app (Open connection, Foxglove WebSocket).
+    #[arg(long)]
+    pub foxglove: bool,
+    /// The live view's address, IP:PORT (implies --foxglove).
+    #[arg(long, value_name = "IP:PORT")]
+    pub foxglove_bind: Option<String>,
 }
 
 /// The emulated devices of `insuwb demo --via-devices`, playing.
@@ -654,9 +661,27 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
             None,
         )
     };
+    // `stages` is a top-level key: before the first table.
+    let (stages, foxglove) = match (&a.foxglove_bind, a.foxglove) {
+        (None, false) => (String::new(), String::new()),
+        (bind, _) => (
+            format!(
+                "stages = [{}]\n",
+                StageRole::ALL
+                    .iter()
+                    .filter(|r| StageRole::DEFAULT.contains(r) || **r == StageRole::Foxglove)
+                    .map(|r| format!("\"{}\"", r.name()))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            bind.as_ref()
+                .map(|b| format!("[foxglove]\nbind = {}\n", toml::Value::String(b.clone())))
+                .unwrap_or_default(),
+        ),
+    };
     let text = format!(
-        "[group]\nname = \"demo\"\nprefix = \"insuwb_demo{id}_\"\nrun_dir = \"{}\"\n\
-         {sources}[fusion]\nfilter = \"{}\"\n",
+        "{stages}[group]\nname = \"demo\"\nprefix = \"insuwb_demo{id}_\"\nrun_dir = \"{}\"\n\
+         {sources}[fusion]\nfilter = \"{}\"\n{foxglove}",
         run_dir.display(),
         a.filter
     );
@@ -672,6 +697,12 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
                 a.duration,
                 run_dir.display()
             );
+            if cfg.stages.contains(&StageRole::Foxglove) {
+                eprintln!(
+                    "insuwb demo: Foxglove live view on {} (Foxglove app: Open connection, Foxglove WebSocket; layout deploy/foxglove/insuwb-live.json)",
+                    cfg.foxglove.url()?
+                );
+            }
             run_group_with(
                 &cfg_path,
                 &cfg,

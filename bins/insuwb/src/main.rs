@@ -62,6 +62,11 @@ enum ImportCmd {
     Util(eval_cmd::ImportUtilArgs),
 }
 
+/// The log filter when `RUST_LOG` is unset: RustDDS (the DDS reader of
+/// `bench latency --with ros2`) reports every socket and discovery event at
+/// `info`, and ros2-client warns when `ROS_DISTRO` is unset.
+const DEFAULT_FILTER: &str = "info,rustdds=warn,ros2_client=warn,ros2_client::distributions=error";
+
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
@@ -69,7 +74,7 @@ fn main() -> std::process::ExitCode {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_FILTER)),
         )
         .init();
     match run(cli) {

@@ -47,7 +47,7 @@ pub fn fifo_ladder(stage: &str, top: i32) -> Option<i32> {
         Role::Fusion => top,
         Role::Ins => top - 1,
         Role::Imu | Role::Uwb => top - 2,
-        Role::Logger | Role::Ros2 => return None,
+        Role::Logger | Role::Ros2 | Role::Foxglove => return None,
     };
     (1..=99).contains(&p).then_some(p)
 }

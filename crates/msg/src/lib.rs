@@ -324,9 +324,9 @@ pub struct UnknownFilterKind(pub String);
 
 /// The processes of a group, each one stage of the pipeline, with their one
 /// name (configuration `stages`, binaries, health, locks, logs): `imu`,
-/// `uwb`, `ins`, `fusion`, `ros2`, `logger`. A group runs
+/// `uwb`, `ins`, `fusion`, `ros2`, `foxglove`, `logger`. A group runs
 /// [`StageRole::DEFAULT`] unless its `stages` lists others: the ROS 2
-/// bridge runs only where it is listed.
+/// bridge and the Foxglove live view run only where they are listed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StageRole {
@@ -341,38 +341,46 @@ pub enum StageRole {
     /// The ROS 2 bridge (binary `insuwb-stage-ros2`, library `insuwb-ros2`):
     /// optional.
     Ros2,
+    /// The Foxglove live view (binary `insuwb-stage-foxglove`, library
+    /// `insuwb-foxglove`): optional.
+    Foxglove,
     /// The logger.
     Logger,
 }
 
 impl StageRole {
     /// Every role, in start order.
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 7] = [
         Self::Imu,
         Self::Uwb,
         Self::Ins,
         Self::Fusion,
         Self::Ros2,
+        Self::Foxglove,
         Self::Logger,
     ];
 
     /// The roles a group runs when its `stages` lists none: every role but
-    /// the ROS 2 bridge (nothing is opened on the network unless asked).
+    /// the ROS 2 bridge and the Foxglove live view (nothing is opened on
+    /// the network unless asked).
     pub const DEFAULT: [Self; 5] = [Self::Imu, Self::Uwb, Self::Ins, Self::Fusion, Self::Logger];
 
     /// Their names, in start order, which is also the shutdown order of a
     /// group: the sources first, so that nothing new enters, the ROS 2
-    /// bridge after fusion, the logger last, so that it records the end.
-    pub const NAMES: [&'static str; 6] = [
+    /// bridge and the Foxglove live view after fusion, the logger last, so
+    /// that it records the end.
+    pub const NAMES: [&'static str; 7] = [
         Self::Imu.name(),
         Self::Uwb.name(),
         Self::Ins.name(),
         Self::Fusion.name(),
         Self::Ros2.name(),
+        Self::Foxglove.name(),
         Self::Logger.name(),
     ];
 
-    /// Its name: `imu`, `uwb`, `ins`, `fusion`, `ros2` or `logger`.
+    /// Its name: `imu`, `uwb`, `ins`, `fusion`, `ros2`, `foxglove` or
+    /// `logger`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -381,6 +389,7 @@ impl StageRole {
             Self::Ins => "ins",
             Self::Fusion => "fusion",
             Self::Ros2 => "ros2",
+            Self::Foxglove => "foxglove",
             Self::Logger => "logger",
         }
     }
@@ -388,7 +397,7 @@ impl StageRole {
     /// The program of its process, in the folder of the `insuwb`
     /// executable (and of its cargo package): `insuwb-stage-imu`,
     /// `insuwb-stage-uwb`, `insuwb-stage-ins`, `insuwb-stage-fusion`,
-    /// `insuwb-stage-ros2`, `insuwb-stage-logger`.
+    /// `insuwb-stage-ros2`, `insuwb-stage-foxglove`, `insuwb-stage-logger`.
     #[must_use]
     pub const fn program(self) -> &'static str {
         match self {
@@ -397,6 +406,7 @@ impl StageRole {
             Self::Ins => "insuwb-stage-ins",
             Self::Fusion => "insuwb-stage-fusion",
             Self::Ros2 => "insuwb-stage-ros2",
+            Self::Foxglove => "insuwb-stage-foxglove",
             Self::Logger => "insuwb-stage-logger",
         }
     }
@@ -423,7 +433,7 @@ const COMM_LEN: usize = 15;
 
 /// A name that is not one of [`StageRole::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, ros2, logger)")]
+#[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, ros2, foxglove, logger)")]
 pub struct UnknownStageRole(pub String);
 
 /// `Display` as the enum's `name()`, and `FromStr` from it (`$err` for any
@@ -639,12 +649,13 @@ mod name_tests {
             .parse::<StageRole>()
             .unwrap_err()
             .to_string()
-            .contains("imu, uwb, ins, fusion, ros2, logger"));
+            .contains("imu, uwb, ins, fusion, ros2, foxglove, logger"));
         assert_eq!(
             StageRole::NAMES.join(", "),
-            "imu, uwb, ins, fusion, ros2, logger"
+            "imu, uwb, ins, fusion, ros2, foxglove, logger"
         );
         assert!(!StageRole::DEFAULT.contains(&StageRole::Ros2));
+        assert!(!StageRole::DEFAULT.contains(&StageRole::Foxglove));
         assert!(StageRole::DEFAULT
             .iter()
             .all(|r| StageRole::ALL.contains(r)));
@@ -658,6 +669,7 @@ mod name_tests {
             assert_eq!(StageRole::from_process_name(r.process_name()), Some(r));
         }
         assert_eq!(StageRole::Fusion.process_name(), "insuwb-stage-fu");
+        assert_eq!(StageRole::Foxglove.process_name(), "insuwb-stage-fo");
         assert_eq!(StageRole::from_process_name("insuwb-stage-fusion"), None);
         assert_eq!(StageRole::from_process_name("insuwb"), None);
     }

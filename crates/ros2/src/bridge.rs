@@ -541,7 +541,7 @@ impl Outputs {
 /// ends on EINTR (and the participant with it). Faults (SIGSEGV, SIGBUS,
 /// SIGFPE, SIGILL, SIGTRAP, SIGSYS, SIGABRT) stay unblocked. A signal that
 /// arrives meanwhile stays pending until the mask is restored.
-fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
+pub(crate) fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
     // SAFETY: a zeroed `sigset_t` is valid storage for `sigfillset`; every
     // pointer is to a local that outlives the call.
     #[allow(unsafe_code)]

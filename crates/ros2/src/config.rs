@@ -240,6 +240,25 @@ fn check_name(key: &'static str, name: &str) -> Result<(), Ros2ConfigError> {
     })
 }
 
+/// A topic name outside `[ros2]` (the IMU source's, `sources.imu =
+/// "ros2:/TOPIC"`) that the ROS naming rules refuse; the text says why,
+/// with the name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct TopicNameError(pub String);
+
+/// Checks a ROS topic name as [`Ros2Config::validate`] checks its own:
+/// tokens of letters, digits and `_` (not first a digit, no `__`)
+/// separated by single `/`, an optional leading `/` (relative names are
+/// taken under the `[ros2]` namespace, [`Ros2Config::full_topic`]), no
+/// trailing `/`.
+///
+/// # Errors
+/// [`TopicNameError`] with the reason and the name.
+pub fn check_topic_name(name: &str) -> Result<(), TopicNameError> {
+    check_name("topic", name).map_err(|e| TopicNameError(e.reason))
+}
+
 /// A tf2 frame id: non-empty, no leading `/`, letters, digits, `_`, `/`.
 fn check_frame(key: &'static str, f: &str) -> Result<(), Ros2ConfigError> {
     if f.starts_with('/') {
@@ -362,5 +381,25 @@ mod tests {
         assert!(toml::from_str::<Ros2Config>("odom = \"x\"").is_err());
         let c: Ros2Config = toml::from_str("stamp_clock = \"monotonic\"").unwrap();
         assert_eq!(c.stamp_clock, StampClock::Monotonic);
+    }
+
+    #[test]
+    fn topic_names_follow_the_ros_rules() {
+        for ok in ["/imu/data", "imu", "/robot_1/imu_raw", "_x"] {
+            check_topic_name(ok).unwrap();
+        }
+        for bad in [
+            "",
+            "/",
+            "/imu/",
+            "/a//b",
+            "/9imu",
+            "/imu data",
+            "/a__b",
+            "ros2:/x",
+        ] {
+            let e = check_topic_name(bad).unwrap_err();
+            assert!(e.to_string().contains(&format!("{bad:?}")), "{e}");
+        }
     }
 }

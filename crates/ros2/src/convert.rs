@@ -19,6 +19,9 @@
 //!   message carries no orientation: `orientation_covariance[0] = -1`
 //!   (sensor_msgs/Imu, REP-145), rate and acceleration covariances all zero
 //!   ("unknown").
+//! - The other way: [`ros_to_imu_sample`] reads a `sensor_msgs/Imu` of an
+//!   IMU already in ROS (the IMU driver's `ros2:/TOPIC` source), timed by
+//!   its stamp mapped back to CLOCK_MONOTONIC ([`stamp_to_monotonic`]).
 //!
 //! ```
 //! use insuwb_msg::{FusedState, Header};
@@ -509,6 +512,65 @@ pub fn stage_status(
     }
 }
 
+/// The oldest an incoming IMU message's stamp may be against its receive
+/// time and still be its measurement time, ns: an older stamp is of another
+/// clock (simulation time, a publisher whose clock is far off), and the
+/// receive time is taken instead.
+pub const MAX_STAMP_AGE_NS: u64 = 1_000_000_000;
+
+/// Which time an IMU sample received from ROS got as its measurement time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ImuTimeSource {
+    /// `header.stamp`, mapped to CLOCK_MONOTONIC.
+    Stamp,
+    /// The receive time: the stamp was unset (0), invalid, after the
+    /// receive time or older than [`MAX_STAMP_AGE_NS`].
+    Receive,
+}
+
+/// The CLOCK_MONOTONIC time of a stamp in the stamp clock (the inverse of
+/// [`ClockOffset::stamp`]); `None` for an invalid stamp (`nanosec` of 1e9
+/// or more) or one before the monotonic clock's start.
+#[must_use]
+pub fn stamp_to_monotonic(t: &Time, clock: &ClockOffset) -> Option<u64> {
+    if t.nanosec >= 1_000_000_000 {
+        return None;
+    }
+    let ns =
+        i128::from(t.sec) * 1_000_000_000 + i128::from(t.nanosec) - i128::from(clock.offset_ns);
+    u64::try_from(ns).ok()
+}
+
+/// The insuwb IMU sample of a `sensor_msgs/Imu` message received at
+/// `rx_ns` (CLOCK_MONOTONIC): `linear_acceleration` (specific force, m/s^2)
+/// and `angular_velocity` (rad/s) as they are, so the message's frame must
+/// be the body frame; orientation and covariances are not read.
+///
+/// Measurement time: `header.stamp` mapped to CLOCK_MONOTONIC by `clock`
+/// ([`stamp_to_monotonic`]) when it is set, not after `rx_ns` and at most
+/// [`MAX_STAMP_AGE_NS`] before it (the time the sensor measured, without
+/// the transport's delay); otherwise `rx_ns`. The values are not checked
+/// here: the IMU driver drops and counts NaN, infinite and out-of-range
+/// ones. The header's sequence number is 0 (the publisher numbers it).
+#[must_use]
+pub fn ros_to_imu_sample(m: &Imu, clock: &ClockOffset, rx_ns: u64) -> (ImuSample, ImuTimeSource) {
+    let stamped = (m.header.stamp != Time::default())
+        .then(|| stamp_to_monotonic(&m.header.stamp, clock))
+        .flatten()
+        .filter(|t| *t <= rx_ns && rx_ns - *t <= MAX_STAMP_AGE_NS);
+    let (t, source) = match stamped {
+        Some(t) => (t, ImuTimeSource::Stamp),
+        None => (rx_ns, ImuTimeSource::Receive),
+    };
+    let v = |v: &Vector3| [v.x, v.y, v.z];
+    let s = ImuSample {
+        header: insuwb_msg::Header::new(0, t),
+        accel_mps2: v(&m.linear_acceleration),
+        gyro_rps: v(&m.angular_velocity),
+    };
+    (s, source)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -717,5 +779,92 @@ mod tests {
         h.pid = 43;
         seen.note(h, 1_400_000_000);
         assert_eq!(seen.rates_hz, None);
+    }
+
+    fn ros_imu(sec: i32, nanosec: u32) -> Imu {
+        Imu {
+            header: Header {
+                stamp: Time { sec, nanosec },
+                frame_id: "base_link".into(),
+            },
+            angular_velocity: Vector3 {
+                x: 0.01,
+                y: -0.02,
+                z: 0.5,
+            },
+            linear_acceleration: Vector3 {
+                x: 0.1,
+                y: -0.2,
+                z: 9.81,
+            },
+            ..Imu::default()
+        }
+    }
+
+    #[test]
+    fn ros_imu_becomes_a_sample_at_its_stamp() {
+        // Stamp clock 1.7e18 ns ahead of CLOCK_MONOTONIC (the real-time clock).
+        let clock = ClockOffset {
+            offset_ns: 1_700_000_000_000_000_000,
+        };
+        let rx = 5_000_000_000;
+        let stamp = clock.stamp(rx - 3_000_000).unwrap();
+        assert_eq!(stamp_to_monotonic(&stamp, &clock), Some(rx - 3_000_000));
+        let m = ros_imu(stamp.sec, stamp.nanosec);
+        let (s, src) = ros_to_imu_sample(&m, &clock, rx);
+        assert_eq!(src, ImuTimeSource::Stamp);
+        assert_eq!(s.header.meas_time_ns, rx - 3_000_000);
+        assert_eq!(s.accel_mps2, [0.1, -0.2, 9.81]);
+        assert_eq!(s.gyro_rps, [0.01, -0.02, 0.5]);
+        // The way out and back in: the same sample.
+        let back = imu_to_ros(&s, &Frames::default(), &clock).unwrap();
+        assert_eq!(ros_to_imu_sample(&back, &clock, rx).0, s);
+        // Monotonic stamps map as they are.
+        let (s, src) = ros_to_imu_sample(&ros_imu(4, 990_000_000), &ClockOffset::ZERO, rx);
+        assert_eq!(
+            (s.header.meas_time_ns, src),
+            (4_990_000_000, ImuTimeSource::Stamp)
+        );
+        // Non-finite values pass through (the driver counts them).
+        let mut nan = m.clone();
+        nan.linear_acceleration.x = f64::NAN;
+        assert!(ros_to_imu_sample(&nan, &clock, rx).0.accel_mps2[0].is_nan());
+    }
+
+    #[test]
+    fn unusable_stamps_fall_back_to_the_receive_time() {
+        let rx = 5_000_000_000;
+        let z = ClockOffset::ZERO;
+        let at = |sec, nanosec| ros_to_imu_sample(&ros_imu(sec, nanosec), &z, rx);
+        // Unset, in the future, too old, invalid nanoseconds.
+        for (sec, nanosec) in [(0, 0), (5, 1), (3, 999_999_999), (4, 1_000_000_000)] {
+            let (s, src) = at(sec, nanosec);
+            assert_eq!(
+                (s.header.meas_time_ns, src),
+                (rx, ImuTimeSource::Receive),
+                "{sec} s {nanosec} ns"
+            );
+        }
+        // Exactly now and exactly the oldest allowed: the stamp.
+        assert_eq!(at(5, 0).1, ImuTimeSource::Stamp);
+        assert_eq!(at(4, 0).1, ImuTimeSource::Stamp);
+        // Before the monotonic clock's start: no monotonic time.
+        let late = ClockOffset {
+            offset_ns: 10_000_000_000,
+        };
+        assert_eq!(
+            stamp_to_monotonic(&Time { sec: 9, nanosec: 0 }, &late),
+            None
+        );
+        assert_eq!(
+            stamp_to_monotonic(
+                &Time {
+                    sec: -1,
+                    nanosec: 0
+                },
+                &ClockOffset::ZERO
+            ),
+            None
+        );
     }
 }

@@ -9,6 +9,8 @@
 //! - `bridge` (feature `dds`, on by default through `jazzy`): the stage's
 //!   loop, iceoryx2 in, DDS out through `ros2-client` (RustDDS). Feature
 //!   `humble` (without the default features) builds it for ROS 2 Humble.
+//! - `subscribe` (feature `dds`): a `sensor_msgs/Imu` subscriber, the IMU
+//!   driver's source for an IMU already in ROS (`sources.imu = "ros2:/TOPIC"`).
 //!
 //! ```
 //! use insuwb_msg::{FusedState, Header};
@@ -26,5 +28,7 @@ pub mod bridge;
 pub mod config;
 pub mod convert;
 pub mod msgs;
+#[cfg(feature = "dds")]
+pub mod subscribe;
 
 pub use config::{Ros2Config, Ros2ConfigError};

@@ -21,7 +21,8 @@ pub struct StageArgs {
     /// The robot group configuration (config/robot.toml).
     #[arg(long)]
     pub config: PathBuf,
-    /// Driver source, overriding the config: `sim` or `replay:FILE`.
+    /// Driver source, overriding the config: `sim`, `replay:FILE`, `device`
+    /// or (IMU) `ros2:/TOPIC`.
     #[arg(long)]
     pub source: Option<String>,
     /// Replay speed, overriding the config's `sources.speed` for every stage
@@ -105,6 +106,9 @@ fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
         StageRole::Logger => crate::logger::run(&cfg),
         StageRole::Ros2 => Err(anyhow::anyhow!(
             "the ros2 stage is its own binary insuwb-stage-ros2"
+        )),
+        StageRole::Foxglove => Err(anyhow::anyhow!(
+            "the foxglove stage is its own binary insuwb-stage-foxglove"
         )),
     };
     match result {

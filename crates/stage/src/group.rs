@@ -42,7 +42,9 @@ impl Default for GroupConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SourcesConfig {
-    /// IMU source: `sim` or `replay:FILE` (an insuwb log).
+    /// IMU source: `sim`, `replay:FILE` (an insuwb log), `device` or
+    /// `ros2:/TOPIC` (`sensor_msgs/Imu` over DDS, node, namespace and domain
+    /// from `[ros2]`; see `crate::ros2_source`).
     pub imu: String,
     /// UWB source: `sim` or `replay:FILE`.
     pub uwb: String,
@@ -226,8 +228,8 @@ pub struct RobotConfig {
     /// Logger.
     pub logger: LoggerConfig,
     /// Stages to run, in start order (default: imu, uwb, ins, fusion,
-    /// logger; `ros2` runs only where listed, always after fusion and
-    /// always optional).
+    /// logger; `ros2` and `foxglove` run only where listed, always after
+    /// fusion, `foxglove` after `ros2`, and always optional).
     pub stages: Vec<StageRole>,
     /// Restart policy of the launcher.
     pub launch: insuwb_launch::RestartPolicy,
@@ -235,6 +237,9 @@ pub struct RobotConfig {
     pub devices: DevicesConfig,
     /// The ROS 2 bridge (`insuwb-stage-ros2`, when `stages` lists `ros2`).
     pub ros2: insuwb_ros2::Ros2Config,
+    /// The Foxglove live view (`insuwb-stage-foxglove`, when `stages` lists
+    /// `foxglove`).
+    pub foxglove: insuwb_foxglove::FoxgloveConfig,
     /// Optional CPU pinning and SCHED_FIFO per stage (`[realtime.fusion]`
     /// `cpus = [1]`, `fifo_priority = 50`); none by default.
     pub realtime: std::collections::BTreeMap<String, insuwb_runtime::realtime::RealtimeConfig>,
@@ -269,7 +274,7 @@ impl RobotConfig {
         if self.stages.is_empty() {
             self.stages = StageRole::DEFAULT.to_vec();
         }
-        self.place_ros2();
+        self.place_optional();
         check_path(origin, "group.run_dir", &self.group.run_dir)?;
         if self.group.run_dir.is_relative() {
             self.group.run_dir = base.join(&self.group.run_dir);
@@ -309,6 +314,17 @@ impl RobotConfig {
                     }
                     *src = format!("replay:{}", p.display());
                 }
+                Some(("ros2", topic)) if key == "sources.imu" => {
+                    if let Err(e) = insuwb_ros2::config::check_topic_name(topic) {
+                        bail!("{origin}: key '{key}': ros2:TOPIC: {e}");
+                    }
+                }
+                Some(("ros2", _)) => bail!(
+                    "{origin}: key '{key}': a ROS 2 source (ros2:TOPIC) is for the IMU only, got '{src}'"
+                ),
+                _ if key == "sources.imu" => bail!(
+                    "{origin}: key '{key}': unknown source '{src}' (sim, replay:FILE, device or ros2:/TOPIC)"
+                ),
                 _ => bail!(
                     "{origin}: key '{key}': unknown source '{src}' (sim, replay:FILE or device)"
                 ),
@@ -430,6 +446,9 @@ impl RobotConfig {
         self.ros2
             .validate()
             .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
+        self.foxglove
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
         self.logger
             .segments
             .validate()
@@ -442,22 +461,28 @@ impl RobotConfig {
         Ok(())
     }
 
-    /// The ROS 2 bridge, when listed, starts after fusion (its input) and
-    /// is optional: a bridge that keeps failing is given up alone, the
-    /// fix path keeps running.
-    fn place_ros2(&mut self) {
-        let ros2 = StageRole::Ros2;
-        let Some(at) = self.stages.iter().position(|s| *s == ros2) else {
-            return;
-        };
-        if let Some(fusion) = self.stages.iter().position(|s| *s == StageRole::Fusion) {
-            if fusion > at {
-                self.stages.remove(at);
-                self.stages.insert(fusion, ros2);
+    /// The ROS 2 bridge and the Foxglove live view, when listed, start
+    /// after fusion (their input), the live view after the bridge, and are
+    /// optional: one that keeps failing is given up alone, the fix path
+    /// keeps running.
+    fn place_optional(&mut self) {
+        let after_ros2 = [StageRole::Fusion, StageRole::Ros2];
+        for (role, after) in [
+            (StageRole::Ros2, &after_ros2[..1]),
+            (StageRole::Foxglove, &after_ros2[..]),
+        ] {
+            let Some(at) = self.stages.iter().position(|s| *s == role) else {
+                continue;
+            };
+            if let Some(last) = self.stages.iter().rposition(|s| after.contains(s)) {
+                if last > at {
+                    self.stages.remove(at);
+                    self.stages.insert(last, role);
+                }
             }
-        }
-        if !self.launch.is_optional(ros2.name()) {
-            self.launch.optional.push(ros2.name().to_owned());
+            if !self.launch.is_optional(role.name()) {
+                self.launch.optional.push(role.name().to_owned());
+            }
         }
     }
 
@@ -575,7 +600,9 @@ mod tests {
             "",
         )
         .unwrap();
-        assert_eq!(listed.stages, StageRole::ALL, "ros2 moved after fusion");
+        let mut want = StageRole::DEFAULT.to_vec();
+        want.insert(4, StageRole::Ros2);
+        assert_eq!(listed.stages, want, "ros2 moved after fusion");
         assert!(listed.launch.is_optional("ros2"));
         let mut c = RobotConfig::from_str(
             "stages = [\"imu\", \"uwb\", \"ins\", \"fusion\", \"ros2\"]\n[launch]\noptional = []\n",
@@ -584,8 +611,46 @@ mod tests {
         )
         .unwrap();
         assert!(c.launch.is_optional("ros2"), "{:?}", c.launch.optional);
-        c.place_ros2();
+        c.place_optional();
         assert_eq!(c.launch.optional, ["ros2"], "added once");
+    }
+
+    /// The Foxglove live view likewise, after the ROS 2 bridge too.
+    #[test]
+    fn foxglove_runs_only_when_listed_after_fusion_and_ros2_and_optional() {
+        let plain = load("", "").unwrap();
+        assert!(!plain.stages.contains(&StageRole::Foxglove));
+        assert_eq!(plain.foxglove, insuwb_foxglove::FoxgloveConfig::default());
+        let all = load(
+            "stages = [\"foxglove\", \"imu\", \"uwb\", \"ins\", \"fusion\", \"ros2\", \"logger\"]\n",
+            "",
+        )
+        .unwrap();
+        assert_eq!(all.stages, StageRole::ALL, "foxglove moved after ros2");
+        assert!(all.launch.is_optional("foxglove") && all.launch.is_optional("ros2"));
+        let mut c = RobotConfig::from_str(
+            "stages = [\"imu\", \"foxglove\", \"uwb\", \"ins\", \"fusion\"]\n[launch]\noptional = []\n[foxglove]\nbind = \"127.0.0.1:0\"\npath_length = 10\n",
+            "robot.toml",
+            Path::new("/tmp"),
+        )
+        .unwrap();
+        assert_eq!(c.stages.last(), Some(&StageRole::Foxglove));
+        assert_eq!(c.foxglove.path_length, 10);
+        c.place_optional();
+        assert_eq!(c.launch.optional, ["foxglove"], "added once");
+    }
+
+    #[test]
+    fn a_bad_foxglove_key_is_named() {
+        let e = RobotConfig::from_str(
+            "[foxglove]\nbind = \"0.0.0.0\"\n",
+            "robot.toml",
+            Path::new("/tmp"),
+        );
+        let msg = format!("{:#}", e.unwrap_err());
+        assert!(msg.contains("robot.toml: key 'foxglove.bind'"), "{msg}");
+        let e = RobotConfig::from_str("[foxglove]\nport = 1\n", "robot.toml", Path::new("/tmp"));
+        assert!(format!("{:#}", e.unwrap_err()).contains("foxglove"));
     }
 
     #[test]
@@ -597,5 +662,32 @@ mod tests {
         assert!(msg.contains("robot.toml: key 'ros2.frame_id'"), "{msg}");
         let e = RobotConfig::from_str("[ros2]\nodom = \"x\"\n", "robot.toml", Path::new("/tmp"));
         assert!(format!("{:#}", e.unwrap_err()).contains("ros2"));
+    }
+
+    /// `sources.imu = "ros2:/TOPIC"`: a ROS topic name, IMU only; the
+    /// error names the file and the key.
+    #[test]
+    fn a_ros2_imu_source_is_checked() {
+        let with = |imu: &str, uwb: &str| {
+            RobotConfig::from_str(
+                &format!("[sources]\nimu = \"{imu}\"\nuwb = \"{uwb}\"\n"),
+                "robot.toml",
+                Path::new("/tmp"),
+            )
+        };
+        let c = with("ros2:/imu/data", "sim").unwrap();
+        assert_eq!(c.sources.imu, "ros2:/imu/data");
+        with("ros2:imu", "sim").unwrap();
+        for bad in ["ros2:/imu//data", "ros2:", "ros2:/9imu", "ros2:/imu/"] {
+            let msg = format!("{:#}", with(bad, "sim").unwrap_err());
+            assert!(msg.contains("robot.toml: key 'sources.imu'"), "{msg}");
+        }
+        let msg = format!("{:#}", with("sim", "ros2:/uwb").unwrap_err());
+        assert!(
+            msg.contains("robot.toml: key 'sources.uwb'") && msg.contains("IMU only"),
+            "{msg}"
+        );
+        let msg = format!("{:#}", with("ros:/imu", "sim").unwrap_err());
+        assert!(msg.contains("ros2:/TOPIC"), "{msg}");
     }
 }

@@ -1,7 +1,8 @@
 //! The body of each stage process and what they share: the robot group
 //! configuration ([`group`]), the sensor sources ([`source`]), and one module
 //! per stage ([`driver`] for the IMU and UWB drivers, [`device`] for their
-//! loop over a real sensor, [`ins`], [`fusion`],
+//! loop over a real sensor, [`ros2_source`] for their loop over a ROS 2
+//! topic, [`ins`], [`fusion`],
 //! [`logger`]) and the locks
 //! that keep one group per prefix and one process per stage role ([`lock`]). The stage
 //! binaries in `bins/` are thin `main`s over [`cli`]; all the algorithms come
@@ -17,4 +18,5 @@ pub mod group;
 pub mod ins;
 pub mod lock;
 pub mod logger;
+pub mod ros2_source;
 pub mod source;

@@ -4,7 +4,8 @@
 //! [`pacing`] holds what both drivers share (the resume after a restart,
 //! the due times, lockstep, the wait loop, the heartbeat); [`imu`] and
 //! [`uwb`] what each publishes and checks. A `device` source runs the live
-//! loop of [`crate::device`] instead.
+//! loop of [`crate::device`] instead, a `ros2:/TOPIC` IMU source that of
+//! [`crate::ros2_source`].
 //!
 //! Recorded times are mapped onto CLOCK_MONOTONIC as `start_epoch + t`
 //! (an offset, never a scale: every interval the algorithms see is the
@@ -45,7 +46,8 @@ pub use imu::imu_ok;
 pub use uwb::{SKIP_LOG_PERIOD_NS, UWB_EXTRA};
 
 /// Runs a driver stage until SIGINT/SIGTERM. Source `device`: the live
-/// loop of [`crate::device`] (speed and epoch do not apply).
+/// loop of [`crate::device`]; `ros2:/TOPIC` (IMU only): that of
+/// [`crate::ros2_source`] (speed and epoch do not apply to either).
 pub fn run(
     want: Want,
     cfg: &RobotConfig,
@@ -55,6 +57,16 @@ pub fn run(
 ) -> Result<()> {
     if source_spec == "device" {
         return crate::device::run(want, cfg);
+    }
+    if source_spec.starts_with(crate::ros2_source::SOURCE_PREFIX) {
+        return match want {
+            Want::Imu => crate::ros2_source::run(cfg, source_spec),
+            Want::Uwb => Err(crate::ros2_source::Ros2SourceError::NotImu {
+                sensor: "uwb",
+                spec: source_spec.to_owned(),
+            }
+            .into()),
+        };
     }
     match want {
         Want::Imu => imu::run(cfg, source_spec, speed, epoch_ns),

@@ -1,0 +1,331 @@
+//! The IMU driver's ROS 2 source against a DDS implementation nobody here
+//! wrote: a group whose IMU source is `ros2:/test_imu` runs (stages `imu`
+//! and `logger`), and a Python publisher built on the PyPI `cyclonedds`
+//! package (`tests/ros2/imu_publisher.py`, `sensor_msgs::msg::dds_::Imu_`
+//! on `rt/test_imu`, best effort as ROS IMU drivers publish) sends 300
+//! samples at 100 Hz with known values, four of them invalid (a NaN, an
+//! infinity, an out-of-range acceleration, a stamp before its
+//! predecessor's). The recording must hold exactly the valid samples, with
+//! their values, at their stamps mapped to CLOCK_MONOTONIC, in time order;
+//! the driver's heartbeat must count the invalid ones as dropped.
+//!
+//! DDS discovery multicasts, so the test body runs in a private network
+//! namespace (`unshare -n`, or `unshare -rn` when not root) with only
+//! loopback up, multicast on and 224.0.0.0/4 routed to it: no packet
+//! leaves the machine. Where namespaces or the Python environment
+//! (`target/pyenv`, installed by `.ci/run`) are missing the test says so
+//! and skips, unless `CI` is set: then it fails. Every wait is bounded;
+//! the test starts processes, so it holds the one-at-a-time lock. It needs
+//! `insuwb-stage-imu` built with its default features (the `ros2:` source).
+
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{f, insuwb, one_at_a_time, run_bounded, wait_bounded, Group};
+use insuwb_log::Record;
+use insuwb_msg::{Health, ImuSample};
+
+/// Set in the re-executed test process, inside the network namespace.
+const INNER: &str = "INSUWB_ROS2_IMU_SOURCE_INNER";
+/// This test's name (the re-executed process runs it alone).
+const TEST: &str = "imu_samples_from_a_cyclonedds_publisher_are_driven_like_any_source";
+const DOMAIN: u16 = 43;
+const TOPIC: &str = "/test_imu";
+/// Samples published, and how many of them are invalid (see the script).
+const COUNT: usize = 300;
+const INVALID: usize = 4;
+/// Seconds the group runs: start, discovery, 3 s of samples, margin.
+const GROUP_S: f64 = 20.0;
+/// Bound of every wait.
+const BOUND: Duration = Duration::from_secs(90);
+
+/// Skips (prints why) where `CI` is not set; fails where it is.
+fn skip_or_fail(why: &str) {
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{why}; CI is set, so this fails instead of skipping"
+    );
+    eprintln!("SKIPPED: {why}");
+}
+
+/// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
+/// or `<workspace>/target/pyenv`), when it has `cyclonedds`.
+fn python() -> Option<PathBuf> {
+    let env = std::env::var_os("INSUWB_PYENV").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target/pyenv"),
+        PathBuf::from,
+    );
+    let py = env.join("bin/python");
+    let ok = Command::new(&py)
+        .args(["-c", "import cyclonedds"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    ok.then_some(py)
+}
+
+fn is_root() -> bool {
+    std::fs::read_to_string("/proc/self/status").is_ok_and(|s| {
+        s.lines()
+            .find_map(|l| l.strip_prefix("Uid:"))
+            .and_then(|v| v.split_whitespace().nth(1).map(|e| e == "0"))
+            .unwrap_or(false)
+    })
+}
+
+#[test]
+fn imu_samples_from_a_cyclonedds_publisher_are_driven_like_any_source() {
+    let _one = one_at_a_time();
+    if std::env::var_os(INNER).is_some() {
+        inner();
+        return;
+    }
+    let Some(_) = python() else {
+        skip_or_fail("no Python environment with cyclonedds (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install cyclonedds==11.0.1)");
+        return;
+    };
+    let flag = if is_root() { "-n" } else { "-rn" };
+    let probe = run_bounded(
+        Command::new("unshare").args([
+            flag,
+            "sh",
+            "-c",
+            "ip link set lo up multicast on && ip route add 224.0.0.0/4 dev lo",
+        ]),
+        BOUND,
+    );
+    if !probe.status.success() {
+        skip_or_fail(&format!(
+            "no private network namespace (unshare {flag}): {}",
+            String::from_utf8_lossy(&probe.stderr).trim()
+        ));
+        return;
+    }
+    // The test body again, in a namespace of its own with loopback only.
+    let out = run_bounded(
+        Command::new("unshare")
+            .args([
+                flag,
+                "sh",
+                "-c",
+                "ip link set lo up multicast on && ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"",
+            ])
+            .arg(std::env::current_exe().unwrap())
+            .args(["--exact", TEST, "--nocapture", "--test-threads=1"])
+            .env(INNER, "1"),
+        BOUND,
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{stdout}\n{stderr}");
+    assert!(
+        out.status.success(),
+        "the test body in the namespace failed"
+    );
+    assert!(
+        stdout.contains("1 passed"),
+        "the test body did not run in the namespace"
+    );
+}
+
+/// What the publisher sent: stamp (CLOCK_REALTIME ns), values, why invalid.
+struct Sent {
+    stamp_ns: i128,
+    accel: [f64; 3],
+    gyro: [f64; 3],
+    invalid: Option<String>,
+}
+
+fn sent(path: &std::path::Path) -> Vec<Sent> {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    // The invalid values come as strings ("nan", "inf"): NaN here.
+    let three = |x: &serde_json::Value| -> [f64; 3] {
+        let a: Vec<f64> = x
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e.as_f64().unwrap_or(f64::NAN))
+            .collect();
+        [a[0], a[1], a[2]]
+    };
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|s| Sent {
+            stamp_ns: i128::from(s["stamp_ns"].as_i64().unwrap()),
+            accel: three(&s["accel"]),
+            gyro: three(&s["gyro"]),
+            invalid: s["invalid"].as_str().map(str::to_owned),
+        })
+        .collect()
+}
+
+/// The test body, inside the network namespace.
+fn inner() {
+    let py = python().expect("the Python environment vanished");
+    let g = Group::with_config(
+        "ros2imu",
+        &format!("imu = \"ros2:{TOPIC}\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1"),
+        "filter = \"iakf\"\n",
+        &format!("[ros2]\ndomain_id = {DOMAIN}\n"),
+    );
+    // `stages` is a top-level key: before the first table.
+    let path = g.dir.join("robot.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, format!("stages = [\"imu\", \"logger\"]\n{text}")).unwrap();
+    // CLOCK_REALTIME - CLOCK_MONOTONIC, as the driver maps the stamps.
+    let offset_ns = realtime_ns() - i128::from(insuwb_runtime::monotonic_ns());
+    let mut launcher = Command::new(insuwb())
+        .arg("launch")
+        .arg(&path)
+        .args(["--duration", &GROUP_S.to_string(), "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_lock(&g, &mut launcher, "imu");
+    let out_json = g.dir.join("published.json");
+    let publisher = run_bounded(
+        Command::new(&py)
+            .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/ros2/imu_publisher.py"))
+            .args(["--domain", &DOMAIN.to_string()])
+            .args(["--topic", TOPIC])
+            .args(["--count", &COUNT.to_string()])
+            .args(["--rate", "100"])
+            .args(["--match-timeout", "10"])
+            .arg("--out")
+            .arg(&out_json),
+        BOUND,
+    );
+    let pub_err = String::from_utf8_lossy(&publisher.stderr);
+    eprintln!("{}{pub_err}", String::from_utf8_lossy(&publisher.stdout));
+    wait_bounded(&mut launcher, "insuwb launch", BOUND);
+    let out = launcher.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "launch failed:\n{stderr}");
+    for l in stderr.lines().filter(|l| l.contains("[imu]")) {
+        eprintln!("{l}");
+    }
+    assert!(
+        publisher.status.success(),
+        "the cyclonedds publisher failed:\n{pub_err}\n{stderr}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("no JSON report ({e}):\n{stderr}"));
+    assert_eq!(f(&report, "restarts"), 0.0, "{report}");
+    assert_eq!(
+        g.leftover_shm(),
+        Vec::<String>::new(),
+        "/dev/shm files left"
+    );
+
+    let sent = sent(&out_json);
+    assert_eq!(sent.len(), COUNT);
+    let valid: Vec<&Sent> = sent.iter().filter(|s| s.invalid.is_none()).collect();
+    assert_eq!(valid.len(), COUNT - INVALID);
+
+    // --- the heartbeat: every message received, the invalid ones dropped ---
+    let imu = &report["stages"]["imu"];
+    assert!(imu.is_object(), "no imu heartbeat: {report}");
+    let n = |k: &str| imu[k].as_u64().unwrap_or_else(|| panic!("{k} in {imu}"));
+    assert_eq!(n("received"), COUNT as u64, "{imu}");
+    assert_eq!(n("published"), valid.len() as u64, "{imu}");
+    // NaN, infinity, out of range; the stamp before its predecessor's.
+    assert_eq!(n("dropped_invalid"), 3, "{imu}");
+    assert_eq!(n("dropped_time"), 1, "{imu}");
+    // Every sample timed by its stamp, none in another frame.
+    let extra = imu["extra"].as_array().unwrap();
+    assert_eq!(extra[0].as_u64(), Some(0), "receive-timed samples: {imu}");
+    assert_eq!(extra[3].as_u64(), Some(0), "other frames: {imu}");
+
+    // --- the recording: exactly the valid samples, at their stamps ---
+    let mut logged: Vec<ImuSample> = Vec::new();
+    let mut ok_heartbeat = false;
+    for r in common::records(&g.log_dir()) {
+        match r {
+            Record::Imu(s) => logged.push(s),
+            Record::Health(h)
+                if insuwb_msg::name_str(&h.stage) == "imu" && h.state == Health::STATE_OK =>
+            {
+                ok_heartbeat = true;
+            }
+            _ => {}
+        }
+    }
+    assert!(ok_heartbeat, "no imu heartbeat in state OK was logged");
+    assert_eq!(logged.len(), valid.len(), "logged IMU samples");
+    let close = |a: &[f64; 3], b: &[f64; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-9);
+    let mut worst_ns = 0i128;
+    for (s, w) in logged.iter().zip(&valid) {
+        assert!(
+            close(&s.accel_mps2, &w.accel),
+            "{:?} vs {:?}",
+            s.accel_mps2,
+            w.accel
+        );
+        assert!(
+            close(&s.gyro_rps, &w.gyro),
+            "{:?} vs {:?}",
+            s.gyro_rps,
+            w.gyro
+        );
+        // The stamp mapped to CLOCK_MONOTONIC (both offsets measured on
+        // this host, microseconds apart), never after the publication.
+        let d = i128::from(s.header.meas_time_ns) + offset_ns - w.stamp_ns;
+        worst_ns = worst_ns.max(d.abs());
+        assert!(
+            d.abs() < 2_000_000,
+            "measurement time {} is {d} ns from the stamp",
+            s.header.meas_time_ns
+        );
+        assert!(s.header.meas_time_ns <= s.header.pub_time_ns);
+    }
+    eprintln!(
+        "{} samples logged; measurement time within {worst_ns} ns of the stamp",
+        logged.len()
+    );
+    assert!(
+        logged
+            .windows(2)
+            .all(|w| w[0].header.meas_time_ns < w[1].header.meas_time_ns),
+        "measurement times do not increase"
+    );
+    assert!(
+        logged
+            .windows(2)
+            .all(|w| w[1].header.seq == w[0].header.seq + 1),
+        "sequence numbers not consecutive"
+    );
+}
+
+fn realtime_ns() -> i128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as i128
+}
+
+/// Waits until stage `role` of `g` holds its lock (it takes it first thing).
+fn wait_for_lock(g: &Group, launcher: &mut Child, role: &str) {
+    let lock = g.dir.join("run").join(format!("stage-{role}.lock"));
+    let deadline = Instant::now() + BOUND;
+    while !lock.is_file() {
+        if let Some(status) = launcher.try_wait().unwrap() {
+            let mut err = String::new();
+            if let Some(mut e) = launcher.stderr.take() {
+                let _ = std::io::Read::read_to_string(&mut e, &mut err);
+            }
+            panic!("the launcher ended early ({status}):\n{err}");
+        }
+        assert!(Instant::now() < deadline, "stage {role} not up");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

@@ -1,0 +1,97 @@
+//! The insuwb Foxglove live-view stage (`insuwb-stage-foxglove`): reads the
+//! robot config, takes the `foxglove` role's lock, and runs
+//! `insuwb_foxglove::live` (iceoryx2 `fused`, `uwb_fix`, `uwb_tdoa`,
+//! `diag`, `truth`, `health` in; the Foxglove WebSocket protocol out on
+//! `[foxglove] bind`) until SIGINT/SIGTERM. Normally started by
+//! `insuwb launch` when `stages` lists `foxglove`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use insuwb_foxglove::convert::Anchor;
+use insuwb_foxglove::live::{LiveOpenError, LiveSetup, LiveView};
+use insuwb_msg::StageRole;
+use insuwb_runtime::StageError;
+use insuwb_stage::group::RobotConfig;
+use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
+
+/// Arguments.
+#[derive(Debug, Parser)]
+#[command(
+    version,
+    about = "The insuwb Foxglove live view: fused pose, path, UWB fixes, anchors, truth, filter diagnostics and stage health over the Foxglove WebSocket protocol (normally started by `insuwb launch`)."
+)]
+struct Args {
+    /// The robot group configuration (config/robot.toml) with its `[foxglove]` table.
+    #[arg(long)]
+    config: PathBuf,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let _ = insuwb_runtime::init_tracing(StageRole::Foxglove.name());
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The anchors the config knows: the simulated scenario's (other sources
+/// name theirs in their TDOA samples).
+fn configured_anchors(cfg: &RobotConfig) -> Result<Vec<Anchor>> {
+    if cfg.sources.uwb != "sim" {
+        return Ok(Vec::new());
+    }
+    let sc = insuwb_group::ScenarioFile::load(&cfg.sources.scenario)
+        .with_context(|| format!("reading the anchors of scenario {}", cfg.sources.scenario))?;
+    Ok(sc
+        .sim
+        .uwb
+        .anchors
+        .iter()
+        .map(|a| Anchor {
+            id: a.id,
+            pos_m: a.pos_m,
+        })
+        .collect())
+}
+
+fn run(args: &Args) -> Result<()> {
+    let cfg = RobotConfig::load(&args.config)?;
+    let role = StageRole::Foxglove.name();
+    // One live view per group, before anything of the group is opened.
+    let _lock = StageLock::acquire(&cfg.group, role, STAGE_LOCK_WAIT)?;
+    let setup = LiveSetup {
+        runtime: cfg.runtime(role),
+        foxglove: cfg.foxglove.clone(),
+        stages: cfg.stages.iter().map(|s| s.name().to_owned()).collect(),
+        server_name: format!("insuwb {}", cfg.group.name),
+        anchors: configured_anchors(&cfg)?,
+        // The IMU driver publishes truth for simulated and replayed sources.
+        truth: cfg.sources.imu == "sim" || cfg.sources.imu.starts_with("replay:"),
+    };
+    let view = match LiveView::open(setup) {
+        Ok(v) => v,
+        // SIGTERM while starting: a clean stop.
+        Err(LiveOpenError::Stage(StageError::ShutdownRequested(_))) => return Ok(()),
+        Err(e) => return Err(e).context("opening the Foxglove live view"),
+    };
+    let stats = view.run().context("the Foxglove live view")?;
+    tracing::info!(
+        "foxglove: logged {} poses, {} fixes, {} truth, {} errors, {} diagnostics, {} health; {} invalid samples, {} too old",
+        stats.poses,
+        stats.fixes,
+        stats.truth,
+        stats.errors,
+        stats.diags,
+        stats.health,
+        stats.invalid,
+        stats.old
+    );
+    Ok(())
+}

@@ -1,0 +1,1050 @@
+//! Pure conversions from insuwb samples to what the live view shows: no
+//! I/O, no server.
+//!
+//! - Stamps: insuwb headers hold CLOCK_MONOTONIC ns. Every message's
+//!   `timestamp` and its log time are the sample's measurement time in the
+//!   `[foxglove] stamp_clock`: CLOCK_REALTIME by an offset measured at
+//!   start and again at each health period (`realtime`, the default, what
+//!   the Foxglove app shows as wall-clock time), or CLOCK_MONOTONIC as it
+//!   is (`monotonic`). See [`ClockOffset`].
+//! - Positions are ENU in `frame_id` (`map`); the fused pose is also the
+//!   transform `frame_id -> child_frame_id` (`base_link`), which a 3D panel
+//!   follows.
+//! - Quaternions: insuwb's `[w, x, y, z]` becomes Foxglove's `x, y, z, w`,
+//!   normalised.
+//! - `diag`, the position error against ground truth and stage health are
+//!   JSON messages with a JSON schema ([`DIAG_SCHEMA`], [`ERROR_SCHEMA`],
+//!   [`HEALTH_SCHEMA`]): every number is a plottable field.
+//!
+//! ```
+//! use insuwb_foxglove::convert::{fused_pose, ClockOffset};
+//! use insuwb_msg::{FusedState, Header};
+//! let s = FusedState { header: Header::new(0, 5_000_000_001), pos_m: [1.0, 2.0, 3.0], quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
+//! let p = fused_pose(&s, "map", &ClockOffset::ZERO).unwrap();
+//! let t = p.timestamp.unwrap();
+//! assert_eq!((t.sec(), t.nsec()), (5, 1));
+//! assert_eq!(p.pose.unwrap().position.unwrap().z, 3.0);
+//! ```
+
+use std::collections::VecDeque;
+
+use foxglove::messages::{
+    ArrowPrimitive, Color, CubePrimitive, FrameTransform, KeyValuePair, Pose, PoseInFrame,
+    PosesInFrame, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
+    Vector3,
+};
+use insuwb_msg::{name_str, FilterDiag, FilterKind, FusedState, GroundTruth, Health, UwbFix};
+pub use insuwb_ros2::convert::{ClockOffset, StageSeen, StampClock};
+use serde::Serialize;
+
+/// A sample that cannot become a Foxglove message.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ConvertError {
+    /// A field holds NaN or an infinity.
+    #[error("ConvertError::NotFinite: field {0} is not finite")]
+    NotFinite(&'static str),
+    /// The attitude quaternion is not a rotation (norm far from 1).
+    #[error("ConvertError::BadQuaternion: norm {0}")]
+    BadQuaternion(f64),
+    /// The stamp does not fit a Foxglove time (before 1970 or after 2106).
+    #[error("ConvertError::StampOutOfRange: {0} ns")]
+    StampOutOfRange(i128),
+    /// `FilterDiag::dim` is larger than its arrays.
+    #[error("ConvertError::BadDimension: {0} entries, at most 8")]
+    BadDimension(u32),
+}
+
+/// One UWB anchor on the map.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Anchor {
+    /// Its id (`UwbTdoa::anchor_a` / `anchor_b`).
+    pub id: u32,
+    /// Its surveyed position, ENU, m.
+    pub pos_m: [f64; 3],
+}
+
+/// The stamp of a CLOCK_MONOTONIC time in the clock of `clock`, ns since
+/// that clock's epoch.
+///
+/// # Errors
+/// [`ConvertError::StampOutOfRange`] when it is negative or past what a
+/// Foxglove time holds (u32 seconds).
+pub fn stamp_ns(monotonic_ns: u64, clock: &ClockOffset) -> Result<u64, ConvertError> {
+    let t = i128::from(monotonic_ns) + i128::from(clock.offset_ns);
+    match u64::try_from(t) {
+        Ok(v) if v / 1_000_000_000 <= u64::from(u32::MAX) => Ok(v),
+        _ => Err(ConvertError::StampOutOfRange(t)),
+    }
+}
+
+/// A Foxglove time of a stamp from [`stamp_ns`].
+#[must_use]
+pub fn timestamp(stamp_ns: u64) -> Timestamp {
+    let sec = u32::try_from(stamp_ns / 1_000_000_000).unwrap_or(u32::MAX);
+    // Below 1e9: fits.
+    let nsec = (stamp_ns % 1_000_000_000) as u32;
+    Timestamp::new(sec, nsec)
+}
+
+fn finite(field: &'static str, v: &[f64]) -> Result<(), ConvertError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(ConvertError::NotFinite(field))
+    }
+}
+
+fn vector(v: &[f64; 3]) -> Vector3 {
+    Vector3 {
+        x: v[0],
+        y: v[1],
+        z: v[2],
+    }
+}
+
+const IDENTITY: Quaternion = Quaternion {
+    x: 0.0,
+    y: 0.0,
+    z: 0.0,
+    w: 1.0,
+};
+
+/// insuwb's `[w, x, y, z]`, normalised, in Foxglove's order.
+///
+/// # Errors
+/// [`ConvertError::NotFinite`], or [`ConvertError::BadQuaternion`] when its
+/// norm is not within 1e-3 of 1.
+pub fn quaternion(q: &[f64; 4]) -> Result<Quaternion, ConvertError> {
+    finite("quat", q)?;
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if (n - 1.0).abs() > 1e-3 {
+        return Err(ConvertError::BadQuaternion(n));
+    }
+    Ok(Quaternion {
+        x: q[1] / n,
+        y: q[2] / n,
+        z: q[3] / n,
+        w: q[0] / n,
+    })
+}
+
+/// A position and an attitude as a Foxglove pose.
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite position or a bad quaternion.
+pub fn pose(pos_m: &[f64; 3], quat: &[f64; 4]) -> Result<Pose, ConvertError> {
+    finite("pos_m", pos_m)?;
+    Ok(Pose {
+        position: Some(vector(pos_m)),
+        orientation: Some(quaternion(quat)?),
+    })
+}
+
+/// The fused pose at its measurement time.
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite field, a bad quaternion or a stamp
+/// out of range.
+pub fn fused_pose(
+    s: &FusedState,
+    frame_id: &str,
+    clock: &ClockOffset,
+) -> Result<PoseInFrame, ConvertError> {
+    let t = stamp_ns(s.header.meas_time_ns, clock)?;
+    Ok(PoseInFrame {
+        timestamp: Some(timestamp(t)),
+        frame_id: frame_id.to_owned(),
+        pose: Some(pose(&s.pos_m, &s.quat)?),
+    })
+}
+
+/// The transform `frame_id -> child_frame_id` of a fused pose (from
+/// [`fused_pose`]).
+#[must_use]
+pub fn pose_transform(p: &PoseInFrame, child_frame_id: &str) -> FrameTransform {
+    let pose = p.pose.unwrap_or_default();
+    FrameTransform {
+        timestamp: p.timestamp,
+        parent_frame_id: p.frame_id.clone(),
+        child_frame_id: child_frame_id.to_owned(),
+        translation: pose.position,
+        rotation: pose.orientation,
+    }
+}
+
+/// A UWB fix as a pose (identity attitude: a fix has none) at its epoch.
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite position or a stamp out of range.
+pub fn fix_pose(
+    f: &UwbFix,
+    frame_id: &str,
+    clock: &ClockOffset,
+) -> Result<PoseInFrame, ConvertError> {
+    finite("pos_m", &f.pos_m)?;
+    let t = stamp_ns(f.header.meas_time_ns, clock)?;
+    Ok(PoseInFrame {
+        timestamp: Some(timestamp(t)),
+        frame_id: frame_id.to_owned(),
+        pose: Some(Pose {
+            position: Some(vector(&f.pos_m)),
+            orientation: Some(IDENTITY),
+        }),
+    })
+}
+
+/// Ground truth as a pose at its time.
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite field, a bad quaternion or a stamp
+/// out of range.
+pub fn truth_pose(
+    t: &GroundTruth,
+    frame_id: &str,
+    clock: &ClockOffset,
+) -> Result<PoseInFrame, ConvertError> {
+    let ts = stamp_ns(t.header.meas_time_ns, clock)?;
+    Ok(PoseInFrame {
+        timestamp: Some(timestamp(ts)),
+        frame_id: frame_id.to_owned(),
+        pose: Some(pose(&t.pos_m, &t.quat)?),
+    })
+}
+
+/// The last poses of the robot, oldest first, at most `capacity`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Path {
+    poses: VecDeque<Pose>,
+    capacity: usize,
+}
+
+impl Path {
+    /// An empty path of at most `capacity` poses (at least 1).
+    #[must_use]
+    pub fn new(capacity: usize) -> Self {
+        let capacity = capacity.max(1);
+        Self {
+            poses: VecDeque::with_capacity(capacity.min(4096)),
+            capacity,
+        }
+    }
+
+    /// Appends a pose, forgetting the oldest beyond the capacity.
+    pub fn push(&mut self, p: Pose) {
+        if self.poses.len() == self.capacity {
+            self.poses.pop_front();
+        }
+        self.poses.push_back(p);
+    }
+
+    /// Poses held.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.poses.len()
+    }
+
+    /// No pose yet.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.poses.is_empty()
+    }
+
+    /// The path as one message, oldest pose first.
+    #[must_use]
+    pub fn message(&self, frame_id: &str, stamp: Timestamp) -> PosesInFrame {
+        PosesInFrame {
+            timestamp: Some(stamp),
+            frame_id: frame_id.to_owned(),
+            poses: self.poses.iter().copied().collect(),
+        }
+    }
+}
+
+/// The id of an anchor's scene entity.
+#[must_use]
+pub fn anchor_entity_id(id: u32) -> String {
+    format!("anchor/{id}")
+}
+
+const ANCHOR_COLOR: Color = Color {
+    r: 1.0,
+    g: 0.55,
+    b: 0.0,
+    a: 1.0,
+};
+
+/// One scene entity per anchor (id `anchor/<id>`, a sphere and its label,
+/// metadata `id`), lasting until replaced. Anchors with a non-finite
+/// position are left out.
+#[must_use]
+pub fn anchors_scene(anchors: &[Anchor], frame_id: &str, stamp: Timestamp) -> SceneUpdate {
+    let entities = anchors
+        .iter()
+        .filter(|a| a.pos_m.iter().all(|v| v.is_finite()))
+        .map(|a| {
+            let at = Pose {
+                position: Some(vector(&a.pos_m)),
+                orientation: Some(IDENTITY),
+            };
+            let mut label = at;
+            if let Some(p) = label.position.as_mut() {
+                p.z += 0.4;
+            }
+            SceneEntity {
+                timestamp: Some(stamp),
+                frame_id: frame_id.to_owned(),
+                id: anchor_entity_id(a.id),
+                frame_locked: false,
+                metadata: vec![KeyValuePair {
+                    key: "id".into(),
+                    value: a.id.to_string(),
+                }],
+                spheres: vec![SpherePrimitive {
+                    pose: Some(at),
+                    size: Some(Vector3 {
+                        x: 0.3,
+                        y: 0.3,
+                        z: 0.3,
+                    }),
+                    color: Some(ANCHOR_COLOR),
+                }],
+                texts: vec![TextPrimitive {
+                    pose: Some(label),
+                    billboard: true,
+                    font_size: 14.0,
+                    scale_invariant: true,
+                    color: Some(ANCHOR_COLOR),
+                    text: format!("anchor {}", a.id),
+                }],
+                ..SceneEntity::default()
+            }
+        })
+        .collect();
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities,
+    }
+}
+
+/// The robot's model in its body frame (entity `robot`: a box and an arrow
+/// along body x), locked to that frame so that it moves with the fused
+/// pose's transform.
+#[must_use]
+pub fn robot_scene(child_frame_id: &str, stamp: Timestamp) -> SceneUpdate {
+    let color = Color {
+        r: 0.1,
+        g: 0.6,
+        b: 1.0,
+        a: 0.9,
+    };
+    let origin = Pose {
+        position: Some(Vector3::default()),
+        orientation: Some(IDENTITY),
+    };
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities: vec![SceneEntity {
+            timestamp: Some(stamp),
+            frame_id: child_frame_id.to_owned(),
+            id: "robot".into(),
+            frame_locked: true,
+            cubes: vec![CubePrimitive {
+                pose: Some(origin),
+                size: Some(Vector3 {
+                    x: 0.5,
+                    y: 0.35,
+                    z: 0.2,
+                }),
+                color: Some(color),
+            }],
+            arrows: vec![ArrowPrimitive {
+                pose: Some(origin),
+                shaft_length: 0.6,
+                shaft_diameter: 0.05,
+                head_length: 0.2,
+                head_diameter: 0.12,
+                color: Some(color),
+            }],
+            ..SceneEntity::default()
+        }],
+    }
+}
+
+/// A Foxglove time in a JSON message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct JsonTime {
+    /// Seconds.
+    pub sec: u32,
+    /// Nanoseconds.
+    pub nsec: u32,
+}
+
+impl From<Timestamp> for JsonTime {
+    fn from(t: Timestamp) -> Self {
+        Self {
+            sec: t.sec(),
+            nsec: t.nsec(),
+        }
+    }
+}
+
+/// The filter's diagnostics of one update, as plottable values (topic
+/// `diag`; schema [`DIAG_SCHEMA`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DiagJson {
+    /// The update's time.
+    pub timestamp: JsonTime,
+    /// The filter (`kf`, `shaf`, `stf`, `iakf`, `iakf_tdoa`, or `unknown`).
+    pub filter: &'static str,
+    /// Entries of the arrays.
+    pub dim: u32,
+    /// Innovation (measurement minus prediction), one per entry.
+    pub innovation: Vec<f64>,
+    /// Square root of the innovation variance `S_ii`.
+    pub innovation_sigma: Vec<f64>,
+    /// Innovation over its sigma.
+    pub normalized_innovation: Vec<f64>,
+    /// Outlier weight per entry (1: accepted as is).
+    pub outlier_weight: Vec<f64>,
+    /// The smallest outlier weight of the update.
+    pub min_outlier_weight: f64,
+    /// Measurement noise diagonal in use.
+    pub r_diag: Vec<f64>,
+    /// Normalised innovation squared.
+    pub nis: f64,
+    /// Fading factor applied (1: none).
+    pub fading: f64,
+    /// An entry was weighted as an outlier.
+    pub outlier: bool,
+    /// The divergence test fired.
+    pub divergence: bool,
+    /// The filter was reset.
+    pub reset: bool,
+}
+
+/// The JSON schema of [`DiagJson`].
+pub const DIAG_SCHEMA: &str = r#"{
+  "title": "insuwb.FilterDiag",
+  "description": "The fusion filter's diagnostics of one update",
+  "type": "object",
+  "properties": {
+    "timestamp": {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}}},
+    "filter": {"type": "string", "description": "kf, shaf, stf, iakf or iakf_tdoa"},
+    "dim": {"type": "integer", "description": "entries of the arrays"},
+    "innovation": {"type": "array", "items": {"type": "number"}, "description": "measurement minus prediction"},
+    "innovation_sigma": {"type": "array", "items": {"type": "number"}, "description": "sqrt of the innovation variance"},
+    "normalized_innovation": {"type": "array", "items": {"type": "number"}, "description": "innovation / innovation_sigma"},
+    "outlier_weight": {"type": "array", "items": {"type": "number"}, "description": "1: accepted as is"},
+    "min_outlier_weight": {"type": "number"},
+    "r_diag": {"type": "array", "items": {"type": "number"}, "description": "measurement noise diagonal in use"},
+    "nis": {"type": "number", "description": "normalised innovation squared"},
+    "fading": {"type": "number", "description": "fading factor (1: none)"},
+    "outlier": {"type": "boolean"},
+    "divergence": {"type": "boolean"},
+    "reset": {"type": "boolean"}
+  }
+}"#;
+
+/// A diagnostics sample as [`DiagJson`].
+///
+/// # Errors
+/// [`ConvertError`] for a dimension past the arrays, a non-finite value or
+/// a stamp out of range.
+pub fn diag_json(d: &FilterDiag, clock: &ClockOffset) -> Result<DiagJson, ConvertError> {
+    let n = usize::try_from(d.dim)
+        .ok()
+        .filter(|n| *n <= d.innovation.len())
+        .ok_or(ConvertError::BadDimension(d.dim))?;
+    let (inn, var, lambda, r) = (
+        &d.innovation[..n],
+        &d.innovation_var[..n],
+        &d.lambda[..n],
+        &d.r_diag[..n],
+    );
+    finite("innovation", inn)?;
+    finite("innovation_var", var)?;
+    finite("lambda", lambda)?;
+    finite("r_diag", r)?;
+    finite("nis", &[d.nis])?;
+    finite("fading", &[d.fading])?;
+    let sigma: Vec<f64> = var.iter().map(|v| v.max(0.0).sqrt()).collect();
+    let normalized = inn
+        .iter()
+        .zip(&sigma)
+        .map(|(i, s)| if *s > 0.0 { i / s } else { 0.0 })
+        .collect();
+    let t = stamp_ns(d.header.meas_time_ns, clock)?;
+    Ok(DiagJson {
+        timestamp: timestamp(t).into(),
+        filter: FilterKind::from_code(d.filter_kind).map_or("unknown", FilterKind::name),
+        dim: d.dim,
+        innovation: inn.to_vec(),
+        innovation_sigma: sigma,
+        normalized_innovation: normalized,
+        outlier_weight: lambda.to_vec(),
+        min_outlier_weight: lambda.iter().copied().fold(1.0, f64::min),
+        r_diag: r.to_vec(),
+        nis: d.nis,
+        fading: d.fading,
+        outlier: d.header.flags & FilterDiag::FLAG_OUTLIER != 0,
+        divergence: d.header.flags & FilterDiag::FLAG_DIVERGENCE != 0,
+        reset: d.header.flags & FilterDiag::FLAG_RESET != 0,
+    })
+}
+
+/// The fused position minus ground truth at the fused state's time (topic
+/// `error`; schema [`ERROR_SCHEMA`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ErrorJson {
+    /// The fused state's time.
+    pub timestamp: JsonTime,
+    /// East error, m.
+    pub east_m: f64,
+    /// North error, m.
+    pub north_m: f64,
+    /// Up error, m.
+    pub up_m: f64,
+    /// Horizontal error, m.
+    pub horizontal_m: f64,
+    /// 3-D error, m.
+    pub norm_m: f64,
+}
+
+/// The JSON schema of [`ErrorJson`].
+pub const ERROR_SCHEMA: &str = r#"{
+  "title": "insuwb.PositionError",
+  "description": "Fused position minus ground truth, ENU",
+  "type": "object",
+  "properties": {
+    "timestamp": {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}}},
+    "east_m": {"type": "number"},
+    "north_m": {"type": "number"},
+    "up_m": {"type": "number"},
+    "horizontal_m": {"type": "number"},
+    "norm_m": {"type": "number"}
+  }
+}"#;
+
+/// The error of `pos_m` against `truth_m` at `stamp`.
+#[must_use]
+pub fn position_error(pos_m: &[f64; 3], truth_m: &[f64; 3], stamp: Timestamp) -> ErrorJson {
+    let d = [
+        pos_m[0] - truth_m[0],
+        pos_m[1] - truth_m[1],
+        pos_m[2] - truth_m[2],
+    ];
+    ErrorJson {
+        timestamp: stamp.into(),
+        east_m: d[0],
+        north_m: d[1],
+        up_m: d[2],
+        horizontal_m: d[0].hypot(d[1]),
+        norm_m: (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
+    }
+}
+
+/// Ground truth positions by time, to compare fused states with: the
+/// newest `capacity` samples, in time order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TruthTrack {
+    samples: VecDeque<(u64, [f64; 3])>,
+    capacity: usize,
+}
+
+impl TruthTrack {
+    /// An empty track of at most `capacity` samples (at least 2).
+    #[must_use]
+    pub fn new(capacity: usize) -> Self {
+        let capacity = capacity.max(2);
+        Self {
+            samples: VecDeque::with_capacity(capacity.min(8192)),
+            capacity,
+        }
+    }
+
+    /// Adds a sample; one not after the newest, or not finite, is ignored
+    /// (returns false).
+    pub fn push(&mut self, t_ns: u64, pos_m: [f64; 3]) -> bool {
+        if pos_m.iter().any(|v| !v.is_finite())
+            || self.samples.back().is_some_and(|(last, _)| t_ns <= *last)
+        {
+            return false;
+        }
+        if self.samples.len() == self.capacity {
+            self.samples.pop_front();
+        }
+        self.samples.push_back((t_ns, pos_m));
+        true
+    }
+
+    /// The newest sample's time.
+    #[must_use]
+    pub fn newest_ns(&self) -> Option<u64> {
+        self.samples.back().map(|(t, _)| *t)
+    }
+
+    /// The position at `t_ns`, linear between the samples around it;
+    /// `None` outside the samples held.
+    #[must_use]
+    pub fn at(&self, t_ns: u64) -> Option<[f64; 3]> {
+        let i = self.samples.partition_point(|(t, _)| *t < t_ns);
+        let (t1, p1) = *self.samples.get(i)?;
+        if t1 == t_ns {
+            return Some(p1);
+        }
+        let (t0, p0) = *self.samples.get(i.checked_sub(1)?)?;
+        let a = (t_ns - t0) as f64 / (t1 - t0) as f64;
+        Some([
+            p0[0] + a * (p1[0] - p0[0]),
+            p0[1] + a * (p1[1] - p0[1]),
+            p0[2] + a * (p1[2] - p0[2]),
+        ])
+    }
+}
+
+/// One stage in the health message.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StageHealth {
+    /// The stage's name.
+    pub name: String,
+    /// `ok`, `degraded`, `coasting`, `disconnected`, `stopping`, `stale`
+    /// or `down` (no heartbeat yet).
+    pub status: &'static str,
+    /// 0 ok, 1 warning (degraded, coasting), 2 error (stale, down,
+    /// stopping, disconnected): plottable.
+    pub level: u8,
+    /// Process id of the last heartbeat (0: none).
+    pub pid: u32,
+    /// Restarts of the stage (its publisher generation).
+    pub restarts: u32,
+    /// Age of the last heartbeat, s (-1: none).
+    pub heartbeat_age_s: f64,
+    /// Samples received.
+    pub received: u64,
+    /// Samples published.
+    pub published: u64,
+    /// Samples received per second between the last two heartbeats.
+    pub received_rate_hz: Option<f64>,
+    /// Samples published per second between the last two heartbeats.
+    pub published_rate_hz: Option<f64>,
+    /// Dropped for another layout version.
+    pub dropped_version: u64,
+    /// Dropped for a non-finite or out-of-range value.
+    pub dropped_invalid: u64,
+    /// Dropped for a time going backwards or repeated.
+    pub dropped_time: u64,
+    /// Samples missing on the inputs.
+    pub seq_gaps: u64,
+}
+
+/// The health of every stage of the group (topic `health`; schema
+/// [`HEALTH_SCHEMA`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HealthJson {
+    /// When it was made.
+    pub timestamp: JsonTime,
+    /// One entry per stage, in the group's start order.
+    pub stages: Vec<StageHealth>,
+}
+
+/// The JSON schema of [`HealthJson`].
+pub const HEALTH_SCHEMA: &str = r#"{
+  "title": "insuwb.GroupHealth",
+  "description": "One entry per stage of the group, from its heartbeats",
+  "type": "object",
+  "properties": {
+    "timestamp": {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}}},
+    "stages": {
+      "type": "array",
+      "items": {
+        "type": "object",
+        "properties": {
+          "name": {"type": "string"},
+          "status": {"type": "string", "enum": ["ok", "degraded", "coasting", "disconnected", "stopping", "stale", "down"]},
+          "level": {"type": "integer", "description": "0 ok, 1 warning, 2 error"},
+          "pid": {"type": "integer"},
+          "restarts": {"type": "integer"},
+          "heartbeat_age_s": {"type": "number", "description": "-1: no heartbeat yet"},
+          "received": {"type": "integer"},
+          "published": {"type": "integer"},
+          "received_rate_hz": {"type": ["number", "null"]},
+          "published_rate_hz": {"type": ["number", "null"]},
+          "dropped_version": {"type": "integer"},
+          "dropped_invalid": {"type": "integer"},
+          "dropped_time": {"type": "integer"},
+          "seq_gaps": {"type": "integer"}
+        }
+      }
+    }
+  }
+}"#;
+
+/// The health entry of stage `name` from what its heartbeats told (`None`:
+/// none came): `stale` when the last is older than `stale_after_ns`, else
+/// its state, `coasting` for the fusion stage whose last output was
+/// flagged degraded or stale.
+#[must_use]
+pub fn stage_health(
+    name: &str,
+    seen: Option<&StageSeen>,
+    coasting: bool,
+    now_ns: u64,
+    stale_after_ns: u64,
+) -> StageHealth {
+    let Some(s) = seen else {
+        return StageHealth {
+            name: name.to_owned(),
+            status: "down",
+            level: 2,
+            pid: 0,
+            restarts: 0,
+            heartbeat_age_s: -1.0,
+            received: 0,
+            published: 0,
+            received_rate_hz: None,
+            published_rate_hz: None,
+            dropped_version: 0,
+            dropped_invalid: 0,
+            dropped_time: 0,
+            seq_gaps: 0,
+        };
+    };
+    let h = &s.last;
+    let age_ns = now_ns.saturating_sub(s.last_rx_ns);
+    let (status, level) = if age_ns > stale_after_ns {
+        ("stale", 2)
+    } else {
+        match h.state {
+            Health::STATE_STOPPING => ("stopping", 2),
+            Health::STATE_DISCONNECTED => ("disconnected", 2),
+            Health::STATE_DEGRADED => ("degraded", 1),
+            _ if coasting => ("coasting", 1),
+            _ => ("ok", 0),
+        }
+    };
+    StageHealth {
+        name: name.to_owned(),
+        status,
+        level,
+        pid: h.pid,
+        restarts: h.header.generation,
+        heartbeat_age_s: age_ns as f64 * 1e-9,
+        received: h.received,
+        published: h.published,
+        received_rate_hz: s.rates_hz.map(|r| r.0),
+        published_rate_hz: s.rates_hz.map(|r| r.1),
+        dropped_version: h.dropped_version,
+        dropped_invalid: h.dropped_invalid,
+        dropped_time: h.dropped_time,
+        seq_gaps: h.seq_gaps,
+    }
+}
+
+/// The stage a heartbeat is from.
+#[must_use]
+pub fn heartbeat_stage(h: &Health) -> String {
+    name_str(&h.stage)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use insuwb_msg::{fixed_name, Header};
+
+    fn yaw(a: f64) -> [f64; 4] {
+        [(a / 2.0).cos(), 0.0, 0.0, (a / 2.0).sin()]
+    }
+
+    #[test]
+    fn fused_pose_is_its_position_and_attitude_at_its_time() {
+        let s = FusedState {
+            header: Header::new(3, 12_345_678_901),
+            pos_m: [1.5, -2.0, 0.25],
+            quat: yaw(std::f64::consts::FRAC_PI_2).map(|v| v * 1.0005),
+            ..FusedState::default()
+        };
+        let clock = ClockOffset {
+            offset_ns: 1_700_000_000_000_000_000,
+        };
+        let p = fused_pose(&s, "map", &clock).unwrap();
+        assert_eq!(p.frame_id, "map");
+        let t = p.timestamp.unwrap();
+        assert_eq!(t.total_nanos(), 1_700_000_012_345_678_901);
+        let pose = p.pose.unwrap();
+        let pos = pose.position.unwrap();
+        assert_eq!((pos.x, pos.y, pos.z), (1.5, -2.0, 0.25));
+        let q = pose.orientation.unwrap();
+        let h = std::f64::consts::FRAC_PI_4;
+        assert!((q.w - h.cos()).abs() < 1e-12 && (q.z - h.sin()).abs() < 1e-12);
+        assert_eq!((q.x, q.y), (0.0, 0.0));
+        let tf = pose_transform(&p, "base_link");
+        assert_eq!(
+            (tf.parent_frame_id.as_str(), tf.child_frame_id.as_str()),
+            ("map", "base_link")
+        );
+        assert_eq!(tf.translation.unwrap().y, -2.0);
+        assert_eq!(tf.rotation, Some(q));
+        assert_eq!(tf.timestamp, Some(t));
+    }
+
+    #[test]
+    fn bad_samples_are_refused() {
+        let mut s = FusedState {
+            header: Header::new(0, 1),
+            quat: [1.0, 0.0, 0.0, 0.0],
+            ..FusedState::default()
+        };
+        s.pos_m[2] = f64::NAN;
+        assert_eq!(
+            fused_pose(&s, "map", &ClockOffset::ZERO),
+            Err(ConvertError::NotFinite("pos_m"))
+        );
+        s.pos_m[2] = 0.0;
+        s.quat = [0.5, 0.0, 0.0, 0.0];
+        assert_eq!(
+            fused_pose(&s, "map", &ClockOffset::ZERO),
+            Err(ConvertError::BadQuaternion(0.5))
+        );
+        s.quat = [1.0, 0.0, 0.0, 0.0];
+        let before = ClockOffset { offset_ns: -10 };
+        assert!(matches!(
+            fused_pose(&s, "map", &before),
+            Err(ConvertError::StampOutOfRange(-9))
+        ));
+        assert!(stamp_ns(
+            u64::from(u32::MAX) * 1_000_000_000 + 999_999_999,
+            &ClockOffset::ZERO
+        )
+        .is_ok());
+        assert!(stamp_ns(
+            u64::from(u32::MAX) * 1_000_000_000 + 1_000_000_000,
+            &ClockOffset::ZERO
+        )
+        .is_err());
+        let mut f = UwbFix {
+            header: Header::new(0, 2_000_000_000),
+            pos_m: [1.0, 2.0, 0.5],
+            ..UwbFix::default()
+        };
+        let p = fix_pose(&f, "map", &ClockOffset::ZERO).unwrap();
+        assert_eq!(p.timestamp.unwrap().sec(), 2);
+        assert_eq!(p.pose.unwrap().orientation, Some(IDENTITY));
+        f.pos_m[0] = f64::INFINITY;
+        assert!(fix_pose(&f, "map", &ClockOffset::ZERO).is_err());
+        let t = GroundTruth {
+            header: Header::new(0, 5),
+            pos_m: [1.0, 1.0, 1.0],
+            quat: [0.0, 0.0, 0.0, 1.0],
+            ..GroundTruth::default()
+        };
+        assert_eq!(
+            truth_pose(&t, "map", &ClockOffset::ZERO)
+                .unwrap()
+                .pose
+                .unwrap()
+                .orientation
+                .unwrap()
+                .z,
+            1.0
+        );
+    }
+
+    #[test]
+    fn the_path_keeps_the_last_poses_oldest_first() {
+        let mut path = Path::new(3);
+        assert!(path.is_empty());
+        for i in 0..5 {
+            path.push(pose(&[f64::from(i), 0.0, 0.0], &[1.0, 0.0, 0.0, 0.0]).unwrap());
+        }
+        assert_eq!(path.len(), 3);
+        let m = path.message("map", Timestamp::new(1, 2));
+        let xs: Vec<f64> = m
+            .poses
+            .iter()
+            .map(|p| p.position.as_ref().unwrap().x)
+            .collect();
+        assert_eq!(xs, [2.0, 3.0, 4.0]);
+        assert_eq!(m.frame_id, "map");
+        assert_eq!(Path::new(0).capacity, 1);
+    }
+
+    #[test]
+    fn each_anchor_is_one_entity() {
+        let anchors = [
+            Anchor {
+                id: 7,
+                pos_m: [1.0, 2.0, 3.0],
+            },
+            Anchor {
+                id: 9,
+                pos_m: [-4.0, 0.0, 2.5],
+            },
+            Anchor {
+                id: 11,
+                pos_m: [f64::NAN, 0.0, 0.0],
+            },
+        ];
+        let u = anchors_scene(&anchors, "map", Timestamp::new(3, 0));
+        assert!(u.deletions.is_empty());
+        let ids: Vec<&str> = u.entities.iter().map(|e| e.id.as_str()).collect();
+        assert_eq!(ids, ["anchor/7", "anchor/9"]);
+        let e = &u.entities[1];
+        assert_eq!(e.frame_id, "map");
+        assert_eq!(e.metadata[0].value, "9");
+        let p = e.spheres[0]
+            .pose
+            .as_ref()
+            .unwrap()
+            .position
+            .as_ref()
+            .unwrap();
+        assert_eq!((p.x, p.y, p.z), (-4.0, 0.0, 2.5));
+        assert_eq!(e.texts[0].text, "anchor 9");
+        assert_eq!(e.lifetime, None, "lasts until replaced");
+        let r = robot_scene("base_link", Timestamp::new(3, 0));
+        assert_eq!(r.entities[0].frame_id, "base_link");
+        assert!(r.entities[0].frame_locked);
+    }
+
+    #[test]
+    fn diag_becomes_plottable_values() {
+        let mut d = FilterDiag {
+            header: Header::new(1, 1_500_000_000),
+            dim: 2,
+            nis: 3.5,
+            fading: 1.2,
+            filter_kind: FilterKind::Iakf as u32,
+            ..FilterDiag::default()
+        };
+        d.header.flags = FilterDiag::FLAG_OUTLIER;
+        d.innovation[..2].copy_from_slice(&[0.3, -0.8]);
+        d.innovation_var[..2].copy_from_slice(&[0.09, 0.16]);
+        d.lambda[..2].copy_from_slice(&[1.0, 0.25]);
+        d.r_diag[..2].copy_from_slice(&[0.01, 0.04]);
+        d.innovation[5] = f64::NAN; // past dim: not read
+        let j = diag_json(&d, &ClockOffset::ZERO).unwrap();
+        assert_eq!(j.filter, "iakf");
+        assert_eq!(j.innovation, [0.3, -0.8]);
+        assert!((j.innovation_sigma[0] - 0.3).abs() < 1e-12);
+        assert!((j.normalized_innovation[1] + 2.0).abs() < 1e-12);
+        assert_eq!(j.outlier_weight, [1.0, 0.25]);
+        assert_eq!(j.min_outlier_weight, 0.25);
+        assert!(j.outlier && !j.divergence && !j.reset);
+        assert_eq!((j.timestamp.sec, j.timestamp.nsec), (1, 500_000_000));
+        d.dim = 9;
+        assert_eq!(
+            diag_json(&d, &ClockOffset::ZERO),
+            Err(ConvertError::BadDimension(9))
+        );
+        d.dim = 6;
+        assert_eq!(
+            diag_json(&d, &ClockOffset::ZERO),
+            Err(ConvertError::NotFinite("innovation"))
+        );
+    }
+
+    /// Every field of a JSON message is a property of its schema.
+    fn assert_schema_covers(schema: &str, value: &serde_json::Value) {
+        let s: serde_json::Value = serde_json::from_str(schema).unwrap();
+        let props = s["properties"].as_object().unwrap();
+        for (k, v) in value.as_object().unwrap() {
+            assert!(props.contains_key(k), "{k} missing in {}", s["title"]);
+            if let (Some(items), Some(first)) = (
+                props[k]["items"].get("properties"),
+                v.as_array().and_then(|a| a.first()),
+            ) {
+                for k2 in first.as_object().unwrap().keys() {
+                    assert!(items.get(k2).is_some(), "{k}.{k2} missing");
+                }
+            }
+        }
+        assert_eq!(
+            props.len(),
+            value.as_object().unwrap().len(),
+            "{}",
+            s["title"]
+        );
+    }
+
+    #[test]
+    fn json_messages_match_their_schemas() {
+        let d = FilterDiag {
+            header: Header::new(1, 1),
+            dim: 1,
+            ..FilterDiag::default()
+        };
+        let v = serde_json::to_value(diag_json(&d, &ClockOffset::ZERO).unwrap()).unwrap();
+        assert_schema_covers(DIAG_SCHEMA, &v);
+        let e = position_error(&[3.0, 4.0, 1.0], &[0.0, 0.0, 0.0], Timestamp::new(1, 0));
+        assert_eq!((e.horizontal_m, e.up_m), (5.0, 1.0));
+        assert!((e.norm_m - 26f64.sqrt()).abs() < 1e-12);
+        assert_schema_covers(ERROR_SCHEMA, &serde_json::to_value(e).unwrap());
+        let h = HealthJson {
+            timestamp: Timestamp::new(1, 0).into(),
+            stages: vec![stage_health("imu", None, false, 0, 1)],
+        };
+        assert_schema_covers(HEALTH_SCHEMA, &serde_json::to_value(h).unwrap());
+    }
+
+    #[test]
+    fn truth_is_interpolated_between_samples() {
+        let mut t = TruthTrack::new(3);
+        assert_eq!(t.at(5), None);
+        assert!(t.push(10, [0.0, 0.0, 0.0]));
+        assert!(t.push(20, [1.0, 2.0, -1.0]));
+        assert!(!t.push(20, [9.0; 3]), "not after the newest");
+        assert!(!t.push(30, [f64::NAN, 0.0, 0.0]));
+        assert_eq!(t.at(10), Some([0.0; 3]));
+        assert_eq!(t.at(15), Some([0.5, 1.0, -0.5]));
+        assert_eq!(t.at(20), Some([1.0, 2.0, -1.0]));
+        assert_eq!(t.at(9), None);
+        assert_eq!(t.at(21), None);
+        assert!(t.push(30, [2.0; 3]));
+        assert!(t.push(40, [3.0; 3]));
+        assert_eq!(t.at(15), None, "forgotten beyond the capacity");
+        assert_eq!(t.newest_ns(), Some(40));
+    }
+
+    #[test]
+    fn stage_health_reads_the_heartbeats() {
+        let h = Health {
+            header: Header {
+                generation: 2,
+                meas_time_ns: 1_000_000_000,
+                ..Header::new(0, 1_000_000_000)
+            },
+            stage: fixed_name("fusion"),
+            pid: 42,
+            received: 10,
+            published: 5,
+            ..Health::default()
+        };
+        assert_eq!(heartbeat_stage(&h), "fusion");
+        let mut seen = StageSeen::new(h, 1_000_000_000);
+        let mut h2 = h;
+        h2.header.meas_time_ns = 2_000_000_000;
+        h2.received = 110;
+        h2.published = 15;
+        seen.note(h2, 2_000_000_000);
+        let ok = stage_health("fusion", Some(&seen), false, 2_100_000_000, 1_000_000_000);
+        assert_eq!((ok.status, ok.level, ok.restarts, ok.pid), ("ok", 0, 2, 42));
+        assert_eq!(ok.received_rate_hz, Some(100.0));
+        assert_eq!(ok.published_rate_hz, Some(10.0));
+        assert!((ok.heartbeat_age_s - 0.1).abs() < 1e-9);
+        let coasting = stage_health("fusion", Some(&seen), true, 2_100_000_000, 1_000_000_000);
+        assert_eq!((coasting.status, coasting.level), ("coasting", 1));
+        let stale = stage_health("fusion", Some(&seen), false, 3_500_000_000, 1_000_000_000);
+        assert_eq!((stale.status, stale.level), ("stale", 2));
+        let down = stage_health("ros2", None, false, 0, 1);
+        assert_eq!(
+            (down.status, down.level, down.heartbeat_age_s),
+            ("down", 2, -1.0)
+        );
+        h2.state = Health::STATE_DEGRADED;
+        seen.note(h2, 2_000_000_000);
+        assert_eq!(
+            stage_health("fusion", Some(&seen), false, 2_000_000_000, 1).status,
+            "degraded"
+        );
+    }
+}
