@@ -28,7 +28,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{f, insuwb, one_at_a_time, run_bounded, wait_bounded, Group};
+use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
 use insuwb_log::Record;
 use insuwb_msg::{FilterDiag, FusedState, UwbFix};
 use serde_json::Value;
@@ -57,33 +57,10 @@ const TOPICS: [&str; 10] = [
     "/insuwb/error",
 ];
 
-/// Skips (prints why) where `CI` is not set; fails where it is.
-fn skip_or_fail(why: &str) {
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{why}; CI is set, so this fails instead of skipping"
-    );
-    eprintln!("SKIPPED: {why}");
-}
-
 /// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
 /// or `<workspace>/target/pyenv`), when it has the client's packages.
 fn python() -> Option<PathBuf> {
-    let env = std::env::var_os("INSUWB_PYENV").map_or_else(
-        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target/pyenv"),
-        PathBuf::from,
-    );
-    let py = env.join("bin/python");
-    let ok = Command::new(&py)
-        .args([
-            "-c",
-            "import websockets, foxglove_schemas_protobuf, google.protobuf",
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    ok.then_some(py)
+    common::pyenv_python("websockets, foxglove_schemas_protobuf, google.protobuf")
 }
 
 /// A loopback port free now (the kernel's pick, released for the stage).

@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
-use common::{insuwb, one_at_a_time, run_bounded, wait_bounded, Group};
+use common::{insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
 use insuwb_log::LogReader;
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1";
@@ -34,30 +34,10 @@ const GROUP_S: f64 = 6.0;
 const BOUND: Duration = Duration::from_secs(120);
 const PACKAGES: &str = "mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9";
 
-/// Skips (prints why) where `CI` is not set; fails where it is.
-fn skip_or_fail(why: &str) {
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{why}; CI is set, so this fails instead of skipping"
-    );
-    eprintln!("SKIPPED: {why}");
-}
-
 /// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
 /// or `<workspace>/target/pyenv`), when it has the MCAP packages.
 fn python() -> Option<PathBuf> {
-    let env = std::env::var_os("INSUWB_PYENV").map_or_else(
-        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target/pyenv"),
-        PathBuf::from,
-    );
-    let py = env.join("bin/python");
-    let ok = Command::new(&py)
-        .args(["-c", "import mcap, mcap_ros2, rosbags"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    ok.then_some(py)
+    common::pyenv_python("mcap, mcap_ros2, rosbags")
 }
 
 fn script() -> PathBuf {

@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{f, insuwb, one_at_a_time, run_bounded, wait_bounded, Group};
+use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
 use insuwb_log::Record;
 use insuwb_msg::{FusedState, ImuSample};
 
@@ -45,39 +45,10 @@ const KILL_AT_S: f64 = 17.0;
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(90);
 
-/// Skips (prints why) where `CI` is not set; fails where it is.
-fn skip_or_fail(why: &str) {
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{why}; CI is set, so this fails instead of skipping"
-    );
-    eprintln!("SKIPPED: {why}");
-}
-
 /// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
 /// or `<workspace>/target/pyenv`), when it has `cyclonedds`.
 fn python() -> Option<PathBuf> {
-    let env = std::env::var_os("INSUWB_PYENV").map_or_else(
-        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target/pyenv"),
-        PathBuf::from,
-    );
-    let py = env.join("bin/python");
-    let ok = Command::new(&py)
-        .args(["-c", "import cyclonedds"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    ok.then_some(py)
-}
-
-fn is_root() -> bool {
-    std::fs::read_to_string("/proc/self/status").is_ok_and(|s| {
-        s.lines()
-            .find_map(|l| l.strip_prefix("Uid:"))
-            .and_then(|v| v.split_whitespace().nth(1).map(|e| e == "0"))
-            .unwrap_or(false)
-    })
+    common::pyenv_python("cyclonedds")
 }
 
 #[test]
@@ -91,48 +62,8 @@ fn ros2_topics_reach_a_cyclonedds_subscriber() {
         skip_or_fail("no Python environment with cyclonedds (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install cyclonedds==11.0.1)");
         return;
     };
-    let flag = if is_root() { "-n" } else { "-rn" };
-    let probe = run_bounded(
-        Command::new("unshare").args([
-            flag,
-            "sh",
-            "-c",
-            "ip link set lo up multicast on && ip route add 224.0.0.0/4 dev lo",
-        ]),
-        BOUND,
-    );
-    if !probe.status.success() {
-        skip_or_fail(&format!(
-            "no private network namespace (unshare {flag}): {}",
-            String::from_utf8_lossy(&probe.stderr).trim()
-        ));
-        return;
-    }
     // The test body again, in a namespace of its own with loopback only.
-    let out = run_bounded(
-        Command::new("unshare")
-            .args([
-                flag,
-                "sh",
-                "-c",
-                "ip link set lo up multicast on && ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"",
-            ])
-            .arg(std::env::current_exe().unwrap())
-            .args(["--exact", TEST, "--nocapture", "--test-threads=1"])
-            .env(INNER, "1"),
-        BOUND,
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    eprintln!("{stdout}\n{stderr}");
-    assert!(
-        out.status.success(),
-        "the test body in the namespace failed"
-    );
-    assert!(
-        stdout.contains("1 passed"),
-        "the test body did not run in the namespace"
-    );
+    common::run_in_private_netns(INNER, TEST, BOUND);
 }
 
 /// The test body, inside the network namespace.

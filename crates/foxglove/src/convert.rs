@@ -34,21 +34,20 @@ use foxglove::messages::{
     Vector3,
 };
 use insuwb_msg::{name_str, FilterDiag, FilterKind, FusedState, GroundTruth, Health, UwbFix};
+use insuwb_ros2::convert::{check_finite, unit_quaternion_xyzw, ConvertError as SampleError};
 pub use insuwb_ros2::convert::{ClockOffset, StageSeen, StampClock};
+use insuwb_ros2::health::StageCondition;
 use serde::Serialize;
 
 /// A sample that cannot become a Foxglove message.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum ConvertError {
-    /// A field holds NaN or an infinity.
-    #[error("ConvertError::NotFinite: field {0} is not finite")]
-    NotFinite(&'static str),
-    /// The attitude quaternion is not a rotation (norm far from 1).
-    #[error("ConvertError::BadQuaternion: norm {0}")]
-    BadQuaternion(f64),
-    /// The stamp does not fit a Foxglove time (before 1970 or after 2106).
-    #[error("ConvertError::StampOutOfRange: {0} ns")]
-    StampOutOfRange(i128),
+    /// A field holds NaN or an infinity, the attitude quaternion is not a
+    /// rotation, or the stamp does not fit a Foxglove time (before 1970 or
+    /// after 2106): the checks of the ROS 2 conversions, shown as theirs
+    /// (`ConvertError::NotFinite: ...`).
+    #[error(transparent)]
+    Sample(#[from] SampleError),
     /// `FilterDiag::dim` is larger than its arrays.
     #[error("ConvertError::BadDimension: {0} entries, at most 8")]
     BadDimension(u32),
@@ -67,13 +66,13 @@ pub struct Anchor {
 /// that clock's epoch.
 ///
 /// # Errors
-/// [`ConvertError::StampOutOfRange`] when it is negative or past what a
-/// Foxglove time holds (u32 seconds).
+/// [`ConvertError::Sample`] ([`SampleError::StampOutOfRange`]) when it is
+/// negative or past what a Foxglove time holds (u32 seconds).
 pub fn stamp_ns(monotonic_ns: u64, clock: &ClockOffset) -> Result<u64, ConvertError> {
     let t = i128::from(monotonic_ns) + i128::from(clock.offset_ns);
     match u64::try_from(t) {
         Ok(v) if v / 1_000_000_000 <= u64::from(u32::MAX) => Ok(v),
-        _ => Err(ConvertError::StampOutOfRange(t)),
+        _ => Err(SampleError::StampOutOfRange(t).into()),
     }
 }
 
@@ -84,14 +83,6 @@ pub fn timestamp(stamp_ns: u64) -> Timestamp {
     // Below 1e9: fits.
     let nsec = (stamp_ns % 1_000_000_000) as u32;
     Timestamp::new(sec, nsec)
-}
-
-fn finite(field: &'static str, v: &[f64]) -> Result<(), ConvertError> {
-    if v.iter().all(|x| x.is_finite()) {
-        Ok(())
-    } else {
-        Err(ConvertError::NotFinite(field))
-    }
 }
 
 fn vector(v: &[f64; 3]) -> Vector3 {
@@ -112,20 +103,11 @@ const IDENTITY: Quaternion = Quaternion {
 /// insuwb's `[w, x, y, z]`, normalised, in Foxglove's order.
 ///
 /// # Errors
-/// [`ConvertError::NotFinite`], or [`ConvertError::BadQuaternion`] when its
-/// norm is not within 1e-3 of 1.
+/// [`ConvertError::Sample`]: [`SampleError::NotFinite`], or
+/// [`SampleError::BadQuaternion`] when its norm is not within 1e-3 of 1.
 pub fn quaternion(q: &[f64; 4]) -> Result<Quaternion, ConvertError> {
-    finite("quat", q)?;
-    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if (n - 1.0).abs() > 1e-3 {
-        return Err(ConvertError::BadQuaternion(n));
-    }
-    Ok(Quaternion {
-        x: q[1] / n,
-        y: q[2] / n,
-        z: q[3] / n,
-        w: q[0] / n,
-    })
+    let [x, y, z, w] = unit_quaternion_xyzw(q)?;
+    Ok(Quaternion { x, y, z, w })
 }
 
 /// A position and an attitude as a Foxglove pose.
@@ -133,7 +115,7 @@ pub fn quaternion(q: &[f64; 4]) -> Result<Quaternion, ConvertError> {
 /// # Errors
 /// [`ConvertError`] for a non-finite position or a bad quaternion.
 pub fn pose(pos_m: &[f64; 3], quat: &[f64; 4]) -> Result<Pose, ConvertError> {
-    finite("pos_m", pos_m)?;
+    check_finite("pos_m", pos_m)?;
     Ok(Pose {
         position: Some(vector(pos_m)),
         orientation: Some(quaternion(quat)?),
@@ -181,7 +163,7 @@ pub fn fix_pose(
     frame_id: &str,
     clock: &ClockOffset,
 ) -> Result<PoseInFrame, ConvertError> {
-    finite("pos_m", &f.pos_m)?;
+    check_finite("pos_m", &f.pos_m)?;
     let t = stamp_ns(f.header.meas_time_ns, clock)?;
     Ok(PoseInFrame {
         timestamp: Some(timestamp(t)),
@@ -461,12 +443,12 @@ pub fn diag_json(d: &FilterDiag, clock: &ClockOffset) -> Result<DiagJson, Conver
         &d.lambda[..n],
         &d.r_diag[..n],
     );
-    finite("innovation", inn)?;
-    finite("innovation_var", var)?;
-    finite("lambda", lambda)?;
-    finite("r_diag", r)?;
-    finite("nis", &[d.nis])?;
-    finite("fading", &[d.fading])?;
+    check_finite("innovation", inn)?;
+    check_finite("innovation_var", var)?;
+    check_finite("lambda", lambda)?;
+    check_finite("r_diag", r)?;
+    check_finite("nis", &[d.nis])?;
+    check_finite("fading", &[d.fading])?;
     let sigma: Vec<f64> = var.iter().map(|v| v.max(0.0).sqrt()).collect();
     let normalized = inn
         .iter()
@@ -691,11 +673,20 @@ pub fn stage_health(
     now_ns: u64,
     stale_after_ns: u64,
 ) -> StageHealth {
+    let (status, level) = match StageCondition::of(seen, coasting, now_ns, stale_after_ns) {
+        StageCondition::Down => ("down", 2),
+        StageCondition::Stale => ("stale", 2),
+        StageCondition::Stopping => ("stopping", 2),
+        StageCondition::Disconnected => ("disconnected", 2),
+        StageCondition::Degraded => ("degraded", 1),
+        StageCondition::Coasting => ("coasting", 1),
+        StageCondition::Ok | StageCondition::Unknown(_) => ("ok", 0),
+    };
     let Some(s) = seen else {
         return StageHealth {
             name: name.to_owned(),
-            status: "down",
-            level: 2,
+            status,
+            level,
             pid: 0,
             restarts: 0,
             heartbeat_age_s: -1.0,
@@ -710,25 +701,13 @@ pub fn stage_health(
         };
     };
     let h = &s.last;
-    let age_ns = now_ns.saturating_sub(s.last_rx_ns);
-    let (status, level) = if age_ns > stale_after_ns {
-        ("stale", 2)
-    } else {
-        match h.state {
-            Health::STATE_STOPPING => ("stopping", 2),
-            Health::STATE_DISCONNECTED => ("disconnected", 2),
-            Health::STATE_DEGRADED => ("degraded", 1),
-            _ if coasting => ("coasting", 1),
-            _ => ("ok", 0),
-        }
-    };
     StageHealth {
         name: name.to_owned(),
         status,
         level,
         pid: h.pid,
         restarts: h.header.generation,
-        heartbeat_age_s: age_ns as f64 * 1e-9,
+        heartbeat_age_s: s.age_ns(now_ns) as f64 * 1e-9,
         received: h.received,
         published: h.published,
         received_rate_hz: s.rates_hz.map(|r| r.0),
@@ -797,19 +776,19 @@ mod tests {
         s.pos_m[2] = f64::NAN;
         assert_eq!(
             fused_pose(&s, "map", &ClockOffset::ZERO),
-            Err(ConvertError::NotFinite("pos_m"))
+            Err(ConvertError::Sample(SampleError::NotFinite("pos_m")))
         );
         s.pos_m[2] = 0.0;
         s.quat = [0.5, 0.0, 0.0, 0.0];
         assert_eq!(
             fused_pose(&s, "map", &ClockOffset::ZERO),
-            Err(ConvertError::BadQuaternion(0.5))
+            Err(ConvertError::Sample(SampleError::BadQuaternion(0.5)))
         );
         s.quat = [1.0, 0.0, 0.0, 0.0];
         let before = ClockOffset { offset_ns: -10 };
         assert!(matches!(
             fused_pose(&s, "map", &before),
-            Err(ConvertError::StampOutOfRange(-9))
+            Err(ConvertError::Sample(SampleError::StampOutOfRange(-9)))
         ));
         assert!(stamp_ns(
             u64::from(u32::MAX) * 1_000_000_000 + 999_999_999,
@@ -939,7 +918,7 @@ mod tests {
         d.dim = 6;
         assert_eq!(
             diag_json(&d, &ClockOffset::ZERO),
-            Err(ConvertError::NotFinite("innovation"))
+            Err(ConvertError::Sample(SampleError::NotFinite("innovation")))
         );
     }
 

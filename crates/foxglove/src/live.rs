@@ -22,10 +22,10 @@
 //! made before the server starts, so that each client gets them all in its
 //! first advertisement. Timestamps and log times: see [`crate::convert`].
 //!
-//! The loop sleeps in the stage's `Waiter` like the ROS 2 bridge's: it
-//! wakes for each fused state, drains every other topic then (or
-//! [`DRAIN_PERIOD_NS`] after the last drain while no fused state comes),
-//! and beats on `health`. Logging a message never blocks the loop: the
+//! The loop ([`insuwb_ros2::report_loop`], the ROS 2 bridge's) sleeps in
+//! the stage's `Waiter`: it wakes for each fused state, drains every other
+//! topic then (or [`DRAIN_PERIOD_NS`] after the last drain while no fused
+//! state comes), and beats on `health`. Logging a message never blocks the loop: the
 //! server queues it per client and drops the oldest for a slow one. The
 //! server runs on a tokio runtime of one worker thread, started with the
 //! signals blocked so that SIGTERM reaches the stage's own thread.
@@ -43,21 +43,18 @@ use std::time::Duration;
 use foxglove::messages::{FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate};
 use foxglove::{Channel, Context, PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
 use insuwb_msg::{topics, FilterDiag, FusedState, GroundTruth, Health, UwbFix, UwbTdoa};
-use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, PublishError, ReceiveError,
-    RuntimeConfig, Stage, StageError, Sub, WaitError, Wake,
+    RuntimeConfig, Stage, StageError, Sub, WaitError,
 };
 use serde::Serialize;
 
 use crate::config::{FoxgloveConfig, FoxgloveConfigError, TOPICS};
-use crate::convert::{
-    self, Anchor, ClockOffset, ConvertError, HealthJson, Path, StageSeen, TruthTrack,
-};
+use crate::convert::{self, Anchor, ClockOffset, ConvertError, HealthJson, Path, TruthTrack};
+use insuwb_ros2::health::GroupSeen;
+use insuwb_ros2::report_loop::{ReportLoop, ReportOutputs};
 
-/// Longest time the other topics wait undrained while no fused state wakes
-/// the loop.
-pub const DRAIN_PERIOD_NS: u64 = 20_000_000;
+pub use insuwb_ros2::report_loop::DRAIN_PERIOD_NS;
 
 /// Truth samples kept for the position error (20 s at 100 Hz).
 const TRUTH_KEPT: usize = 2000;
@@ -264,7 +261,7 @@ impl LiveView {
             health: stage.subscriber::<Health>(topics::HEALTH)?,
         };
         let health = stage.health_reporter()?;
-        let runtime = with_signals_blocked(|| {
+        let runtime = insuwb_runtime::signal::with_signals_blocked(|| {
             tokio::runtime::Builder::new_multi_thread()
                 .worker_threads(1)
                 .thread_name("foxglove-ws")
@@ -366,80 +363,33 @@ impl LiveView {
             mut health,
             mut out,
         } = self;
-        let waiter = stage.waiter()?;
-        let fused_a = waiter.attach(&inputs.fused)?;
-        let hb = waiter.attach_interval(health.period())?;
-        let period = Duration::from_secs_f64(out.setup.foxglove.health_period_s);
-        let period_a = waiter.attach_interval(period)?;
-        let stale_after_ns = (out.setup.foxglove.stale_after_s * 1e9) as u64;
-        let mut clock = ClockOffset::measure(out.setup.foxglove.stamp_clock);
-        let mut drain = DrainClock::new(DRAIN_PERIOD_NS, monotonic_ns());
-        let mut seen: Vec<(String, Option<StageSeen>)> =
-            out.setup.stages.iter().map(|s| (s.clone(), None)).collect();
-        let mut coasting = false;
-        let mut counters = HealthCounters::default();
-        // The scene at once, for a client that connects early.
-        out.publish_periodic(&clock, &seen, coasting, monotonic_ns(), stale_after_ns);
-        let result = loop {
-            let wake = match waiter.wait_deadline(drain.deadline()) {
-                Ok(w) => w,
-                Err(e) => break Err(e.into()),
-            };
-            let now = monotonic_ns();
-            let Some(next) = drain.after(&wake, &fused_a, &hb, now) else {
-                break Ok(());
-            };
-            if next.drain {
-                if let Err(e) = out.drain(&inputs, &clock, &mut seen, &mut coasting) {
-                    break Err(e);
-                }
-                drain.drained(monotonic_ns());
-            }
-            if matches!(&wake, Wake::Fired(f) if f.contains(&period_a)) {
-                clock = ClockOffset::measure(out.setup.foxglove.stamp_clock);
-                out.publish_periodic(&clock, &seen, coasting, monotonic_ns(), stale_after_ns);
-            } else if out.anchors_changed {
-                out.publish_anchors(&clock, monotonic_ns());
-            }
-            if next.beat {
-                counters = out.counters(&inputs);
-                if let Err(e) = health.report(&counters, Health::STATE_OK) {
-                    break Err(e.into());
-                }
-            }
+        let c = &out.setup.foxglove;
+        let stages = out.setup.stages.clone();
+        let looped = ReportLoop {
+            stages: &stages,
+            report_period_s: c.health_period_s,
+            stale_after_s: c.stale_after_s,
+            stamp_clock: c.stamp_clock,
         };
-        let _ = health.report(&counters, Health::STATE_STOPPING);
+        let result = looped.run(&stage, &inputs.fused, &inputs, &mut health, &mut out);
         out.stop();
         result.map(|()| out.stats)
     }
 }
 
-/// Adds or moves anchor `a`; true when that changed the list.
-fn note_anchor(anchors: &mut Vec<Anchor>, a: Anchor) -> bool {
-    if a.pos_m.iter().any(|v| !v.is_finite()) {
-        return false;
-    }
-    if let Some(x) = anchors.iter_mut().find(|x| x.id == a.id) {
-        let moved = x.pos_m != a.pos_m;
-        x.pos_m = a.pos_m;
-        return moved;
-    }
-    if anchors.len() >= MAX_ANCHORS {
-        return false;
-    }
-    anchors.push(a);
-    anchors.sort_by_key(|x| x.id);
-    true
-}
+impl ReportOutputs for Outputs {
+    type Inputs = Inputs;
+    type Error = LiveRunError;
 
-impl Outputs {
+    // The scene at once, for a client that connects early.
+    const REPORT_AT_START: bool = true;
+
     /// Drains the subscribers and logs what they held.
     fn drain(
         &mut self,
         inputs: &Inputs,
         clock: &ClockOffset,
-        seen: &mut [(String, Option<StageSeen>)],
-        coasting: &mut bool,
+        group: &mut GroupSeen,
     ) -> Result<(), LiveRunError> {
         let opened_ns = self.opened_ns;
         let frame = self.setup.foxglove.frame_id.clone();
@@ -462,7 +412,7 @@ impl Outputs {
                 self.stats.old += 1;
                 return;
             }
-            *coasting = s.header.flags & (FusedState::FLAG_DEGRADED | FusedState::FLAG_STALE) != 0;
+            group.note_fused(&s);
             if !only_valid || s.header.flags & FusedState::FLAG_VALID != 0 {
                 fused_seen.push(s);
             }
@@ -516,24 +466,82 @@ impl Outputs {
         })?;
         self.anchors_changed |= changed;
         let now = monotonic_ns();
-        inputs.health.drain(|h| {
-            // Aged from its publication (same host, same clock).
-            let at = if h.header.pub_time_ns > 0 {
-                h.header.pub_time_ns.min(now)
-            } else {
-                now
-            };
-            let name = convert::heartbeat_stage(&h);
-            if let Some((_, slot)) = seen.iter_mut().find(|(n, _)| *n == name) {
-                match slot {
-                    Some(s) => s.note(h, at),
-                    None => *slot = Some(StageSeen::new(h, at)),
-                }
-            }
-        })?;
+        inputs.health.drain(|h| group.note_heartbeat(h, now))?;
         Ok(())
     }
 
+    /// The health of every stage, the anchors and the robot's model.
+    fn report(&mut self, clock: &ClockOffset, group: &GroupSeen, now_ns: u64, stale_after_ns: u64) {
+        let Ok(ts) = convert::stamp_ns(now_ns, clock) else {
+            self.stats.invalid += 1;
+            return;
+        };
+        let stamp = convert::timestamp(ts);
+        let h = HealthJson {
+            timestamp: stamp.into(),
+            stages: group
+                .stages()
+                .map(|(name, seen, coasting)| {
+                    convert::stage_health(name, seen, coasting, now_ns, stale_after_ns)
+                })
+                .collect(),
+        };
+        if self.health.log(&h, ts) {
+            self.stats.health += 1;
+        }
+        let c = &self.setup.foxglove;
+        self.robot
+            .log_with_time(&convert::robot_scene(&c.child_frame_id, stamp), ts);
+        self.publish_anchors(clock, now_ns);
+    }
+
+    fn between_reports(&mut self, clock: &ClockOffset) {
+        if self.anchors_changed {
+            self.publish_anchors(clock, monotonic_ns());
+        }
+    }
+
+    fn counters(&self, inputs: &Inputs) -> HealthCounters {
+        let mut c = HealthCounters::default();
+        for st in [
+            inputs.fused.stats(),
+            inputs.fix.stats(),
+            inputs.tdoa.stats(),
+            inputs.diag.stats(),
+            inputs.truth.stats(),
+            inputs.health.stats(),
+        ] {
+            c.add_sub(&st);
+        }
+        let s = &self.stats;
+        c.published = s.poses + s.fixes + s.truth + s.errors + s.diags + s.health;
+        c.dropped_invalid = s.invalid;
+        c.dropped_time = s.old;
+        let clients = self.server.as_ref().map_or(0, |h| h.client_count());
+        c.extra = [s.poses, s.fixes, s.diags, clients as u64];
+        c
+    }
+}
+
+/// Adds or moves anchor `a`; true when that changed the list.
+fn note_anchor(anchors: &mut Vec<Anchor>, a: Anchor) -> bool {
+    if a.pos_m.iter().any(|v| !v.is_finite()) {
+        return false;
+    }
+    if let Some(x) = anchors.iter_mut().find(|x| x.id == a.id) {
+        let moved = x.pos_m != a.pos_m;
+        x.pos_m = a.pos_m;
+        return moved;
+    }
+    if anchors.len() >= MAX_ANCHORS {
+        return false;
+    }
+    anchors.push(a);
+    anchors.sort_by_key(|x| x.id);
+    true
+}
+
+impl Outputs {
     fn truth_sample(&mut self, t: &GroundTruth, frame: &str, clock: &ClockOffset) {
         match convert::truth_pose(t, frame, clock) {
             Ok(p) => {
@@ -601,45 +609,6 @@ impl Outputs {
         });
     }
 
-    /// The health of every stage, the anchors and the robot's model.
-    fn publish_periodic(
-        &mut self,
-        clock: &ClockOffset,
-        seen: &[(String, Option<StageSeen>)],
-        coasting: bool,
-        now_ns: u64,
-        stale_after_ns: u64,
-    ) {
-        let Ok(ts) = convert::stamp_ns(now_ns, clock) else {
-            self.stats.invalid += 1;
-            return;
-        };
-        let stamp = convert::timestamp(ts);
-        let fusion = insuwb_msg::StageRole::Fusion.name();
-        let h = HealthJson {
-            timestamp: stamp.into(),
-            stages: seen
-                .iter()
-                .map(|(name, s)| {
-                    convert::stage_health(
-                        name,
-                        s.as_ref(),
-                        coasting && name == fusion,
-                        now_ns,
-                        stale_after_ns,
-                    )
-                })
-                .collect(),
-        };
-        if self.health.log(&h, ts) {
-            self.stats.health += 1;
-        }
-        let c = &self.setup.foxglove;
-        self.robot
-            .log_with_time(&convert::robot_scene(&c.child_frame_id, stamp), ts);
-        self.publish_anchors(clock, now_ns);
-    }
-
     fn publish_anchors(&mut self, clock: &ClockOffset, now_ns: u64) {
         self.anchors_changed = false;
         if self.anchors.is_empty() {
@@ -654,27 +623,6 @@ impl Outputs {
             convert::timestamp(ts),
         );
         self.anchors_ch.log_with_time(&scene, ts);
-    }
-
-    fn counters(&self, inputs: &Inputs) -> HealthCounters {
-        let mut c = HealthCounters::default();
-        for st in [
-            inputs.fused.stats(),
-            inputs.fix.stats(),
-            inputs.tdoa.stats(),
-            inputs.diag.stats(),
-            inputs.truth.stats(),
-            inputs.health.stats(),
-        ] {
-            c.add_sub(&st);
-        }
-        let s = &self.stats;
-        c.published = s.poses + s.fixes + s.truth + s.errors + s.diags + s.health;
-        c.dropped_invalid = s.invalid;
-        c.dropped_time = s.old;
-        let clients = self.server.as_ref().map_or(0, |h| h.client_count());
-        c.extra = [s.poses, s.fixes, s.diags, clients as u64];
-        c
     }
 
     /// Stops the server (its clients get a close frame) and its runtime,
@@ -694,45 +642,6 @@ impl Outputs {
 fn invalid(stats: &mut LiveStats, what: &str, seq: u64, e: &ConvertError) {
     stats.invalid += 1;
     tracing::debug!("{what} {seq} not shown: {e}");
-}
-
-/// Runs `f` with every asynchronous signal blocked in this thread, so that
-/// the threads it starts (the server's runtime) inherit the mask: the
-/// signals iceoryx2 and insuwb handle (SIGTERM, SIGINT, the launcher's
-/// SIGCONT) land on the stage's own thread. Faults stay unblocked.
-fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
-    // SAFETY: a zeroed `sigset_t` is valid storage for `sigfillset`; every
-    // pointer is to a local that outlives the call.
-    #[allow(unsafe_code)]
-    let old = unsafe {
-        let mut set: libc::sigset_t = core::mem::zeroed();
-        libc::sigfillset(&mut set);
-        for sig in [
-            libc::SIGSEGV,
-            libc::SIGBUS,
-            libc::SIGFPE,
-            libc::SIGILL,
-            libc::SIGTRAP,
-            libc::SIGSYS,
-            libc::SIGABRT,
-        ] {
-            libc::sigdelset(&mut set, sig);
-        }
-        let mut old: libc::sigset_t = core::mem::zeroed();
-        (libc::pthread_sigmask(libc::SIG_BLOCK, &set, &mut old) == 0).then_some(old)
-    };
-    if old.is_none() {
-        tracing::warn!("could not block signals for the server's threads");
-    }
-    let out = f();
-    if let Some(old) = old {
-        // SAFETY: restores the mask read above; the pointers are to locals.
-        #[allow(unsafe_code)]
-        unsafe {
-            libc::pthread_sigmask(libc::SIG_SETMASK, &old, core::ptr::null_mut());
-        }
-    }
-    out
 }
 
 #[cfg(test)]

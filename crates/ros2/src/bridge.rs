@@ -10,10 +10,11 @@
 //! | `<ns>/imu` | `sensor_msgs/Imu` | reliable, volatile, keep-last 10 | each IMU sample (`publish_imu`) |
 //! | `/diagnostics` | `diagnostic_msgs/DiagnosticArray` | reliable, volatile, keep-last 10 | every `diagnostics_period_s`: one status per stage |
 //!
-//! The loop sleeps in the stage's `Waiter`: it wakes for each fused state,
-//! drains the IMU samples and heartbeats then (or [`DRAIN_PERIOD_NS`] after
-//! the last drain while no fused state comes), publishes the diagnostics on
-//! their own interval and its own heartbeat on `health` like every stage.
+//! The loop ([`crate::report_loop`]) sleeps in the stage's `Waiter`: it
+//! wakes for each fused state, drains the IMU samples and heartbeats then
+//! (or [`DRAIN_PERIOD_NS`] after the last drain while no fused state
+//! comes), publishes the diagnostics on their own interval and its own
+//! heartbeat on `health` like every stage.
 //! A DDS write never blocks the loop (a full reliable send window drops
 //! the message and counts it). Stamps: see [`crate::convert`].
 //!
@@ -26,13 +27,10 @@
 //! `dropped_time` samples too old to republish, `extra = [odometry, imu,
 //! tf, write failures]`.
 
-use std::time::Duration;
-
 use insuwb_msg::{topics, FusedState, Health, ImuSample};
-use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, PublishError, ReceiveError,
-    RuntimeConfig, Stage, StageError, Sub, WaitError, Wake,
+    RuntimeConfig, Stage, StageError, Sub, WaitError,
 };
 use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::{
@@ -40,14 +38,14 @@ use ros2_client::{
 };
 
 use crate::config::{Ros2Config, Ros2ConfigError};
-use crate::convert::{self, ClockOffset, ConvertError, Frames, StageSeen};
+use crate::convert::{self, ClockOffset, ConvertError, Frames};
+use crate::health::GroupSeen;
 use crate::msgs::{
     DiagnosticArray, Header, Imu, Odometry, RosMessage, TfMessage, TransformStamped,
 };
+use crate::report_loop::{ReportLoop, ReportOutputs};
 
-/// Longest time IMU samples and heartbeats wait undrained while no fused
-/// state wakes the loop.
-pub const DRAIN_PERIOD_NS: u64 = 20_000_000;
+pub use crate::report_loop::DRAIN_PERIOD_NS;
 
 /// What the bridge needs besides `[ros2]`.
 #[derive(Debug, Clone)]
@@ -214,7 +212,9 @@ impl Bridge {
         let imu = stage.subscriber::<ImuSample>(topics::IMU)?;
         let health_sub = stage.subscriber::<Health>(topics::HEALTH)?;
         let health = stage.health_reporter()?;
-        with_signals_blocked(|| Self::open_dds(setup, stage, fused, imu, health_sub, health))
+        insuwb_runtime::signal::with_signals_blocked(|| {
+            Self::open_dds(setup, stage, fused, imu, health_sub, health)
+        })
     }
 
     /// The DDS half of [`Bridge::open`] (run with signals blocked).
@@ -326,57 +326,29 @@ impl Bridge {
             mut health,
             mut out,
         } = self;
-        let waiter = stage.waiter()?;
-        let fused_a = waiter.attach(&inputs.fused)?;
-        let hb = waiter.attach_interval(health.period())?;
-        let diag_period = Duration::from_secs_f64(out.setup.ros2.diagnostics_period_s);
-        let diag_a = waiter.attach_interval(diag_period)?;
-        let stale_after_ns = (out.setup.ros2.stale_after_s * 1e9) as u64;
-        let mut clock = ClockOffset::measure(out.setup.ros2.stamp_clock);
-        let mut drain = DrainClock::new(DRAIN_PERIOD_NS, monotonic_ns());
-        let mut seen: Vec<(String, Option<StageSeen>)> =
-            out.setup.stages.iter().map(|s| (s.clone(), None)).collect();
-        let mut coasting = false;
-        let mut counters = HealthCounters::default();
-        let result = loop {
-            let wake = match waiter.wait_deadline(drain.deadline()) {
-                Ok(w) => w,
-                Err(e) => break Err(e.into()),
-            };
-            let now = monotonic_ns();
-            let Some(next) = drain.after(&wake, &fused_a, &hb, now) else {
-                break Ok(());
-            };
-            if next.drain {
-                if let Err(e) = out.drain(&inputs, &clock, &mut seen, &mut coasting) {
-                    break Err(e);
-                }
-                drain.drained(monotonic_ns());
-            }
-            if matches!(&wake, Wake::Fired(f) if f.contains(&diag_a)) {
-                clock = ClockOffset::measure(out.setup.ros2.stamp_clock);
-                out.publish_diagnostics(&clock, &seen, coasting, monotonic_ns(), stale_after_ns);
-            }
-            if next.beat {
-                counters = out.counters(&inputs);
-                if let Err(e) = health.report(&counters, Health::STATE_OK) {
-                    break Err(e.into());
-                }
-            }
+        let r = &out.setup.ros2;
+        let stages = out.setup.stages.clone();
+        let looped = ReportLoop {
+            stages: &stages,
+            report_period_s: r.diagnostics_period_s,
+            stale_after_s: r.stale_after_s,
+            stamp_clock: r.stamp_clock,
         };
-        let _ = health.report(&counters, Health::STATE_STOPPING);
-        result.map(|()| out.stats)
+        looped.run(&stage, &inputs.fused, &inputs, &mut health, &mut out)?;
+        Ok(out.stats)
     }
 }
 
-impl Outputs {
+impl ReportOutputs for Outputs {
+    type Inputs = Inputs;
+    type Error = BridgeRunError;
+
     /// Drains the three subscribers and publishes what they held.
     fn drain(
         &mut self,
         inputs: &Inputs,
         clock: &ClockOffset,
-        seen: &mut [(String, Option<StageSeen>)],
-        coasting: &mut bool,
+        group: &mut GroupSeen,
     ) -> Result<(), BridgeRunError> {
         let Inputs {
             fused,
@@ -400,7 +372,7 @@ impl Outputs {
                 stats.old += 1;
                 return;
             }
-            *coasting = s.header.flags & (FusedState::FLAG_DEGRADED | FusedState::FLAG_STALE) != 0;
+            group.note_fused(&s);
             if only_valid && s.header.flags & FusedState::FLAG_VALID == 0 {
                 return;
             }
@@ -452,33 +424,12 @@ impl Outputs {
             }
         })?;
         let now = monotonic_ns();
-        health_sub.drain(|h| {
-            // Aged from its publication (same host, same clock): a heartbeat
-            // of the topic's history is as old as it is.
-            let at = if h.header.pub_time_ns > 0 {
-                h.header.pub_time_ns.min(now)
-            } else {
-                now
-            };
-            let name = insuwb_msg::name_str(&h.stage);
-            if let Some((_, slot)) = seen.iter_mut().find(|(n, _)| *n == name) {
-                match slot {
-                    Some(s) => s.note(h, at),
-                    None => *slot = Some(StageSeen::new(h, at)),
-                }
-            }
-        })?;
+        health_sub.drain(|h| group.note_heartbeat(h, now))?;
         Ok(())
     }
 
-    fn publish_diagnostics(
-        &mut self,
-        clock: &ClockOffset,
-        seen: &[(String, Option<StageSeen>)],
-        coasting: bool,
-        now_ns: u64,
-        stale_after_ns: u64,
-    ) {
+    /// Publishes one status per stage on `/diagnostics`.
+    fn report(&mut self, clock: &ClockOffset, group: &GroupSeen, now_ns: u64, stale_after_ns: u64) {
         let stamp = match clock.stamp(now_ns) {
             Ok(t) => t,
             Err(e) => {
@@ -487,14 +438,14 @@ impl Outputs {
                 return;
             }
         };
-        let status = seen
-            .iter()
-            .map(|(name, s)| {
+        let status = group
+            .stages()
+            .map(|(name, seen, coasting)| {
                 convert::stage_status(
                     name,
                     &self.setup.hardware_id,
-                    s.as_ref(),
-                    coasting && name == insuwb_msg::StageRole::Fusion.name(),
+                    seen,
+                    coasting,
                     now_ns,
                     stale_after_ns,
                 )
@@ -531,51 +482,6 @@ impl Outputs {
         c.extra = [s.odometry, s.imu, s.tf, s.write_failures];
         c
     }
-}
-
-/// Runs `f` with every asynchronous signal blocked in this thread, so that
-/// the threads it starts (RustDDS's event loop and discovery) inherit the
-/// mask: the signals iceoryx2 and insuwb handle (SIGTERM, SIGINT, and the
-/// SIGCONT the launcher sends after SIGTERM, among others) then land on the
-/// stage's own thread and never interrupt RustDDS's poll, whose event loop
-/// ends on EINTR (and the participant with it). Faults (SIGSEGV, SIGBUS,
-/// SIGFPE, SIGILL, SIGTRAP, SIGSYS, SIGABRT) stay unblocked. A signal that
-/// arrives meanwhile stays pending until the mask is restored.
-pub(crate) fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
-    // SAFETY: a zeroed `sigset_t` is valid storage for `sigfillset`; every
-    // pointer is to a local that outlives the call.
-    #[allow(unsafe_code)]
-    let old = unsafe {
-        let mut set: libc::sigset_t = core::mem::zeroed();
-        libc::sigfillset(&mut set);
-        for sig in [
-            libc::SIGSEGV,
-            libc::SIGBUS,
-            libc::SIGFPE,
-            libc::SIGILL,
-            libc::SIGTRAP,
-            libc::SIGSYS,
-            libc::SIGABRT,
-        ] {
-            libc::sigdelset(&mut set, sig);
-        }
-        let mut old: libc::sigset_t = core::mem::zeroed();
-        (libc::pthread_sigmask(libc::SIG_BLOCK, &set, &mut old) == 0).then_some(old)
-    };
-    if old.is_none() {
-        tracing::warn!(
-            "could not block signals for the DDS threads: a signal may end RustDDS's event loop early"
-        );
-    }
-    let out = f();
-    if let Some(old) = old {
-        // SAFETY: restores the mask read above; the pointers are to locals.
-        #[allow(unsafe_code)]
-        unsafe {
-            libc::pthread_sigmask(libc::SIG_SETMASK, &old, core::ptr::null_mut());
-        }
-    }
-    out
 }
 
 /// Writes `m`, counting it in `ok` or, when the writer refuses it, in

@@ -34,9 +34,11 @@
 //! assert_eq!(odom.pose.pose.orientation.w, 1.0);
 //! ```
 
-use insuwb_msg::{name_str, FusedState, Health, ImuSample};
+use insuwb_msg::{name_str, FusedState, ImuSample};
 use serde::{Deserialize, Serialize};
 
+use crate::health::StageCondition;
+pub use crate::health::StageSeen;
 use crate::msgs::{
     Cov6, DiagnosticStatus, Header, Imu, KeyValue, Odometry, Point, Pose, PoseWithCovariance,
     Quaternion, Time, Transform, TransformStamped, Twist, TwistWithCovariance, Vector3,
@@ -46,7 +48,8 @@ use crate::msgs::{
 /// (attitude, angular rate): large, so that any consumer ignores them.
 pub const UNKNOWN_VARIANCE: f64 = 1e6;
 
-/// A sample that cannot become a ROS message.
+/// A sample that cannot become a ROS message (nor, through the checks the
+/// Foxglove live view shares, a Foxglove one).
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum ConvertError {
     /// A field holds NaN or an infinity.
@@ -55,7 +58,8 @@ pub enum ConvertError {
     /// The attitude quaternion is not a rotation (norm far from 1).
     #[error("ConvertError::BadQuaternion: norm {0}")]
     BadQuaternion(f64),
-    /// The stamp does not fit `builtin_interfaces/Time` (before 1970 or after 2038).
+    /// The stamp does not fit the message's time: before 1970, or after 2038
+    /// for `builtin_interfaces/Time` (after 2106 for a Foxglove time).
     #[error("ConvertError::StampOutOfRange: {0} ns")]
     StampOutOfRange(i128),
 }
@@ -151,7 +155,11 @@ impl Default for Frames {
     }
 }
 
-fn finite(field: &'static str, v: &[f64]) -> Result<(), ConvertError> {
+/// Checks that every value of `field` is finite.
+///
+/// # Errors
+/// [`ConvertError::NotFinite`] naming `field` for a NaN or an infinity.
+pub fn check_finite(field: &'static str, v: &[f64]) -> Result<(), ConvertError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(())
     } else {
@@ -159,23 +167,28 @@ fn finite(field: &'static str, v: &[f64]) -> Result<(), ConvertError> {
     }
 }
 
-/// insuwb's `[w, x, y, z]`, normalised, in ROS order.
+/// insuwb's `[w, x, y, z]`, normalised, as `[x, y, z, w]` (the order of
+/// ROS and Foxglove quaternions).
 ///
 /// # Errors
 /// [`ConvertError::NotFinite`], or [`ConvertError::BadQuaternion`] when its
 /// norm is not within 1e-3 of 1.
-pub fn quaternion(q: &[f64; 4]) -> Result<Quaternion, ConvertError> {
-    finite("quat", q)?;
+pub fn unit_quaternion_xyzw(q: &[f64; 4]) -> Result<[f64; 4], ConvertError> {
+    check_finite("quat", q)?;
     let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
     if (n - 1.0).abs() > 1e-3 {
         return Err(ConvertError::BadQuaternion(n));
     }
-    Ok(Quaternion {
-        x: q[1] / n,
-        y: q[2] / n,
-        z: q[3] / n,
-        w: q[0] / n,
-    })
+    Ok([q[1] / n, q[2] / n, q[3] / n, q[0] / n])
+}
+
+/// insuwb's `[w, x, y, z]`, normalised, in ROS order.
+///
+/// # Errors
+/// As [`unit_quaternion_xyzw`].
+pub fn quaternion(q: &[f64; 4]) -> Result<Quaternion, ConvertError> {
+    let [x, y, z, w] = unit_quaternion_xyzw(q)?;
+    Ok(Quaternion { x, y, z, w })
 }
 
 /// The rotation matrix (body to ENU) of a ROS quaternion.
@@ -252,9 +265,9 @@ pub fn fused_to_odometry(
     frames: &Frames,
     clock: &ClockOffset,
 ) -> Result<Odometry, ConvertError> {
-    finite("pos_m", &s.pos_m)?;
-    finite("vel_mps", &s.vel_mps)?;
-    finite("cov", s.cov.as_flattened())?;
+    check_finite("pos_m", &s.pos_m)?;
+    check_finite("vel_mps", &s.vel_mps)?;
+    check_finite("cov", s.cov.as_flattened())?;
     let q = quaternion(&s.quat)?;
     let r = rotation(&q);
     let mut pos_cov = [[0.0; 3]; 3];
@@ -306,7 +319,7 @@ pub fn fused_to_transform(
     frames: &Frames,
     clock: &ClockOffset,
 ) -> Result<TransformStamped, ConvertError> {
-    finite("pos_m", &s.pos_m)?;
+    check_finite("pos_m", &s.pos_m)?;
     Ok(TransformStamped {
         header: Header {
             stamp: clock.stamp(s.header.meas_time_ns)?,
@@ -334,7 +347,7 @@ pub fn static_transform(
     offset_m: [f64; 3],
     stamp: Time,
 ) -> Result<TransformStamped, ConvertError> {
-    finite("offset_m", &offset_m)?;
+    check_finite("offset_m", &offset_m)?;
     Ok(TransformStamped {
         header: Header {
             stamp,
@@ -362,8 +375,8 @@ pub fn imu_to_ros(
     frames: &Frames,
     clock: &ClockOffset,
 ) -> Result<Imu, ConvertError> {
-    finite("accel_mps2", &s.accel_mps2)?;
-    finite("gyro_rps", &s.gyro_rps)?;
+    check_finite("accel_mps2", &s.accel_mps2)?;
+    check_finite("gyro_rps", &s.gyro_rps)?;
     let mut orientation_covariance = [0.0; 9];
     orientation_covariance[0] = -1.0;
     Ok(Imu {
@@ -388,49 +401,6 @@ pub fn imu_to_ros(
     })
 }
 
-/// What the bridge knows of one stage from its heartbeats.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StageSeen {
-    /// The last heartbeat.
-    pub last: Health,
-    /// When it was published or, without a publish time, arrived
-    /// (CLOCK_MONOTONIC ns).
-    pub last_rx_ns: u64,
-    /// Received and published samples per second between the last two
-    /// heartbeats of the same process.
-    pub rates_hz: Option<(f64, f64)>,
-}
-
-impl StageSeen {
-    /// The first heartbeat of a stage.
-    #[must_use]
-    pub fn new(h: Health, rx_ns: u64) -> Self {
-        Self {
-            last: h,
-            last_rx_ns: rx_ns,
-            rates_hz: None,
-        }
-    }
-
-    /// Takes a newer heartbeat, updating the rates (a new process starts
-    /// them again).
-    pub fn note(&mut self, h: Health, rx_ns: u64) {
-        let dt = h
-            .header
-            .meas_time_ns
-            .saturating_sub(self.last.header.meas_time_ns) as f64
-            * 1e-9;
-        self.rates_hz = (h.pid == self.last.pid && dt > 0.0).then(|| {
-            (
-                h.received.saturating_sub(self.last.received) as f64 / dt,
-                h.published.saturating_sub(self.last.published) as f64 / dt,
-            )
-        });
-        self.last = h;
-        self.last_rx_ns = rx_ns;
-    }
-}
-
 /// The `diagnostic_msgs/DiagnosticStatus` of stage `stage` (named
 /// `insuwb/<stage>`): ERROR when no heartbeat ever came, when the last is
 /// older than `stale_after_ns`, or says stopping or disconnected; WARN when
@@ -446,38 +416,41 @@ pub fn stage_status(
     now_ns: u64,
     stale_after_ns: u64,
 ) -> DiagnosticStatus {
-    let name = format!("insuwb/{stage}");
-    let Some(s) = seen else {
-        return DiagnosticStatus {
-            level: DiagnosticStatus::ERROR,
-            name,
-            message: "down: no heartbeat received".into(),
-            hardware_id: hardware_id.to_owned(),
-            values: Vec::new(),
-        };
-    };
-    let h = &s.last;
-    let age_ns = now_ns.saturating_sub(s.last_rx_ns);
-    let (level, message) = if age_ns > stale_after_ns {
-        (
+    let age_ns = seen.map_or(0, |s| s.age_ns(now_ns));
+    let (level, message) = match StageCondition::of(seen, coasting, now_ns, stale_after_ns) {
+        StageCondition::Down => (
+            DiagnosticStatus::ERROR,
+            "down: no heartbeat received".to_owned(),
+        ),
+        StageCondition::Stale => (
             DiagnosticStatus::ERROR,
             format!("stale: last heartbeat {:.1} s ago", age_ns as f64 * 1e-9),
-        )
-    } else {
-        match h.state {
-            Health::STATE_STOPPING => (DiagnosticStatus::ERROR, "down: stopping".to_owned()),
-            Health::STATE_DISCONNECTED => {
-                (DiagnosticStatus::ERROR, "input disconnected".to_owned())
-            }
-            Health::STATE_DEGRADED => (DiagnosticStatus::WARN, "degraded".to_owned()),
-            _ if coasting => (
-                DiagnosticStatus::WARN,
-                "coasting: no UWB update, INS only".to_owned(),
-            ),
-            Health::STATE_OK => (DiagnosticStatus::OK, "ok".to_owned()),
-            other => (DiagnosticStatus::WARN, format!("unknown state {other}")),
+        ),
+        StageCondition::Stopping => (DiagnosticStatus::ERROR, "down: stopping".to_owned()),
+        StageCondition::Disconnected => (DiagnosticStatus::ERROR, "input disconnected".to_owned()),
+        StageCondition::Degraded => (DiagnosticStatus::WARN, "degraded".to_owned()),
+        StageCondition::Coasting => (
+            DiagnosticStatus::WARN,
+            "coasting: no UWB update, INS only".to_owned(),
+        ),
+        StageCondition::Ok => (DiagnosticStatus::OK, "ok".to_owned()),
+        StageCondition::Unknown(other) => {
+            (DiagnosticStatus::WARN, format!("unknown state {other}"))
         }
     };
+    DiagnosticStatus {
+        level,
+        name: format!("insuwb/{stage}"),
+        message,
+        hardware_id: hardware_id.to_owned(),
+        values: seen.map_or_else(Vec::new, |s| heartbeat_values(s, age_ns)),
+    }
+}
+
+/// The key-values of a stage's last heartbeat aged `age_ns`: its counters,
+/// its rates, its age and the stage's restarts.
+fn heartbeat_values(s: &StageSeen, age_ns: u64) -> Vec<KeyValue> {
+    let h = &s.last;
     let kv = |k: &str, v: String| KeyValue {
         key: k.to_owned(),
         value: v,
@@ -503,13 +476,7 @@ pub fn stage_status(
     for (i, e) in h.extra.iter().enumerate() {
         values.push(kv(&format!("extra_{i}"), e.to_string()));
     }
-    DiagnosticStatus {
-        level,
-        name,
-        message,
-        hardware_id: hardware_id.to_owned(),
-        values,
-    }
+    values
 }
 
 /// The oldest an incoming IMU message's stamp may be against its receive
@@ -574,7 +541,7 @@ pub fn ros_to_imu_sample(m: &Imu, clock: &ClockOffset, rx_ns: u64) -> (ImuSample
 #[cfg(test)]
 mod tests {
     use super::*;
-    use insuwb_msg::{fixed_name, Header as MsgHeader};
+    use insuwb_msg::{fixed_name, Header as MsgHeader, Health};
 
     /// Yaw of `a` rad about z as insuwb's `[w, x, y, z]`.
     fn yaw(a: f64) -> [f64; 4] {

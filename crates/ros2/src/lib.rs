@@ -6,6 +6,10 @@
 //! - [`convert`]: pure conversions from insuwb samples (stamps, frames,
 //!   covariance layout, quaternion order, diagnostics levels);
 //! - [`config`]: the `[ros2]` table of the robot config;
+//! - [`health`]: the group's health from the stages' heartbeats (shared
+//!   with the Foxglove live view);
+//! - [`report_loop`]: the loop of a stage that reports on the group (the
+//!   bridge's and the Foxglove live view's);
 //! - `bridge` (feature `dds`, on by default through `jazzy`): the stage's
 //!   loop, iceoryx2 in, DDS out through `ros2-client` (RustDDS). Feature
 //!   `humble` (without the default features) builds it for ROS 2 Humble.
@@ -27,7 +31,9 @@
 pub mod bridge;
 pub mod config;
 pub mod convert;
+pub mod health;
 pub mod msgs;
+pub mod report_loop;
 #[cfg(feature = "dds")]
 pub mod subscribe;
 

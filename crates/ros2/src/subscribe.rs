@@ -23,9 +23,9 @@ use ros2_client::{
     Subscription,
 };
 
-use crate::bridge::with_signals_blocked;
 use crate::config::{check_topic_name, Ros2Config, Ros2ConfigError, TopicNameError};
 use crate::msgs::{Imu, RosMessage};
+use insuwb_runtime::signal::with_signals_blocked;
 use serde::de::DeserializeOwned;
 
 /// Messages the reader keeps while the driver is busy: 100 ms at 1 kHz.

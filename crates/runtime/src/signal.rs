@@ -187,3 +187,48 @@ pub fn sleep(timeout: core::time::Duration) -> bool {
         }
     }
 }
+
+/// Runs `f` with every asynchronous signal blocked in this thread, so that
+/// the threads it starts (a library's own: RustDDS's event loop and
+/// discovery, an async runtime's workers) inherit the mask: the signals iceoryx2 and insuwb handle (SIGTERM, SIGINT, and the
+/// SIGCONT the launcher sends after SIGTERM, among others) then land on the
+/// stage's own thread and never interrupt RustDDS's poll, whose event loop
+/// ends on EINTR (and the participant with it), or any such thread. Faults (SIGSEGV, SIGBUS,
+/// SIGFPE, SIGILL, SIGTRAP, SIGSYS, SIGABRT) stay unblocked. A signal that
+/// arrives meanwhile stays pending until the mask is restored.
+pub fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
+    // SAFETY: a zeroed `sigset_t` is valid storage for `sigfillset`; every
+    // pointer is to a local that outlives the call.
+    #[allow(unsafe_code)]
+    let old = unsafe {
+        let mut set: libc::sigset_t = core::mem::zeroed();
+        libc::sigfillset(&mut set);
+        for sig in [
+            libc::SIGSEGV,
+            libc::SIGBUS,
+            libc::SIGFPE,
+            libc::SIGILL,
+            libc::SIGTRAP,
+            libc::SIGSYS,
+            libc::SIGABRT,
+        ] {
+            libc::sigdelset(&mut set, sig);
+        }
+        let mut old: libc::sigset_t = core::mem::zeroed();
+        (libc::pthread_sigmask(libc::SIG_BLOCK, &set, &mut old) == 0).then_some(old)
+    };
+    if old.is_none() {
+        tracing::warn!(
+            "could not block signals for the threads about to start: a signal may land on one of them"
+        );
+    }
+    let out = f();
+    if let Some(old) = old {
+        // SAFETY: restores the mask read above; the pointers are to locals.
+        #[allow(unsafe_code)]
+        unsafe {
+            libc::pthread_sigmask(libc::SIG_SETMASK, &old, core::ptr::null_mut());
+        }
+    }
+    out
+}

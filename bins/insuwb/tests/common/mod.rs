@@ -266,3 +266,87 @@ pub fn wait_bounded(child: &mut Child, what: &str, bound: Duration) {
         std::thread::sleep(Duration::from_millis(20));
     }
 }
+
+/// Skips (prints why) where `CI` is not set; fails where it is.
+pub fn skip_or_fail(why: &str) {
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{why}; CI is set, so this fails instead of skipping"
+    );
+    eprintln!("SKIPPED: {why}");
+}
+
+/// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
+/// or `<workspace>/target/pyenv`), when it imports `modules` (e.g.
+/// `"cyclonedds"`, `"mcap, mcap_ros2, rosbags"`).
+pub fn pyenv_python(modules: &str) -> Option<PathBuf> {
+    let env = std::env::var_os("INSUWB_PYENV").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target/pyenv"),
+        PathBuf::from,
+    );
+    let py = env.join("bin/python");
+    let ok = Command::new(&py)
+        .args(["-c", &format!("import {modules}")])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    ok.then_some(py)
+}
+
+fn is_root() -> bool {
+    std::fs::read_to_string("/proc/self/status").is_ok_and(|s| {
+        s.lines()
+            .find_map(|l| l.strip_prefix("Uid:"))
+            .and_then(|v| v.split_whitespace().nth(1).map(|e| e == "0"))
+            .unwrap_or(false)
+    })
+}
+
+/// Loopback up with multicast on and 224.0.0.0/4 routed to it: DDS
+/// discovery then stays inside the namespace.
+const NETNS_SETUP: &str = "ip link set lo up multicast on && ip route add 224.0.0.0/4 dev lo";
+
+/// Runs the test `test` of this test binary again inside a private network
+/// namespace (`unshare -n`, or `unshare -rn` when not root) with the
+/// environment variable `inner_env` set, and asserts that it passed there.
+/// Where no namespace can be made it skips, or fails where `CI` is set
+/// ([`skip_or_fail`]). Every wait is bounded by `bound`.
+pub fn run_in_private_netns(inner_env: &str, test: &str, bound: Duration) {
+    let flag = if is_root() { "-n" } else { "-rn" };
+    let probe = run_bounded(
+        Command::new("unshare").args([flag, "sh", "-c", NETNS_SETUP]),
+        bound,
+    );
+    if !probe.status.success() {
+        skip_or_fail(&format!(
+            "no private network namespace (unshare {flag}): {}",
+            String::from_utf8_lossy(&probe.stderr).trim()
+        ));
+        return;
+    }
+    let out = run_bounded(
+        Command::new("unshare")
+            .args([
+                flag,
+                "sh",
+                "-c",
+                &format!("{NETNS_SETUP} && exec \"$0\" \"$@\""),
+            ])
+            .arg(std::env::current_exe().unwrap())
+            .args(["--exact", test, "--nocapture", "--test-threads=1"])
+            .env(inner_env, "1"),
+        bound,
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{stdout}\n{stderr}");
+    assert!(
+        out.status.success(),
+        "the test body in the namespace failed"
+    );
+    assert!(
+        stdout.contains("1 passed"),
+        "the test body did not run in the namespace"
+    );
+}
