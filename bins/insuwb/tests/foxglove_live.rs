@@ -25,7 +25,7 @@ mod common;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
@@ -81,23 +81,6 @@ fn cpu_ticks(pid: u32) -> Option<u64> {
     Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
 }
 
-/// Waits until stage `role` of `g` holds its lock (it takes it first thing).
-fn wait_for_lock(g: &Group, launcher: &mut Child, role: &str) {
-    let lock = g.dir.join("run").join(format!("stage-{role}.lock"));
-    let deadline = Instant::now() + BOUND;
-    while !lock.is_file() {
-        if let Some(status) = launcher.try_wait().unwrap() {
-            let mut err = String::new();
-            if let Some(mut e) = launcher.stderr.take() {
-                let _ = std::io::Read::read_to_string(&mut e, &mut err);
-            }
-            panic!("the launcher ended early ({status}):\n{err}");
-        }
-        assert!(Instant::now() < deadline, "stage {role} not up");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 #[test]
 fn foxglove_channels_reach_a_websocket_client() {
     let _one = one_at_a_time();
@@ -128,7 +111,7 @@ fn foxglove_channels_reach_a_websocket_client() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    wait_for_lock(&g, &mut launcher, "foxglove");
+    common::wait_for_lock(&g, &mut launcher, BOUND, "foxglove");
     let out_json = g.dir.join("received.json");
     let mut client = Command::new(&py);
     client
@@ -175,22 +158,7 @@ fn foxglove_channels_reach_a_websocket_client() {
     );
     let report: Value = serde_json::from_slice(&out.stdout)
         .unwrap_or_else(|e| panic!("no JSON report ({e}):\n{stderr}"));
-    // The stage, killed once, came back; nothing else restarted.
-    assert_eq!(f(&report, "restarts"), 1.0, "{report}");
-    assert_eq!(report["gave_up"], serde_json::json!([]), "{report}");
-    assert!(
-        stderr.contains("stage foxglove restarted"),
-        "the live view was not restarted:\n{stderr}"
-    );
-    assert!(
-        report["stages"]["foxglove"].is_object(),
-        "no foxglove heartbeat: {report}"
-    );
-    assert_eq!(
-        g.leftover_shm(),
-        Vec::<String>::new(),
-        "/dev/shm files left"
-    );
+    common::assert_restarted_once(&report, &stderr, "foxglove", &g);
     let got: Value = serde_json::from_str(&std::fs::read_to_string(&out_json).unwrap()).unwrap();
     check(&got, &Recording::read(&g), &g.name);
 }

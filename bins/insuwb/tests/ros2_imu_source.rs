@@ -24,8 +24,8 @@
 mod common;
 
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::time::Duration;
 
 use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
 use insuwb_log::Record;
@@ -122,7 +122,7 @@ fn inner() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    wait_for_lock(&g, &mut launcher, "imu");
+    common::wait_for_lock(&g, &mut launcher, BOUND, "imu");
     let out_json = g.dir.join("published.json");
     let publisher = run_bounded(
         Command::new(&py)
@@ -242,21 +242,4 @@ fn realtime_ns() -> i128 {
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap()
         .as_nanos() as i128
-}
-
-/// Waits until stage `role` of `g` holds its lock (it takes it first thing).
-fn wait_for_lock(g: &Group, launcher: &mut Child, role: &str) {
-    let lock = g.dir.join("run").join(format!("stage-{role}.lock"));
-    let deadline = Instant::now() + BOUND;
-    while !lock.is_file() {
-        if let Some(status) = launcher.try_wait().unwrap() {
-            let mut err = String::new();
-            if let Some(mut e) = launcher.stderr.take() {
-                let _ = std::io::Read::read_to_string(&mut e, &mut err);
-            }
-            panic!("the launcher ended early ({status}):\n{err}");
-        }
-        assert!(Instant::now() < deadline, "stage {role} not up");
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }

@@ -23,10 +23,10 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::time::Duration;
 
-use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
+use common::{insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
 use insuwb_log::Record;
 use insuwb_msg::{FusedState, ImuSample};
 
@@ -99,7 +99,7 @@ fn inner() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    wait_for_lock(&g, &mut launcher, "ros2");
+    common::wait_for_lock(&g, &mut launcher, BOUND, "ros2");
     let out_json = g.dir.join("received.json");
     let sub = run_bounded(
         Command::new(&py)
@@ -127,22 +127,7 @@ fn inner() {
     );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout)
         .unwrap_or_else(|e| panic!("no JSON report ({e}):\n{stderr}"));
-    // The bridge, killed once, came back; nothing else restarted.
-    assert_eq!(f(&report, "restarts"), 1.0, "{report}");
-    assert_eq!(report["gave_up"], serde_json::json!([]), "{report}");
-    assert!(
-        stderr.contains("stage ros2 restarted"),
-        "the bridge was not restarted:\n{stderr}"
-    );
-    assert!(
-        report["stages"]["ros2"].is_object(),
-        "no ros2 heartbeat: {report}"
-    );
-    assert_eq!(
-        g.leftover_shm(),
-        Vec::<String>::new(),
-        "/dev/shm files left"
-    );
+    common::assert_restarted_once(&report, &stderr, "ros2", &g);
     let got: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&out_json).unwrap()).unwrap();
     let (fused, imu) = recording(&g.log_dir());
@@ -154,23 +139,6 @@ fn realtime_ns() -> i128 {
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap()
         .as_nanos() as i128
-}
-
-/// Waits until stage `role` of `g` holds its lock (it takes it first thing).
-fn wait_for_lock(g: &Group, launcher: &mut Child, role: &str) {
-    let lock = g.dir.join("run").join(format!("stage-{role}.lock"));
-    let deadline = Instant::now() + BOUND;
-    while !lock.is_file() {
-        if let Some(status) = launcher.try_wait().unwrap() {
-            let mut err = String::new();
-            if let Some(mut e) = launcher.stderr.take() {
-                let _ = std::io::Read::read_to_string(&mut e, &mut err);
-            }
-            panic!("the launcher ended early ({status}):\n{err}");
-        }
-        assert!(Instant::now() < deadline, "stage {role} not up");
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 /// The recording's valid fused states and IMU samples.

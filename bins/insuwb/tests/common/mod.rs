@@ -350,3 +350,42 @@ pub fn run_in_private_netns(inner_env: &str, test: &str, bound: Duration) {
         "the test body did not run in the namespace"
     );
 }
+
+/// Waits until stage `role` of `g` holds its lock (it takes it first thing);
+/// fails if the launcher ends first or after `bound`.
+pub fn wait_for_lock(g: &Group, launcher: &mut Child, bound: Duration, role: &str) {
+    let lock = g.dir.join("run").join(format!("stage-{role}.lock"));
+    let deadline = Instant::now() + bound;
+    while !lock.is_file() {
+        if let Some(status) = launcher.try_wait().unwrap() {
+            let mut err = String::new();
+            if let Some(mut e) = launcher.stderr.take() {
+                let _ = std::io::Read::read_to_string(&mut e, &mut err);
+            }
+            panic!("the launcher ended early ({status}):\n{err}");
+        }
+        assert!(Instant::now() < deadline, "stage {role} not up");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The launcher's report and log of a run where stage `role` was killed
+/// once: it came back, nothing else restarted or was given up, it sent
+/// heartbeats, and no /dev/shm file of the group is left.
+pub fn assert_restarted_once(report: &serde_json::Value, stderr: &str, role: &str, g: &Group) {
+    assert_eq!(f(report, "restarts"), 1.0, "{report}");
+    assert_eq!(report["gave_up"], serde_json::json!([]), "{report}");
+    assert!(
+        stderr.contains(&format!("stage {role} restarted")),
+        "stage {role} was not restarted:\n{stderr}"
+    );
+    assert!(
+        report["stages"][role].is_object(),
+        "no {role} heartbeat: {report}"
+    );
+    assert_eq!(
+        g.leftover_shm(),
+        Vec::<String>::new(),
+        "/dev/shm files left"
+    );
+}
