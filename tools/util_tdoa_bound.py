@@ -13,13 +13,18 @@ difference more than 1 m off used) are then made from:
   slow        truth + the slow part only: what a filter would reach if its
               IMU bridged 1 s perfectly and removed every fast error;
   slow-const  truth + the slow part less each pair's flight mean: the same,
-              with every pair's constant bias also known.
+              with every pair's constant bias also known;
+  self-cal    the measured differences less each pair's constant bias as
+              the measurements alone estimate it: the whole flight solved
+              at once for every epoch's position and every pair's bias
+              (alternating least squares, 30 rounds), the best any
+              estimator without truth could do with constant pair biases.
 
-An epoch where any of the three leaves the truth by more than 3 m (a
+An epoch where any of the first three leaves the truth by more than 3 m (a
 geometry that does not fix 3D) is skipped for all three and counted.
 Printed: the horizontal RMSE of each over the flight segment (truth height
-above 0.3 m) and the ratios slow/meas and slow-const/meas, per flight and
-their medians. Truth is used throughout: this is an analysis of the data,
+above 0.3 m) and the ratios slow/meas, slow-const/meas and self-cal/meas,
+per flight and their medians. Truth is used throughout: this is an analysis of the data,
 not an estimator.
 
 Usage: python3 tools/util_tdoa_bound.py DATA_DIR [FLIGHT ...]
@@ -141,6 +146,7 @@ def flight(data_dir, name, anchor_file):
         const[s] = e[s][air].mean() if air.any() else e[s].mean()
     sq = {"meas": [], "slow": [], "slow-const": []}
     skipped = 0
+    epochs = []
     for tk in np.arange(tt[0] + 0.1, tt[-1], 0.1):
         last = {}
         for i in np.where((tt > tk - 0.1) & (tt <= tk) & ok)[0]:
@@ -164,10 +170,34 @@ def flight(data_dir, name, anchor_file):
             continue
         for k, x in xs.items():
             sq[k].append(np.sum((x[:2] - truth[:2]) ** 2))
+        epochs.append((idx, truth, xs["meas"]))
     out = {k: float(np.sqrt(np.mean(v))) for k, v in sq.items()}
+    out["self-cal"] = self_calibrated(epochs, td[:, 3], a, b, pa, pb)
     out["skipped"] = skipped
     out["epochs"] = len(sq["meas"])
     return out
+
+
+def self_calibrated(epochs, z, a, b, pa, pb, rounds=30):
+    """Horizontal RMSE of the fixes from z less per-pair constant biases
+    solved jointly with every epoch's position from the measurements alone
+    (truth only scores the result)."""
+    pairs = {k: j for j, k in enumerate(sorted(set(zip(a, b))))}
+    pid = np.array([pairs[k] for k in zip(a, b)])
+    bias = np.zeros(len(pairs))
+    xs = [x for _, _, x in epochs]
+    for _ in range(rounds):
+        idx = np.concatenate([i for i, _, _ in epochs])
+        res = np.concatenate([
+            z[i] - (np.linalg.norm(x - pb[i], axis=1) - np.linalg.norm(x - pa[i], axis=1))
+            for (i, _, _), x in zip(epochs, xs)
+        ])
+        sums = np.bincount(pid[idx], weights=res, minlength=len(pairs))
+        counts = np.bincount(pid[idx], minlength=len(pairs))
+        bias = sums / np.maximum(counts, 1)
+        xs = [solve(x, pa[i], pb[i], z[i] - bias[pid[i]]) for (i, _, _), x in zip(epochs, xs)]
+    sq = [np.sum((x[:2] - t[:2]) ** 2) for (_, t, _), x in zip(epochs, xs)]
+    return float(np.sqrt(np.mean(sq)))
 
 
 def main():
@@ -177,16 +207,17 @@ def main():
     rows = list(csv.DictReader(open(data_dir / "flights.csv")))
     want = set(sys.argv[2:])
     ratios = []
-    print(f"{'flight':18s} {'meas':>6s} {'slow':>6s} {'s-c':>6s} {'slow/meas':>9s} {'s-c/meas':>8s} {'epochs':>7s} {'skipped':>7s}")
+    print(f"{'flight':18s} {'meas':>6s} {'slow':>6s} {'s-c':>6s} {'self':>6s} {'slow/meas':>9s} {'s-c/meas':>8s} {'self/meas':>9s} {'epochs':>7s} {'skipped':>7s}")
     for r in rows:
         if want and r["file"] not in want:
             continue
         f = flight(data_dir, r["file"], r["anchors"])
-        rs, rc = f["slow"] / f["meas"], f["slow-const"] / f["meas"]
-        ratios.append((rs, rc))
-        print(f"{r['file']:18s} {f['meas']:6.3f} {f['slow']:6.3f} {f['slow-const']:6.3f} {rs:9.2f} {rc:8.2f} {f['epochs']:7d} {f['skipped']:7d}", flush=True)
+        rs, rc, rx = (f[k] / f["meas"] for k in ("slow", "slow-const", "self-cal"))
+        ratios.append((rs, rc, rx))
+        print(f"{r['file']:18s} {f['meas']:6.3f} {f['slow']:6.3f} {f['slow-const']:6.3f} {f['self-cal']:6.3f} {rs:9.2f} {rc:8.2f} {rx:9.2f} {f['epochs']:7d} {f['skipped']:7d}", flush=True)
     if ratios:
-        print(f"{'median':18s} {'':6s} {'':6s} {'':6s} {np.median([x for x, _ in ratios]):9.2f} {np.median([y for _, y in ratios]):8.2f}")
+        med = np.median(np.array(ratios), axis=0)
+        print(f"{'median':18s} {'':6s} {'':6s} {'':6s} {'':6s} {med[0]:9.2f} {med[1]:8.2f} {med[2]:9.2f}")
 
 
 if __name__ == "__main__":
