@@ -1,10 +1,11 @@
 // Shared body of the bridge stages' CLI tests (included by
-// bins/stage-ros2/tests/cli.rs and bins/stage-foxglove/tests/cli.rs, which
-// define `STAGE_BIN`, the bridge's `TABLE`, a `BAD_ENTRY` of it and the
-// `BAD_KEY` its error must name). A bridge takes only `--config`; it refuses
-// a missing config or a bad key of its table before it opens anything. Each
-// package keeps its own test file so that cargo builds its binary for the
-// integration tests of the workspace.
+// bins/stage-ros2/tests/cli.rs, bins/stage-foxglove/tests/cli.rs and
+// bins/stage-zenoh/tests/cli.rs, which define `STAGE_BIN`, the bridge's
+// `TABLE`, a `BAD_ENTRY` of it and the `BAD_KEY` its error must name). A
+// bridge takes only `--config`; it refuses a missing config or a bad key of
+// its table before it opens anything. Each package keeps its own test file
+// so that cargo builds its binary for the integration tests of the
+// workspace.
 use std::process::Command;
 
 #[test]

@@ -35,6 +35,10 @@ pub enum BenchCmd {
     /// group on simulated sensors; per-hop percentiles, period jitter,
     /// missed cycles, CPU per stage, ratios to the floor.
     Latency(LatencyArgs),
+    /// The fleet's station under N simulated robots at 10 Hz over loopback
+    /// (10, 100, 500 by default): its CPU share, the delay of the poses
+    /// from publish to the station, what was dropped.
+    Fleet(crate::bench_fleet::FleetBenchArgs),
 }
 
 /// Arguments of `insuwb bench latency`.
@@ -73,7 +77,9 @@ pub struct LatencyArgs {
     /// `ros2`, with its `[ros2]` defaults): a bridge subscribes beside the
     /// logger, so the ratio shows what it costs the fix path, and the CPU
     /// table its own share. The ROS 2 bridge discovers peers by multicast:
-    /// run it inside a private network namespace (BENCHMARKS.md).
+    /// run it inside a private network namespace (BENCHMARKS.md). The
+    /// Zenoh bridge (`zenoh`) connects to a subscriber in this process
+    /// listening on a free loopback port, as robot `bench`.
     #[arg(long = "with", value_name = "STAGE")]
     pub with: Vec<insuwb_msg::StageRole>,
 }
@@ -97,6 +103,9 @@ pub struct CpuPercent {
     /// The Foxglove live view, when the group ran it (`--with foxglove`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub foxglove: Option<f64>,
+    /// The Zenoh bridge, when the group ran it (`--with zenoh`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub zenoh: Option<f64>,
 }
 
 impl CpuPercent {
@@ -111,6 +120,7 @@ impl CpuPercent {
             logger: get(StageRole::Logger),
             ros2: find(StageRole::Ros2),
             foxglove: find(StageRole::Foxglove),
+            zenoh: find(StageRole::Zenoh),
         }
     }
 }
@@ -149,6 +159,25 @@ pub struct LatencyReport {
     /// fix-to-fused beside it).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dds: Option<DdsLatency>,
+    /// With `--with zenoh`: UWB fix publish -> the bridge's pose received
+    /// by a Zenoh subscriber in this process (a station's), p50 / p99, us.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub zenoh: Option<ZenohLatency>,
+}
+
+/// Fix-to-Zenoh-subscriber delivery against fix-to-fused, over the same fixes.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct ZenohLatency {
+    /// Fixes whose pose the subscriber received.
+    pub count: usize,
+    /// UWB fix publish -> pose received, p50, us.
+    pub fix_to_zenoh_p50_us: f64,
+    /// Same, p99, us.
+    pub fix_to_zenoh_p99_us: f64,
+    /// UWB fix publish -> fused publish for those fixes, p50, us.
+    pub fix_to_fused_p50_us: f64,
+    /// Same, p99, us.
+    pub fix_to_fused_p99_us: f64,
 }
 
 /// Fix-to-DDS delivery against fix-to-fused, over the same fixes.
@@ -178,6 +207,7 @@ const START_ALLOWANCE: Duration = Duration::from_secs(3);
 pub fn run(cmd: &BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Latency(a) => latency(a),
+        BenchCmd::Fleet(a) => crate::bench_fleet::fleet(a),
     }
 }
 
@@ -253,6 +283,7 @@ fn measure(
     let (mut fl, mut gr) = (LatencySamples::default(), LatencySamples::default());
     let (mut fl_cpu, mut gr_cpu) = (Vec::new(), Vec::new());
     let (mut to_dds, mut to_fused) = (Vec::new(), Vec::new());
+    let (mut to_zenoh, mut to_fused_z) = (Vec::new(), Vec::new());
     if let Some(dir) = &a.samples {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the samples folder", dir.display()))?;
@@ -279,9 +310,11 @@ fn measure(
                 fl_cpu.push(floor.cpu_percent);
             } else {
                 // The group on simulated sensors, its logger noting fused receive times.
-                let (s, cpu, dds) = group_round(round, duration, id, base, &acfg, a)?;
+                let (s, cpu, dds, zenoh) = group_round(round, duration, id, base, &acfg, a)?;
                 to_dds.extend(dds.iter().map(|d| d.0));
                 to_fused.extend(dds.iter().map(|d| d.1));
+                to_zenoh.extend(zenoh.iter().map(|d| d.0));
+                to_fused_z.extend(zenoh.iter().map(|d| d.1));
                 write_cycles(a.samples.as_deref(), &format!("group{round}.csv"), &s)?;
                 gr.extend(&s);
                 gr_cpu.push(cpu);
@@ -308,6 +341,23 @@ fn measure(
             fix_to_fused_p99_us: f.p99_us,
         }
     });
+    let zenoh = (!to_zenoh.is_empty()).then(|| {
+        let (z, f) = (
+            Percentiles::of(to_zenoh.iter().copied()),
+            Percentiles::of(to_fused_z.iter().copied()),
+        );
+        eprintln!(
+            "  fix -> Zenoh subscriber p50 {:>8.1}  p99 {:>8.1} us  (fix -> fused p50 {:.1}, p99 {:.1} us; n = {})",
+            z.p50_us, z.p99_us, f.p50_us, f.p99_us, to_zenoh.len()
+        );
+        ZenohLatency {
+            count: to_zenoh.len(),
+            fix_to_zenoh_p50_us: z.p50_us,
+            fix_to_zenoh_p99_us: z.p99_us,
+            fix_to_fused_p50_us: f.p50_us,
+            fix_to_fused_p99_us: f.p99_us,
+        }
+    });
     Ok(LatencyReport {
         floor_p50_us: fl.e2e_uwb_fused.p50_us,
         floor_p99_us: fl.e2e_uwb_fused.p99_us,
@@ -323,12 +373,19 @@ fn measure(
         ratio_p99: ratio(gr.e2e_uwb_fused.p99_us, fl.e2e_uwb_fused.p99_us),
         rounds,
         dds,
+        zenoh,
     })
 }
 
-/// A group round's samples, each stage's CPU share, and with `--with ros2`
-/// each odometry's `(fix -> DDS, fix -> fused)`, ns.
-type GroupRound = (LatencySamples, Vec<(String, f64)>, Vec<(u64, u64)>);
+/// A group round's samples, each stage's CPU share, with `--with ros2`
+/// each odometry's `(fix -> DDS, fix -> fused)` and with `--with zenoh`
+/// each pose's `(fix -> Zenoh subscriber, fix -> fused)`, ns.
+type GroupRound = (
+    LatencySamples,
+    Vec<(String, f64)>,
+    Vec<(u64, u64)>,
+    Vec<(u64, u64)>,
+);
 
 /// One run of the group (round `round`): its samples and the CPU time of
 /// each stage over the steady window.
@@ -360,6 +417,20 @@ fn group_round(
         // state's measurement time, which finds its fix in the recording.
         text.push_str("[ros2]\nstamp_clock = \"monotonic\"\n");
     }
+    let zenoh_endpoint = if a.with.contains(&StageRole::Zenoh) {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .context("finding a free port for the Zenoh subscriber")?
+            .port();
+        let e = format!("tcp/127.0.0.1:{port}");
+        // Monotonic stamps, as for ROS 2 above.
+        text.push_str(&format!(
+            "[zenoh]\nrobot = \"{ZENOH_ROBOT}\"\nconnect = [\"{e}\"]\nstamp_clock = \"monotonic\"\n"
+        ));
+        Some(e)
+    } else {
+        None
+    };
     if let Some(p) = a.fifo_priority {
         // The floor's roles are the stages, by the same names.
         for stage in insuwb_bench::floor::Role::ALL.map(|r| r.name()) {
@@ -374,6 +445,7 @@ fn group_round(
     let trace_path = run_dir.join("fused_recv.txt");
     let probe =
         with_ros2.then(|| DdsProbe::start(cfg.ros2.clone(), duration + Duration::from_secs(10)));
+    let zprobe = zenoh_endpoint.map(|e| ZenohProbe::start(e, duration + Duration::from_secs(10)));
     let sampler = spawn_cpu_sampler(
         CPU_FROM,
         duration.saturating_sub(Duration::from_millis(200)),
@@ -397,6 +469,10 @@ fn group_round(
         Some(p) => p.finish()?,
         None => Vec::new(),
     };
+    let poses = match zprobe {
+        Some(p) => p.finish()?,
+        None => Vec::new(),
+    };
     if group.restarts > 0 {
         eprintln!(
             "warning: {} stage restart(s) during the group run of round {}",
@@ -410,7 +486,12 @@ fn group_round(
     let recv = insuwb_bench::trace::read(&trace_path)?;
     let s = samples(&records, &recv, acfg)
         .with_context(|| format!("the group run of round {}", round + 1))?;
-    Ok((s, cpu, fix_to_dds(&records, &odom, acfg.warmup_s)))
+    Ok((
+        s,
+        cpu,
+        fix_to_dds(&records, &odom, acfg.warmup_s),
+        fix_to_dds(&records, &poses, acfg.warmup_s),
+    ))
 }
 
 /// Writes the cycles of one run as CSV to `dir/name` (nothing without `dir`).
@@ -555,6 +636,65 @@ impl DdsProbe {
         self.handle
             .join()
             .map_err(|_| anyhow::anyhow!("the DDS reader thread panicked"))?
+    }
+}
+
+/// The robot id of the group's Zenoh bridge (`--with zenoh`).
+const ZENOH_ROBOT: &str = "bench";
+
+/// A Zenoh subscriber of the bridge's poses in this process, listening on
+/// its endpoint (the bridge connects to it) on its own thread: `(stamp,
+/// receive time)` of each pose, CLOCK_MONOTONIC ns.
+struct ZenohProbe {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    handle: std::thread::JoinHandle<Result<Vec<(u64, u64)>>>,
+}
+
+impl ZenohProbe {
+    /// Starts listening; the thread ends when told to or after `bound`.
+    fn start(endpoint: String, bound: Duration) -> Self {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        use zenoh::Wait;
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let flag = stop.clone();
+        let handle = std::thread::spawn(move || -> Result<Vec<(u64, u64)>> {
+            use insuwb_zenoh::config::{LinkConfig, Mode};
+            let link = LinkConfig {
+                mode: Mode::Peer,
+                listen: vec![endpoint],
+                ..LinkConfig::default()
+            };
+            let session = insuwb_zenoh::session::open(&link)
+                .context("opening the Zenoh subscriber of the bridge's poses")?;
+            let key = insuwb_fleet::keys::Key::new(ZENOH_ROBOT, insuwb_fleet::keys::Kind::Pose)?;
+            let sub = session
+                .declare_subscriber(key.to_string())
+                .wait()
+                .map_err(|e| anyhow::anyhow!("subscribing to {key}: {e}"))?;
+            let t0 = std::time::Instant::now();
+            let mut out = Vec::new();
+            while !flag.load(Ordering::Relaxed) && t0.elapsed() < bound {
+                let Ok(Some(sample)) = sub.recv_timeout(Duration::from_millis(20)) else {
+                    continue;
+                };
+                let rx = monotonic_ns();
+                if let Ok(r) = insuwb_zenoh::session::decode_sample(&sample) {
+                    if let insuwb_zenoh::payload::Payload::Pose(p) = r.payload {
+                        out.push((p.sample().stamp_ns, rx));
+                    }
+                }
+            }
+            Ok(out)
+        });
+        Self { stop, handle }
+    }
+
+    /// Stops the subscriber and returns what it received.
+    fn finish(self) -> Result<Vec<(u64, u64)>> {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("the Zenoh subscriber thread panicked"))?
     }
 }
 

@@ -1,5 +1,6 @@
-//! Loading a dataset from a file: a project log or a UTIL Crazyflie log
-//! (detected from the content), with the fusion settings that go with it.
+//! Loading a dataset from a file: a project log (a file or a folder of
+//! segments) or a UTIL Crazyflie log (detected from the content), with the
+//! fusion settings that go with it.
 
 use std::path::{Path, PathBuf};
 
@@ -109,26 +110,54 @@ pub fn detect(path: &Path) -> Result<FileKind> {
 pub struct Loaded {
     /// The data.
     pub data: Dataset,
+    /// The fused states of a project log that holds no IMU or TDOA
+    /// records (a fleet station's recording of a robot): its recorded
+    /// track is what there is to evaluate. Empty otherwise.
+    pub recorded: Vec<insuwb_msg::FusedState>,
     /// The settings (from `--config`, the log's metadata, or the preset of its format).
     pub config: ConfigFile,
     /// Where the config came from, for messages.
     pub config_origin: String,
 }
 
-/// Loads a project log or a UTIL log.
+/// Loads a project log (a file, or a folder of `seg-*.iulog` segments as
+/// the logger and `insuwb fleet record` write) or a UTIL log.
 pub fn load(
     path: &Path,
     anchors: Option<&PathBuf>,
     config: Option<&str>,
     ignore_crc: bool,
 ) -> Result<Loaded> {
+    if path.is_dir() {
+        return load_project_log(path, config);
+    }
     match detect(path)? {
         FileKind::ProjectLog => load_project_log(path, config),
         FileKind::CfLog => load_util(path, anchors, config, ignore_crc),
     }
 }
 
-fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
+/// The records and metadata of a project log file, or of a folder of
+/// segments (the first segment's metadata); a damaged tail is warned about.
+fn read_project_log(path: &Path) -> Result<(Vec<Record>, insuwb_log::Metadata)> {
+    if path.is_dir() {
+        // The errors name the folder or segment and the cause.
+        let read = insuwb_log::read_segments(path)?;
+        for (seg, t) in read.tails() {
+            tracing::warn!("{}: {t}; using the records before it", seg.display());
+        }
+        let Some(meta) = read
+            .segments
+            .iter()
+            .find_map(|s| s.header.as_ref().map(|h| h.meta.clone()))
+        else {
+            bail!(
+                "{}: no seg-*.iulog segment with a header in this folder",
+                path.display()
+            );
+        };
+        return Ok((read.records, meta));
+    }
     // The error names the file and its cause.
     let (records, tail, header) = insuwb_log::read_all(path)?;
     if let Some(t) = tail {
@@ -138,30 +167,41 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
             records.len()
         );
     }
+    Ok((records, header.meta))
+}
+
+fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
+    let (records, meta) = read_project_log(path)?;
     let mut data = Dataset {
         name: path.display().to_string(),
         ..Dataset::default()
     };
+    let mut recorded = Vec::new();
     for r in records {
         match r {
             Record::Imu(s) => data.imu.push(s),
             Record::Tdoa(s) => data.tdoa.push(s),
             Record::Truth(s) => data.truth.push(s),
+            Record::Fused(s) => recorded.push(s),
             _ => {}
         }
     }
-    if data.imu.is_empty() || data.tdoa.is_empty() {
+    let sensors = !(data.imu.is_empty() || data.tdoa.is_empty());
+    if !sensors && recorded.is_empty() {
         bail!(
-            "{}: the log holds {} IMU and {} TDOA records: nothing to evaluate",
+            "{}: the log holds {} IMU, {} TDOA and no fused records: nothing to evaluate",
             path.display(),
             data.imu.len(),
             data.tdoa.len()
         );
     }
+    if sensors {
+        recorded.clear();
+    }
     sort_streams(&mut data);
     let (config, origin) = match config {
         Some(c) => (ConfigFile::load(c)?, c.to_owned()),
-        None => match header.meta.entries.get(META_FUSION_CONFIG) {
+        None => match meta.entries.get(META_FUSION_CONFIG) {
             Some(text) => (
                 insuwb_config::load_str::<ConfigFile>(
                     text,
@@ -177,6 +217,7 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
     }
     Ok(Loaded {
         data,
+        recorded,
         config,
         config_origin: origin,
     })
@@ -251,6 +292,7 @@ fn load_util(
     sort_streams(&mut data);
     Ok(Loaded {
         data,
+        recorded: Vec::new(),
         config,
         config_origin: origin,
     })

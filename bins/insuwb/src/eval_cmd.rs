@@ -118,13 +118,11 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             ),
         )
     } else if let Some(path) = &a.file {
-        let (loaded, rep) = evaluate_file(
-            path,
-            a.anchors.as_ref(),
-            a.config.as_deref(),
-            a.ignore_crc,
-            a.filters.as_deref(),
-        )?;
+        let loaded = dataset::load(path, a.anchors.as_ref(), a.config.as_deref(), a.ignore_crc)?;
+        if !loaded.recorded.is_empty() {
+            return eval_recorded(a, path, &loaded);
+        }
+        let (loaded, rep) = evaluate_loaded(loaded, a.filters.as_deref())?;
         if let Some(dir) = &a.plot {
             write_plots(&rep, &loaded.data, dir)?;
         }
@@ -143,6 +141,59 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     let table = format_table(&title, &rows);
     print_result(a.json, &table, || {
         insuwb_eval::run::to_json(&rows).map_err(|e| anyhow::anyhow!("{e}"))
+    })
+}
+
+/// `insuwb eval` of a log that holds fused states and no IMU and UWB
+/// records (a fleet station's recording of a robot): its recorded track
+/// as the one solution, `recorded` (states, span, rate; its accuracy where
+/// the log has ground truth), instead of the filters.
+fn eval_recorded(a: &EvalArgs, path: &Path, loaded: &dataset::Loaded) -> Result<()> {
+    use insuwb_eval::recorded::{evaluate_recorded, RECORDED};
+    if a.plot.is_some() || a.tracks.is_some() || a.filters.is_some() {
+        bail!(
+            "{}: the log holds fused states but no IMU and UWB records: no filter to run, plot or track (--filters, --plot, --tracks)",
+            path.display()
+        );
+    }
+    let d = &loaded.data;
+    let r = evaluate_recorded(&loaded.recorded, &d.truth, d.segment)
+        .with_context(|| format!("{}: the recorded track", path.display()))?;
+    let mut table = format!(
+        "{}: no IMU and UWB records to run the filters on; the recorded track ({} fused states) instead\n{:<10} {:>8} {:>10} {:>10}\n{:<10} {:>8} {:>10.3} {:>10.3}\n",
+        path.display(),
+        loaded.recorded.len(),
+        "",
+        "states",
+        "span (s)",
+        "rate (Hz)",
+        RECORDED,
+        r.states,
+        r.span_s,
+        r.rate_hz
+    );
+    match &r.metrics {
+        Some(m) => table.push_str(&format_table(
+            "against the log's ground truth:",
+            &[(RECORDED.to_owned(), m.clone())],
+        )),
+        None => table.push_str("no ground truth in the log: no accuracy figures\n"),
+    }
+    print_result(a.json, &table, || {
+        let mut v = match &r.metrics {
+            Some(m) => insuwb_eval::run::to_json(&[(RECORDED.to_owned(), m.clone())])
+                .map_err(|e| anyhow::anyhow!("{e}"))?,
+            None => serde_json::json!({ RECORDED: {} }),
+        };
+        if let Some(o) = v
+            .get_mut(RECORDED)
+            .and_then(serde_json::Value::as_object_mut)
+        {
+            o.insert("states".into(), r.states.into());
+            o.insert("span_s".into(), r.span_s.into());
+            o.insert("rate_hz".into(), r.rate_hz.into());
+        }
+        Ok(v)
     })
 }
 
@@ -235,6 +286,22 @@ pub fn evaluate_file(
     filters: Option<&str>,
 ) -> Result<(dataset::Loaded, EvalReport)> {
     let loaded = dataset::load(path, anchors, config, ignore_crc)?;
+    if !loaded.recorded.is_empty() {
+        bail!(
+            "{}: the log holds fused states but no IMU and UWB records to run the filters on: `insuwb eval {}` reports its recorded track",
+            path.display(),
+            path.display()
+        );
+    }
+    evaluate_loaded(loaded, filters)
+}
+
+/// Evaluates a loaded log with `filters`, else the filters its config
+/// names; logs the config and the run time.
+fn evaluate_loaded(
+    loaded: dataset::Loaded,
+    filters: Option<&str>,
+) -> Result<(dataset::Loaded, EvalReport)> {
     tracing::info!("config: {}", loaded.config_origin);
     let filters = parse_filters(filters, &loaded.config.eval.filters)?;
     let t0 = std::time::Instant::now();

@@ -7,19 +7,13 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use insuwb_devices::emulator::{DeviceSink, Faults, PlayReport, Player, PtyEmulator, TcpEmulator};
 use insuwb_devices::Protocol;
-use insuwb_launch::{Event, StageSpec, Supervisor, SupervisorState};
+use insuwb_group::launch::{shutdown_order, supervise, FaultInjector, LoopEnd, LoopOptions, Watch};
+use insuwb_launch::{StageSpec, Supervisor};
 use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, StageRole, UwbFix};
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
 use insuwb_stage::group::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
 
 use crate::monitor::Monitor;
-
-/// Signal numbers (Linux).
-mod libc_sig {
-    pub const KILL: i32 = 9;
-    pub const STOP: i32 = 19;
-    pub const CONT: i32 = 18;
-}
 
 /// The stage binaries ([`StageRole::program`]) live next to this executable.
 fn stage_program(stage: StageRole) -> Result<PathBuf> {
@@ -126,49 +120,7 @@ pub struct RunOptions {
     pub env: Vec<(String, String)>,
 }
 
-/// A fault to inject into a running group (tests, chaos).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Fault {
-    /// Stage to hit.
-    pub stage: String,
-    /// When, after start.
-    pub at: Duration,
-    /// Signal number (SIGKILL = 9, SIGSTOP = 19).
-    pub signal: i32,
-}
-
-impl std::str::FromStr for Fault {
-    type Err = String;
-    /// `STAGE@SECONDS` (SIGKILL) or `STAGE@SECONDS:SIGNAL` (a number or KILL/TERM/STOP).
-    fn from_str(s: &str) -> Result<Self, String> {
-        let (stage, rest) = s
-            .split_once('@')
-            .ok_or_else(|| format!("fault '{s}': expected STAGE@SECONDS[:SIGNAL]"))?;
-        let (at, sig) = rest.split_once(':').unwrap_or((rest, "KILL"));
-        let at: f64 = at
-            .parse()
-            .map_err(|_| format!("fault '{s}': bad time '{at}'"))?;
-        if !(at.is_finite() && at >= 0.0) {
-            return Err(format!("fault '{s}': time must be >= 0"));
-        }
-        let signal = match sig {
-            "KILL" => 9,
-            "TERM" => 15,
-            "STOP" => 19,
-            n => n
-                .parse()
-                .map_err(|_| format!("fault '{s}': bad signal '{n}'"))?,
-        };
-        if stage.parse::<insuwb_msg::StageRole>().is_err() {
-            return Err(format!("fault '{s}': unknown stage '{stage}'"));
-        }
-        Ok(Self {
-            stage: stage.to_owned(),
-            at: Duration::from_secs_f64(at),
-            signal,
-        })
-    }
-}
+pub use insuwb_group::launch::Fault;
 
 /// What a group run may be given besides its [`RunOptions`] (the device
 /// demo, whose emulators are paced to the epoch and whose drivers publish
@@ -228,13 +180,21 @@ pub fn run_group_with(
         specs.push(spec);
     }
     let monitor_stage = Stage::new(rt.clone())?;
-    let fused_sub = monitor_stage.subscriber::<FusedState>(topics::FUSED)?;
-    let truth_sub = monitor_stage.subscriber::<GroundTruth>(topics::TRUTH)?;
-    let imu_sub = monitor_stage.subscriber::<ImuSample>(topics::IMU)?;
-    let fix_sub = monitor_stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
-    let health_sub = monitor_stage.subscriber::<Health>(topics::HEALTH)?;
     let waiter = monitor_stage.waiter()?;
     let tick = waiter.attach_interval(Duration::from_millis(50))?;
+    let mut watch = GroupWatch {
+        fused: monitor_stage.subscriber::<FusedState>(topics::FUSED)?,
+        truth: monitor_stage.subscriber::<GroundTruth>(topics::TRUTH)?,
+        imu: monitor_stage.subscriber::<ImuSample>(topics::IMU)?,
+        fix: monitor_stage.subscriber::<UwbFix>(topics::UWB_FIX)?,
+        health: monitor_stage.subscriber::<Health>(topics::HEALTH)?,
+        waiter: &waiter,
+        mon: Monitor::new(extras.truth),
+        live: opts.live.then(|| LiveLine {
+            last: Instant::now(),
+            counts: (0, 0, 0),
+        }),
+    };
 
     let mut sup = Supervisor::new(cfg.launch.clone(), specs)?;
     let hook_rt = rt.clone();
@@ -245,122 +205,35 @@ pub fn run_group_with(
             Err(e) => tracing::warn!("cleaning dead nodes before restarting {stage}: {e}"),
         },
     ));
+    let mut faults = FaultInjector::new(
+        opts.faults.clone(),
+        opts.chaos_seed,
+        cfg.stages.iter().map(|s| s.name().to_owned()).collect(),
+        opts.duration,
+    );
+    let loop_opts = LoopOptions {
+        duration: opts.duration,
+        max_wait: Duration::from_millis(100),
+        // Sources first, the bridges after fusion, the logger last.
+        shutdown_order: shutdown_order(&cfg.stages),
+    };
     let t0 = Instant::now();
-    sup.start(t0)?;
-    let mut mon = Monitor::new(extras.truth);
-    let mut last_live = Instant::now();
-    let mut last_live_counts = (0u64, 0u64, 0u64);
-    let mut failed = None;
-    let mut faults = opts.faults.clone();
-    faults.sort_by_key(|f| f.at);
-    let mut faults = faults.into_iter().peekable();
-    let mut injected = 0u32;
-    let mut chaos = opts
-        .chaos_seed
-        .map(|seed| insuwb_sim::rng::Rng::stream(seed, 0x000C_4A05));
-    let mut next_chaos = chaos
-        .as_mut()
-        .map(|r| Duration::from_secs_f64(r.uniform_in(1.0, 5.0)));
-    let mut pending_cont: Vec<(Duration, String)> = Vec::new();
-    loop {
-        let wake = waiter.wait_timeout(Duration::from_millis(100))?;
-        let now = Instant::now();
-        fused_sub.drain(|f| mon.fused(&f))?;
-        truth_sub.drain(|t| mon.truth(t))?;
-        mon.settle();
-        imu_sub.drain(|s| mon.imu.count(s.header.meas_time_ns))?;
-        fix_sub.drain(|s| mon.fixes.count(s.header.meas_time_ns))?;
-        health_sub.drain(|h| {
-            let name = insuwb_msg::name_str(&h.stage);
-            sup.note_heartbeat_from(&name, h.pid, now);
-            mon.health.insert(name, h);
-        })?;
-        let elapsed = now.duration_since(t0);
-        while let Some(f) = faults.next_if(|f| elapsed >= f.at) {
-            tracing::warn!("injecting signal {} into stage {}", f.signal, f.stage);
-            injected += 1;
-            if let Err(e) = sup.kill_stage(&f.stage, f.signal) {
-                tracing::warn!("fault injection: {e}");
-            }
-        }
-        if let (Some(rng), Some(at)) = (chaos.as_mut(), next_chaos) {
-            // Leave the last 3 s quiet so the group can show it recovered.
-            let quiet = opts
-                .duration
-                .is_some_and(|d| elapsed + Duration::from_secs(3) > d);
-            if elapsed >= at && !quiet {
-                let stage = cfg.stages[(rng.next_u64() % cfg.stages.len() as u64) as usize]
-                    .name()
-                    .to_owned();
-                let stop = rng.next_u64() % 2 == 1;
-                let signal = if stop { libc_sig::STOP } else { libc_sig::KILL };
-                tracing::warn!(
-                    "chaos: {} {stage}",
-                    if stop { "SIGSTOP (2 s)" } else { "SIGKILL" }
-                );
-                injected += 1;
-                if let Err(e) = sup.kill_stage(&stage, signal) {
-                    tracing::warn!("chaos: {e}");
-                }
-                if stop {
-                    pending_cont.push((elapsed + Duration::from_secs(2), stage));
-                }
-                next_chaos = Some(elapsed + Duration::from_secs_f64(rng.uniform_in(1.0, 5.0)));
-            }
-        }
-        pending_cont.retain(|(at, stage)| {
-            if elapsed >= *at {
-                let _ = sup.kill_stage(stage, libc_sig::CONT);
-                false
-            } else {
-                true
-            }
-        });
-        for e in sup.poll(now) {
-            if let Event::BudgetExhausted { stage } = &e {
-                failed = Some(stage.clone());
-            }
-        }
-        if let SupervisorState::Failed { stage } = sup.state() {
-            failed = Some(stage);
-        }
-        if opts.live && now.duration_since(last_live) >= Duration::from_secs(1) {
-            let dt = now.duration_since(last_live).as_secs_f64();
-            last_live = now;
-            let (upd, p) = mon.live();
-            let c = (mon.imu.n(), mon.fixes.n(), upd);
-            let outliers: u64 = mon
-                .health
-                .get(StageRole::Fusion.name())
-                .map_or(0, |h| h.extra[1]);
-            eprintln!(
-                "[{:5.1} s] imu {:6.1} Hz  uwb {:5.1} Hz  fused {:5.1} Hz  pos ({:6.2}, {:6.2})  outliers {outliers}  restarts {}",
-                now.duration_since(t0).as_secs_f64(),
-                (c.0 - last_live_counts.0) as f64 / dt,
-                (c.1 - last_live_counts.1) as f64 / dt,
-                (c.2 - last_live_counts.2) as f64 / dt,
-                p[0],
-                p[1],
-                sup.total_restarts()
-            );
-            last_live_counts = c;
-        }
-        if matches!(wake, Wake::Shutdown) || failed.is_some() {
-            break;
-        }
-        if opts.duration.is_some_and(|d| now.duration_since(t0) >= d) {
-            break;
-        }
-    }
+    let end = supervise(&mut sup, t0, &loop_opts, &mut watch, Some(&mut faults))?;
     let elapsed = t0.elapsed().as_secs_f64();
-    // Shutdown in role order (sources first, the ROS 2 bridge and the
-    // Foxglove live view after fusion, the logger last), over the stages
-    // this group runs.
-    let order: Vec<&str> = insuwb_msg::StageRole::NAMES
-        .into_iter()
-        .filter(|n| cfg.stages.iter().any(|s| s.name() == *n))
-        .collect();
-    sup.shutdown(&order);
+    let failed = match end {
+        LoopEnd::NotStarted(e) => return Err(e.into()),
+        LoopEnd::Failed(stage) => Some(stage),
+        LoopEnd::Duration | LoopEnd::Shutdown => None,
+    };
+    let GroupWatch {
+        fused,
+        truth,
+        imu,
+        fix,
+        health,
+        mut mon,
+        ..
+    } = watch;
     let restarts = sup.total_restarts();
     let mut report = summarise(&mut mon, restarts, elapsed);
     for (stage, src) in [
@@ -374,11 +247,11 @@ pub fn run_group_with(
             }
         }
     }
-    report.faults = injected;
+    report.faults = faults.injected();
     report.gave_up = sup.given_up();
     drop(tick);
     drop(waiter);
-    drop((fused_sub, truth_sub, imu_sub, fix_sub, health_sub));
+    drop((fused, truth, imu, fix, health));
     drop(monitor_stage);
     let removed = cleanup::remove_prefix_files(&cfg.group.prefix, Some(&cfg.iox_root()));
     if let Err(e) = removed {
@@ -388,6 +261,72 @@ pub fn run_group_with(
         bail!("stage {stage} exhausted its restart budget");
     }
     Ok(report)
+}
+
+/// The launcher's view of its group in the launch loop: the topics it
+/// measures, the heartbeats it forwards to the supervisor, and the live
+/// line (`--live`).
+struct GroupWatch<'w> {
+    fused: insuwb_runtime::Sub<FusedState>,
+    truth: insuwb_runtime::Sub<GroundTruth>,
+    imu: insuwb_runtime::Sub<ImuSample>,
+    fix: insuwb_runtime::Sub<UwbFix>,
+    health: insuwb_runtime::Sub<Health>,
+    waiter: &'w insuwb_runtime::Waiter,
+    mon: Monitor,
+    live: Option<LiveLine>,
+}
+
+/// The last live line's time and counts (IMU samples, fixes, updates).
+struct LiveLine {
+    last: Instant,
+    counts: (u64, u64, u64),
+}
+
+impl Watch for GroupWatch<'_> {
+    type Error = anyhow::Error;
+
+    fn wait(&mut self, max: Duration) -> Result<bool> {
+        Ok(matches!(self.waiter.wait_timeout(max)?, Wake::Shutdown))
+    }
+
+    fn on_wake(&mut self, sup: &mut Supervisor, now: Instant, elapsed: Duration) -> Result<()> {
+        let mon = &mut self.mon;
+        self.fused.drain(|f| mon.fused(&f))?;
+        self.truth.drain(|t| mon.truth(t))?;
+        mon.settle();
+        self.imu.drain(|s| mon.imu.count(s.header.meas_time_ns))?;
+        self.fix.drain(|s| mon.fixes.count(s.header.meas_time_ns))?;
+        self.health.drain(|h| {
+            let name = insuwb_msg::name_str(&h.stage);
+            sup.note_heartbeat_from(&name, h.pid, now);
+            mon.health.insert(name, h);
+        })?;
+        if let Some(live) = self.live.as_mut() {
+            if now.duration_since(live.last) >= Duration::from_secs(1) {
+                let dt = now.duration_since(live.last).as_secs_f64();
+                live.last = now;
+                let (upd, p) = mon.live();
+                let c = (mon.imu.n(), mon.fixes.n(), upd);
+                let outliers: u64 = mon
+                    .health
+                    .get(StageRole::Fusion.name())
+                    .map_or(0, |h| h.extra[1]);
+                eprintln!(
+                    "[{:5.1} s] imu {:6.1} Hz  uwb {:5.1} Hz  fused {:5.1} Hz  pos ({:6.2}, {:6.2})  outliers {outliers}  restarts {}",
+                    elapsed.as_secs_f64(),
+                    (c.0 - live.counts.0) as f64 / dt,
+                    (c.1 - live.counts.1) as f64 / dt,
+                    (c.2 - live.counts.2) as f64 / dt,
+                    p[0],
+                    p[1],
+                    sup.total_restarts()
+                );
+                live.counts = c;
+            }
+        }
+        Ok(())
+    }
 }
 
 fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
@@ -510,6 +449,9 @@ pub struct DemoArgs {
     /// The live view's address, IP:PORT (implies --foxglove).
     #[arg(long, value_name = "IP:PORT")]
     pub foxglove_bind: Option<String>,
+    /// Run the Zenoh bridge too (stage `zenoh`) as robot `demo`, connected to ENDPOINT (e.g. tcp/127.0.0.1:7447, where a fleet station or any Zenoh peer or router listens): it publishes insuwb/demo/pose and insuwb/demo/health (docs/ZENOH.md).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub zenoh: Option<String>,
 }
 
 /// The emulated devices of `insuwb demo --via-devices`, playing.
@@ -600,6 +542,8 @@ const DEMO_SCENARIO: &str = "nlos-long";
 const DEMO_SEED: u64 = 1;
 /// The Eliko tag id of the device demo.
 const DEMO_TAG: u32 = 1;
+/// The demo's robot id in the fleet (`--zenoh`).
+const DEMO_ROBOT: &str = "demo";
 
 /// Runs `insuwb demo`: the whole group on simulated sensors in real time.
 pub fn demo(a: &DemoArgs) -> Result<()> {
@@ -608,6 +552,10 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
             "--duration must be in (0, 60] s (the demo scenario lasts 60 s), got {}",
             a.duration
         );
+    }
+    if let Some(e) = &a.zenoh {
+        insuwb_zenoh::config::check_endpoint("connect", e)
+            .map_err(|e| anyhow::anyhow!("--zenoh: {}", e.reason))?;
     }
     if a.via_devices && a.filter == insuwb_msg::FilterKind::IakfTdoa {
         bail!("--via-devices needs a loosely coupled filter (kf, shaf, stf, iakf): the devices report positions, not TDOA");
@@ -661,27 +609,43 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
             None,
         )
     };
-    // `stages` is a top-level key: before the first table.
-    let (stages, foxglove) = match (&a.foxglove_bind, a.foxglove) {
-        (None, false) => (String::new(), String::new()),
-        (bind, _) => (
-            format!(
-                "stages = [{}]\n",
-                StageRole::ALL
-                    .iter()
-                    .filter(|r| StageRole::DEFAULT.contains(r) || **r == StageRole::Foxglove)
-                    .map(|r| format!("\"{}\"", r.name()))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-            bind.as_ref()
-                .map(|b| format!("[foxglove]\nbind = {}\n", toml::Value::String(b.clone())))
-                .unwrap_or_default(),
-        ),
+    // The optional stages asked for; `stages` is a top-level key: before
+    // the first table.
+    let extra = [
+        (StageRole::Foxglove, a.foxglove || a.foxglove_bind.is_some()),
+        (StageRole::Zenoh, a.zenoh.is_some()),
+    ];
+    let stages = if extra.iter().any(|(_, on)| *on) {
+        format!(
+            "stages = [{}]\n",
+            StageRole::ALL
+                .iter()
+                .filter(|r| StageRole::DEFAULT.contains(r) || extra.contains(&(**r, true)))
+                .map(|r| format!("\"{}\"", r.name()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    } else {
+        String::new()
     };
+    let foxglove = a
+        .foxglove_bind
+        .as_ref()
+        .map(|b| format!("[foxglove]\nbind = {}\n", toml::Value::String(b.clone())))
+        .unwrap_or_default();
+    let zenoh = a
+        .zenoh
+        .as_ref()
+        .map(|e| {
+            format!(
+                "[zenoh]\nrobot = \"{DEMO_ROBOT}\"\nconnect = [{}]\n",
+                toml::Value::String(e.clone())
+            )
+        })
+        .unwrap_or_default();
     let text = format!(
         "{stages}[group]\nname = \"demo\"\nprefix = \"insuwb_demo{id}_\"\nrun_dir = \"{}\"\n\
-         {sources}[fusion]\nfilter = \"{}\"\n{foxglove}",
+         {sources}[fusion]\nfilter = \"{}\"\n{foxglove}{zenoh}",
         run_dir.display(),
         a.filter
     );
@@ -701,6 +665,12 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
                 eprintln!(
                     "insuwb demo: Foxglove live view on {} (Foxglove app: Open connection, Foxglove WebSocket; layout deploy/foxglove/insuwb-live.json)",
                     cfg.foxglove.url()?
+                );
+            }
+            if cfg.stages.contains(&StageRole::Zenoh) {
+                eprintln!(
+                    "insuwb demo: Zenoh bridge as robot {DEMO_ROBOT}, connecting to {} (keys insuwb/{DEMO_ROBOT}/pose and insuwb/{DEMO_ROBOT}/health, docs/ZENOH.md)",
+                    cfg.zenoh.connect.join(", ")
                 );
             }
             run_group_with(

@@ -1,15 +1,17 @@
 //! The `insuwb` command line: evaluation, simulation, AR fitting, import of
-//! real flights, log tools, the process group (launch, demo, inspect), and
-//! device emulators (emulate).
+//! real flights, log tools, the process group (launch, demo, inspect),
+//! device emulators (emulate), and the fleet's station (fleet).
 //!
 //! Logs go to standard error (`RUST_LOG` sets the level); with `--json` a
 //! command prints exactly one JSON object on standard output.
 
 mod batch_cmd;
 mod bench_cmd;
+mod bench_fleet;
 mod dataset;
 mod emulate_cmd;
 mod eval_cmd;
+mod fleet_cmd;
 mod group_cmd;
 mod log_cmd;
 mod monitor;
@@ -46,7 +48,7 @@ enum Cmd {
     Demo(group_cmd::DemoArgs),
     /// Run the group on simulated sensors under random SIGKILL/SIGSTOP faults and check recovery.
     Chaos(group_cmd::ChaosArgs),
-    /// Benchmarks of the process pipeline (latency against bare iceoryx2).
+    /// Benchmarks: the process pipeline's latency against bare iceoryx2, the fleet's station under load.
     #[command(subcommand)]
     Bench(bench_cmd::BenchCmd),
     /// Emulate a real IMU or UWB device on a pseudo-terminal or a loopback TCP port, fed by a scenario or a log.
@@ -54,6 +56,8 @@ enum Cmd {
     Emulate(emulate_cmd::EmulateCmd),
     /// Live per-topic rates, last-sample ages, publishers and subscribers of a running group.
     Inspect(group_cmd::InspectArgs),
+    /// The fleet's station over Zenoh: every robot's pose, rate, age, status (ok, degraded, stale, lost after 2 s silent) and restarts, live or as JSON snapshots; `fleet record DIR` also records each robot into its own log.
+    Fleet(fleet_cmd::FleetArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -64,8 +68,12 @@ enum ImportCmd {
 
 /// The log filter when `RUST_LOG` is unset: RustDDS (the DDS reader of
 /// `bench latency --with ros2`) reports every socket and discovery event at
-/// `info`, and ros2-client warns when `ROS_DISTRO` is unset.
-const DEFAULT_FILTER: &str = "info,rustdds=warn,ros2_client=warn,ros2_client::distributions=error";
+/// `info`, ros2-client warns when `ROS_DISTRO` is unset, Zenoh (the
+/// station of `insuwb fleet`, the simulated robots of `bench fleet`)
+/// reports its listeners and links at `info` and warns at each peer
+/// session that gossip is off (on purpose: nothing is scouted).
+const DEFAULT_FILTER: &str = "info,rustdds=warn,ros2_client=warn,ros2_client::distributions=error,\
+     zenoh=warn,zenoh::net::routing::hat::peer=error";
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
@@ -99,5 +107,6 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Chaos(a) => group_cmd::chaos(&a),
         Cmd::Bench(c) => bench_cmd::run(&c),
         Cmd::Emulate(c) => emulate_cmd::run(&c),
+        Cmd::Fleet(a) => fleet_cmd::run(&a),
     }
 }

@@ -5,6 +5,8 @@
 // Test helpers outside `#[test]` functions may unwrap and panic too.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod common;
+
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
@@ -167,6 +169,82 @@ fn a_simulated_log_evaluates_like_its_scenario_and_a_torn_log_still_reads() {
     assert!(num(&v, "iakf", "rmse_horizontal").is_finite());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("torn tail at byte"), "{err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// A log of fused states and no sensor records (what `insuwb fleet
+/// record` writes of a robot, a folder of segments), here the IAKF's
+/// fused states of a simulated flight with its ground truth: `insuwb eval`
+/// reports its recorded track, with the figures `eval` gives the IAKF on
+/// the sensor records; without the truth, its states and rate and why
+/// there is no accuracy; a filter asked for is refused with the reason.
+#[test]
+fn a_log_of_fused_states_evaluates_as_its_recorded_track() {
+    use insuwb_log::{Metadata, Record, SegmentConfig, SegmentWriter};
+    let d = tmp("recorded");
+    let log = simulated_log(&d, "2");
+    let run = common::offline_run(&log, insuwb_msg::FilterKind::Iakf);
+    let truth: Vec<Record> = insuwb_log::read_all(&log)
+        .unwrap()
+        .0
+        .into_iter()
+        .filter(|r| matches!(r, Record::Truth(_)))
+        .collect();
+    let write = |dir: &std::path::Path, with_truth: bool| {
+        let meta = Metadata::new("test").with("robot", "r1");
+        let mut w = SegmentWriter::open(dir, meta, SegmentConfig::default(), 0).unwrap();
+        for s in &run.fused {
+            w.append(&Record::Fused(*s), 0).unwrap();
+        }
+        for t in truth.iter().filter(|_| with_truth) {
+            w.append(t, 0).unwrap();
+        }
+        w.finish().unwrap();
+    };
+    let (with, without) = (d.join("with"), d.join("without"));
+    write(&with, true);
+    write(&without, false);
+    let rec = json(&insuwb(&["eval", with.to_str().unwrap(), "--json"]));
+    let sensors = json(&insuwb(&[
+        "eval",
+        log.to_str().unwrap(),
+        "--filters",
+        "iakf",
+        "--json",
+    ]));
+    let (a, b) = (
+        num(&rec, "recorded", "rmse_horizontal"),
+        num(&sensors, "iakf", "rmse_horizontal"),
+    );
+    eprintln!("recorded track {a} m, the IAKF on the sensor records {b} m");
+    // The IAKF's states at the fix epochs are the track: the same figures.
+    assert!((a - b).abs() <= 1e-9, "recorded {a} vs iakf {b}");
+    let states = num(&rec, "recorded", "states");
+    assert!(states > 100.0 && states <= run.fused.len() as f64, "{rec}");
+    let hz = num(&rec, "recorded", "rate_hz");
+    assert!((9.0..=11.0).contains(&hz), "{hz} Hz");
+
+    let out = insuwb(&["eval", without.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("the recorded track") && text.contains("no ground truth"),
+        "{text}"
+    );
+    let v = json(&insuwb(&["eval", without.to_str().unwrap(), "--json"]));
+    assert_eq!(num(&v, "recorded", "states"), states);
+    assert!(v["recorded"].get("rmse_horizontal").is_none(), "{v}");
+    let out = insuwb(&["eval", without.to_str().unwrap(), "--filters", "kf"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no IMU and UWB records") && err.contains("--filters"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&d);
 }
 

@@ -195,9 +195,10 @@ pub enum FloorError {
     /// The receive trace could not be written.
     #[error(transparent)]
     Trace(#[from] TraceError),
-    /// The role has no floor stage (the ROS 2 bridge and the Foxglove live
-    /// view are their own binaries, `insuwb-stage-ros2` and
-    /// `insuwb-stage-foxglove`, off the fix path).
+    /// The role has no floor stage (the ROS 2 bridge, the Foxglove live
+    /// view and the Zenoh bridge are their own binaries,
+    /// `insuwb-stage-ros2`, `insuwb-stage-foxglove` and
+    /// `insuwb-stage-zenoh`, off the fix path).
     #[error("the floor has no {0} stage: it is its own binary insuwb-stage-{0}, off the fix path")]
     NoFloorStage(Role),
     /// The floor log could not be created or written.
@@ -219,7 +220,7 @@ pub fn run_role(role: Role, cfg: &FloorConfig) -> Result<(), FloorError> {
         Role::Ins => run_ins(cfg),
         Role::Fusion => run_fusion(cfg),
         Role::Logger => run_logger(cfg),
-        Role::Ros2 | Role::Foxglove => Err(FloorError::NoFloorStage(role)),
+        Role::Ros2 | Role::Foxglove | Role::Zenoh => Err(FloorError::NoFloorStage(role)),
     };
     match r {
         Err(FloorError::Stage(StageError::ShutdownRequested(_))) => Ok(()),

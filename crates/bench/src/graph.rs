@@ -1,5 +1,6 @@
 //! Running the floor graph: one `insuwb-bench-floor` process per role under the
-//! launcher's supervisor (no restarts, no watchdog: a floor process that
+//! launcher's supervisor, through the groups' launch loop
+//! (`insuwb_group::launch`; no restarts, no watchdog: a floor process that
 //! exits fails the run), for a fixed time, then an orderly SIGTERM shutdown
 //! in the pipeline's order; the floor logger's records and receive trace are
 //! read back, and the CPU time of each role over a steady window is taken
@@ -9,7 +10,8 @@ use core::time::Duration;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use insuwb_launch::{LaunchError, RestartPolicy, StageSpec, Supervisor, SupervisorState};
+use insuwb_group::launch::{supervise, LoopEnd, LoopOptions, Watch};
+use insuwb_launch::{LaunchError, RestartPolicy, StageSpec, Supervisor};
 use insuwb_log::Record;
 use insuwb_runtime::{cleanup, monotonic_ns};
 
@@ -47,7 +49,7 @@ pub fn fifo_ladder(stage: &str, top: i32) -> Option<i32> {
         Role::Fusion => top,
         Role::Ins => top - 1,
         Role::Imu | Role::Uwb => top - 2,
-        Role::Logger | Role::Ros2 | Role::Foxglove => return None,
+        Role::Logger | Role::Ros2 | Role::Foxglove | Role::Zenoh => return None,
     };
     (1..=99).contains(&p).then_some(p)
 }
@@ -178,33 +180,25 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
         ..RestartPolicy::default()
     };
     let mut sup = Supervisor::new(policy, specs)?;
-    let t0 = Instant::now();
-    let started = sup.start(t0);
-    let mut failed = started.err().map(GraphError::from);
-    let mut cpu0: Option<(Instant, Vec<(String, u64)>)> = None;
-    let mut cpu = Vec::new();
-    while failed.is_none() {
-        let now = Instant::now();
-        sup.poll(now);
-        if let SupervisorState::Failed { stage } = sup.state() {
-            failed = Some(GraphError::Exited(stage));
-            break;
-        }
-        let pids = live_pids(&sup);
-        let elapsed = now.duration_since(t0);
-        if cpu0.is_none() && elapsed >= opts.cpu_from {
-            cpu0 = Some((now, cpu_snapshot(&pids)));
-        }
-        if elapsed >= opts.duration {
-            if let Some((at, before)) = &cpu0 {
-                let wall = u64::try_from(now.duration_since(*at).as_nanos()).unwrap_or(u64::MAX);
-                cpu = cpu_percent(before, &cpu_snapshot(&pids), wall);
-            }
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    sup.shutdown(&Role::DEFAULT.map(Role::name));
+    let mut watch = CpuWatch {
+        cpu_from: opts.cpu_from,
+        duration: opts.duration,
+        before: None,
+        cpu: Vec::new(),
+    };
+    let loop_opts = LoopOptions {
+        duration: Some(opts.duration),
+        max_wait: Duration::from_millis(20),
+        shutdown_order: Role::DEFAULT.map(|r| r.name().to_owned()).to_vec(),
+    };
+    let end = supervise(&mut sup, Instant::now(), &loop_opts, &mut watch, None);
+    let failed = match end {
+        Ok(LoopEnd::Failed(stage)) => Some(GraphError::Exited(stage)),
+        Ok(LoopEnd::NotStarted(e)) => Some(GraphError::from(e)),
+        Ok(LoopEnd::Duration | LoopEnd::Shutdown) => None,
+        Err(never) => match never {},
+    };
+    let cpu = watch.cpu;
     if let Err(e) = cleanup::remove_prefix_files(&opts.prefix, Some(&root)) {
         tracing::warn!("removing the floor's shared-memory files: {e}");
     }
@@ -229,6 +223,43 @@ fn live_pids(sup: &Supervisor) -> Vec<(String, u32)> {
         .into_iter()
         .filter_map(|(n, p)| Some((n, p?)))
         .collect()
+}
+
+/// The floor graph's watch: a 20 ms sleep between polls, and the stages'
+/// CPU from `cpu_from` to the end of the run.
+struct CpuWatch {
+    cpu_from: Duration,
+    duration: Duration,
+    before: Option<(Instant, Vec<(String, u64)>)>,
+    cpu: Vec<(String, f64)>,
+}
+
+impl Watch for CpuWatch {
+    type Error = std::convert::Infallible;
+
+    fn wait(&mut self, max: Duration) -> Result<bool, Self::Error> {
+        std::thread::sleep(max);
+        Ok(false)
+    }
+
+    fn on_wake(
+        &mut self,
+        sup: &mut Supervisor,
+        now: Instant,
+        elapsed: Duration,
+    ) -> Result<(), Self::Error> {
+        let pids = live_pids(sup);
+        if self.before.is_none() && elapsed >= self.cpu_from {
+            self.before = Some((now, cpu_snapshot(&pids)));
+        }
+        if elapsed >= self.duration {
+            if let Some((at, before)) = &self.before {
+                let wall = u64::try_from(now.duration_since(*at).as_nanos()).unwrap_or(u64::MAX);
+                self.cpu = cpu_percent(before, &cpu_snapshot(&pids), wall);
+            }
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]

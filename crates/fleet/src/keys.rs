@@ -1,5 +1,6 @@
 //! Key expressions of the fleet: a robot publishes each stream under
-//! `insuwb/<robot>/<kind>` ([`Key`]), and a station subscribes to
+//! `insuwb/<robot>/<kind>` ([`Key`]; kinds `pose`, `health`, and
+//! optionally `fix` and `diag`), and a station subscribes to
 //! `insuwb/*/<kind>` ([`Kind::subscription`]).
 //!
 //! A robot id is 1 to 64 characters of `A-Z a-z 0-9 _ -`: one chunk of a
@@ -21,18 +22,25 @@ pub enum Kind {
     Pose,
     /// The stages' health, 1 Hz.
     Health,
+    /// The UWB fixes (optional: the bridge's `publish_fixes`).
+    Fix,
+    /// The filter's diagnostics after each update (optional: the bridge's
+    /// `publish_diag`).
+    Diag,
 }
 
 impl Kind {
     /// Every kind.
-    pub const ALL: [Self; 2] = [Self::Pose, Self::Health];
+    pub const ALL: [Self; 4] = [Self::Pose, Self::Health, Self::Fix, Self::Diag];
 
-    /// Its last chunk: `pose` or `health`.
+    /// Its last chunk: `pose`, `health`, `fix` or `diag`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
             Self::Pose => "pose",
             Self::Health => "health",
+            Self::Fix => "fix",
+            Self::Diag => "diag",
         }
     }
 
@@ -52,7 +60,7 @@ pub enum KeyError {
     #[error("KeyError::RobotId: robot id {0:?} must be 1 to 64 characters of A-Z a-z 0-9 _ -")]
     RobotId(String),
     /// The key is not `insuwb/<robot>/<kind>`.
-    #[error("KeyError::Shape: key {0:?} is not insuwb/<robot>/pose or insuwb/<robot>/health")]
+    #[error("KeyError::Shape: key {0:?} is not insuwb/<robot>/<kind> with kind pose, health, fix or diag")]
     Shape(String),
 }
 
@@ -162,12 +170,14 @@ mod tests {
             "insuwb/r1",
             "insuwb/r1/pose/x",
             "other/r1/pose",
-            "insuwb/r1/fix",
+            "insuwb/r1/imu",
             "insuwb//pose",
         ] {
             assert!(k.parse::<Key>().is_err(), "{k}");
         }
-        let e = "insuwb/r1/fix".parse::<Key>().unwrap_err();
-        assert!(e.to_string().contains("insuwb/r1/fix"), "{e}");
+        let e = "insuwb/r1/imu".parse::<Key>().unwrap_err();
+        assert!(e.to_string().contains("insuwb/r1/imu"), "{e}");
+        assert_eq!("insuwb/r1/fix".parse::<Key>().unwrap().kind(), Kind::Fix);
+        assert_eq!("insuwb/r1/diag".parse::<Key>().unwrap().kind(), Kind::Diag);
     }
 }

@@ -6,9 +6,13 @@
 //! - [`station`]: what the station knows of each robot (last pose, rate,
 //!   age, status OK / degraded / stale / lost, restarts) and the lost and
 //!   back events, from samples stamped with the station's receive time.
+//! - [`delivery`]: what reached the station: samples received, lost on the
+//!   way (gaps in the publishers' sequence numbers), the poses' delays.
+//! - [`view`]: a snapshot of the fleet (JSON) and its terminal table.
+//! - [`record`]: each robot's stream into its own insuwb log.
 //!
-//! Pure and deterministic: the same samples at the same receive times give
-//! the same view; the transport is elsewhere.
+//! All but [`record`] are pure and deterministic: the same samples at the
+//! same receive times give the same view; the transport is elsewhere.
 //!
 //! ```
 //! use insuwb_fleet::keys::{Key, Kind};
@@ -29,5 +33,8 @@
 
 #![warn(missing_docs)]
 
+pub mod delivery;
 pub mod keys;
+pub mod record;
 pub mod station;
+pub mod view;

@@ -44,8 +44,7 @@ use foxglove::messages::{FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate}
 use foxglove::{Channel, Context, PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
 use insuwb_msg::{topics, FilterDiag, FusedState, GroundTruth, Health, UwbFix, UwbTdoa};
 use insuwb_runtime::{
-    monotonic_ns, HealthCounters, HealthReporter, PortError, PublishError, ReceiveError,
-    RuntimeConfig, Stage, StageError, Sub, WaitError,
+    monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
 };
 use serde::Serialize;
 
@@ -107,19 +106,9 @@ pub enum LiveOpenError {
     },
 }
 
-/// The live-view loop ended with an error.
-#[derive(Debug, thiserror::Error)]
-pub enum LiveRunError {
-    /// Waiting (epoll, timers, signals).
-    #[error("LiveRunError::Wait: {0}")]
-    Wait(#[from] WaitError),
-    /// Receiving from iceoryx2.
-    #[error("LiveRunError::Receive: {0}")]
-    Receive(#[from] ReceiveError),
-    /// Publishing the heartbeat.
-    #[error("LiveRunError::Heartbeat: {0}")]
-    Heartbeat(#[from] PublishError),
-}
+/// The loop ended with an error (the report loop's, shared by the
+/// stages it runs).
+pub use insuwb_ros2::report_loop::ReportLoopError as LiveRunError;
 
 /// What the live view logged, for the line at its end.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -40,10 +40,10 @@ pub struct FusionConfig {
     pub tight: TightConfig,
     /// Velocity noise from the vibration the IMU measures, for every filter.
     pub vibration: VibrationConfig,
-    /// The coasting and stale-input policy the lockstep runner applies on
-    /// the recording's clock (`[fusion.output]`); absent (the default): it
-    /// publishes the updates' fused states only. The fusion stage takes its
-    /// policy from the robot config's `[fusion]` table.
+    /// The coasting and stale-input policy (`[fusion.output]`), its one
+    /// home: the fusion stage applies it on the monotonic clock (its
+    /// defaults where absent), the lockstep runner on the recording's clock
+    /// (absent: the runner publishes the updates' fused states only).
     pub output: Option<OutputPolicyConfig>,
 }
 

@@ -19,8 +19,8 @@
 use insuwb_msg::FusedState;
 use serde::{Deserialize, Serialize};
 
-/// Coasting and stale-input settings (the stage reads them from the robot
-/// config's `[fusion]` table, the runner from `[fusion.output]`).
+/// Coasting and stale-input settings: `[fusion.output]` of the fusion
+/// settings, read by the stage and the runner alike.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputPolicyConfig {

@@ -2,9 +2,12 @@
 //! and the emulators: the scenario file ([`scenario`]), i.e. what the `sim`
 //! sources simulate and the `[fusion]` settings that go with it, and what
 //! emulated devices play ([`recording`]: a scenario or a log as the IMU
-//! samples and UWB fixes real devices would have measured).
+//! samples and UWB fixes real devices would have measured), and the launch
+//! loop every group runs through ([`launch`]: supervision, watching, fault
+//! injection and the stop order).
 #![warn(missing_docs)]
 
+pub mod launch;
 pub mod recording;
 pub mod scenario;
 

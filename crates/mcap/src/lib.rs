@@ -11,7 +11,7 @@
 //! - Every other topic, and the whole fused state, is a message of the
 //!   package `insuwb_msgs` ([`msgs`]).
 //! - [`cdr`]: the encoding (encapsulation header `00 01 00 00`, then plain
-//!   little-endian CDR).
+//!   little-endian CDR), `insuwb_ros2::cdr`.
 //! - [`RecordWriter`] turns records into messages on any `Write + Seek`;
 //!   [`export_log`] reads a log (a file, or a run directory's segments in
 //!   order) into an MCAP file and reports where a cut log stopped
@@ -37,7 +37,7 @@
 #![doc = include_str!("../../../docs/MCAP_EXPORT.md")]
 #![deny(missing_docs)]
 
-pub mod cdr;
+pub use insuwb_ros2::cdr;
 pub mod msgs;
 
 use std::collections::BTreeMap;

@@ -324,9 +324,10 @@ pub struct UnknownFilterKind(pub String);
 
 /// The processes of a group, each one stage of the pipeline, with their one
 /// name (configuration `stages`, binaries, health, locks, logs): `imu`,
-/// `uwb`, `ins`, `fusion`, `ros2`, `foxglove`, `logger`. A group runs
-/// [`StageRole::DEFAULT`] unless its `stages` lists others: the ROS 2
-/// bridge and the Foxglove live view run only where they are listed.
+/// `uwb`, `ins`, `fusion`, `ros2`, `foxglove`, `zenoh`, `logger`. A group
+/// runs [`StageRole::DEFAULT`] unless its `stages` lists others: the ROS 2
+/// bridge, the Foxglove live view and the Zenoh bridge run only where they
+/// are listed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StageRole {
@@ -344,43 +345,48 @@ pub enum StageRole {
     /// The Foxglove live view (binary `insuwb-stage-foxglove`, library
     /// `insuwb-foxglove`): optional.
     Foxglove,
+    /// The Zenoh bridge to the fleet's station (binary
+    /// `insuwb-stage-zenoh`, library `insuwb-zenoh`): optional.
+    Zenoh,
     /// The logger.
     Logger,
 }
 
 impl StageRole {
     /// Every role, in start order.
-    pub const ALL: [Self; 7] = [
+    pub const ALL: [Self; 8] = [
         Self::Imu,
         Self::Uwb,
         Self::Ins,
         Self::Fusion,
         Self::Ros2,
         Self::Foxglove,
+        Self::Zenoh,
         Self::Logger,
     ];
 
     /// The roles a group runs when its `stages` lists none: every role but
-    /// the ROS 2 bridge and the Foxglove live view (nothing is opened on
-    /// the network unless asked).
+    /// the ROS 2 bridge, the Foxglove live view and the Zenoh bridge
+    /// (nothing is opened on the network unless asked).
     pub const DEFAULT: [Self; 5] = [Self::Imu, Self::Uwb, Self::Ins, Self::Fusion, Self::Logger];
 
     /// Their names, in start order, which is also the shutdown order of a
     /// group: the sources first, so that nothing new enters, the ROS 2
-    /// bridge and the Foxglove live view after fusion, the logger last, so
-    /// that it records the end.
-    pub const NAMES: [&'static str; 7] = [
+    /// bridge, the Foxglove live view and the Zenoh bridge after fusion, the
+    /// logger last, so that it records the end.
+    pub const NAMES: [&'static str; 8] = [
         Self::Imu.name(),
         Self::Uwb.name(),
         Self::Ins.name(),
         Self::Fusion.name(),
         Self::Ros2.name(),
         Self::Foxglove.name(),
+        Self::Zenoh.name(),
         Self::Logger.name(),
     ];
 
-    /// Its name: `imu`, `uwb`, `ins`, `fusion`, `ros2`, `foxglove` or
-    /// `logger`.
+    /// Its name: `imu`, `uwb`, `ins`, `fusion`, `ros2`, `foxglove`,
+    /// `zenoh` or `logger`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -390,6 +396,7 @@ impl StageRole {
             Self::Fusion => "fusion",
             Self::Ros2 => "ros2",
             Self::Foxglove => "foxglove",
+            Self::Zenoh => "zenoh",
             Self::Logger => "logger",
         }
     }
@@ -397,7 +404,8 @@ impl StageRole {
     /// The program of its process, in the folder of the `insuwb`
     /// executable (and of its cargo package): `insuwb-stage-imu`,
     /// `insuwb-stage-uwb`, `insuwb-stage-ins`, `insuwb-stage-fusion`,
-    /// `insuwb-stage-ros2`, `insuwb-stage-foxglove`, `insuwb-stage-logger`.
+    /// `insuwb-stage-ros2`, `insuwb-stage-foxglove`, `insuwb-stage-zenoh`,
+    /// `insuwb-stage-logger`.
     #[must_use]
     pub const fn program(self) -> &'static str {
         match self {
@@ -407,6 +415,7 @@ impl StageRole {
             Self::Fusion => "insuwb-stage-fusion",
             Self::Ros2 => "insuwb-stage-ros2",
             Self::Foxglove => "insuwb-stage-foxglove",
+            Self::Zenoh => "insuwb-stage-zenoh",
             Self::Logger => "insuwb-stage-logger",
         }
     }
@@ -433,7 +442,7 @@ const COMM_LEN: usize = 15;
 
 /// A name that is not one of [`StageRole::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, ros2, foxglove, logger)")]
+#[error("unknown stage '{0}' (known: imu, uwb, ins, fusion, ros2, foxglove, zenoh, logger)")]
 pub struct UnknownStageRole(pub String);
 
 /// `Display` as the enum's `name()`, and `FromStr` from it (`$err` for any
@@ -649,13 +658,14 @@ mod name_tests {
             .parse::<StageRole>()
             .unwrap_err()
             .to_string()
-            .contains("imu, uwb, ins, fusion, ros2, foxglove, logger"));
+            .contains("imu, uwb, ins, fusion, ros2, foxglove, zenoh, logger"));
         assert_eq!(
             StageRole::NAMES.join(", "),
-            "imu, uwb, ins, fusion, ros2, foxglove, logger"
+            "imu, uwb, ins, fusion, ros2, foxglove, zenoh, logger"
         );
         assert!(!StageRole::DEFAULT.contains(&StageRole::Ros2));
         assert!(!StageRole::DEFAULT.contains(&StageRole::Foxglove));
+        assert!(!StageRole::DEFAULT.contains(&StageRole::Zenoh));
         assert!(StageRole::DEFAULT
             .iter()
             .all(|r| StageRole::ALL.contains(r)));
@@ -670,6 +680,7 @@ mod name_tests {
         }
         assert_eq!(StageRole::Fusion.process_name(), "insuwb-stage-fu");
         assert_eq!(StageRole::Foxglove.process_name(), "insuwb-stage-fo");
+        assert_eq!(StageRole::Zenoh.process_name(), "insuwb-stage-ze");
         assert_eq!(StageRole::from_process_name("insuwb-stage-fusion"), None);
         assert_eq!(StageRole::from_process_name("insuwb"), None);
     }

@@ -29,8 +29,7 @@
 
 use insuwb_msg::{topics, FusedState, Health, ImuSample};
 use insuwb_runtime::{
-    monotonic_ns, HealthCounters, HealthReporter, PortError, PublishError, ReceiveError,
-    RuntimeConfig, Stage, StageError, Sub, WaitError,
+    monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
 };
 use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::{
@@ -87,19 +86,9 @@ pub enum BridgeOpenError {
     StaticTransform(ConvertError),
 }
 
-/// The bridge loop ended with an error.
-#[derive(Debug, thiserror::Error)]
-pub enum BridgeRunError {
-    /// Waiting (epoll, timers, signals).
-    #[error("BridgeRunError::Wait: {0}")]
-    Wait(#[from] WaitError),
-    /// Receiving from iceoryx2.
-    #[error("BridgeRunError::Receive: {0}")]
-    Receive(#[from] ReceiveError),
-    /// Publishing the heartbeat.
-    #[error("BridgeRunError::Heartbeat: {0}")]
-    Heartbeat(#[from] PublishError),
-}
+/// The loop ended with an error (the report loop's, shared by the
+/// stages it runs).
+pub use crate::report_loop::ReportLoopError as BridgeRunError;
 
 /// What the bridge published, for the log line at its end.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

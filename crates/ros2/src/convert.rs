@@ -310,6 +310,64 @@ pub fn fused_to_odometry(
     })
 }
 
+/// The fused state a `nav_msgs/Odometry` of [`fused_to_odometry`] holds
+/// (the other way, for a reader of the odometry such as the fleet
+/// station): measurement time from the stamp mapped back by `clock`
+/// ([`stamp_to_monotonic`]), position and attitude as they are (`[w, x,
+/// y, z]`), the heading of the attitude, the velocity and its covariance
+/// rotated back into ENU, the position block of the pose covariance and
+/// the velocity block of the twist's; what the message does not carry
+/// (position-velocity cross-covariance, header counters and flags, the
+/// inputs' times) is zero, `frame_id` is the message's.
+///
+/// # Errors
+/// [`ConvertError`] for a non-finite field, a quaternion that is not a
+/// rotation, or a stamp before the clock's start.
+pub fn odometry_to_fused(o: &Odometry, clock: &ClockOffset) -> Result<FusedState, ConvertError> {
+    let p = &o.pose.pose.position;
+    let pos_m = [p.x, p.y, p.z];
+    check_finite("pose.position", &pos_m)?;
+    let v = &o.twist.twist.linear;
+    check_finite("twist.linear", &[v.x, v.y, v.z])?;
+    check_finite("pose.covariance", &o.pose.covariance.0)?;
+    check_finite("twist.covariance", &o.twist.covariance.0)?;
+    let q = &o.pose.pose.orientation;
+    let [x, y, z, w] = unit_quaternion_xyzw(&[q.w, q.x, q.y, q.z])?;
+    let q = Quaternion { x, y, z, w };
+    let meas_time_ns = stamp_to_monotonic(&o.header.stamp, clock).ok_or_else(|| {
+        ConvertError::StampOutOfRange(
+            i128::from(o.header.stamp.sec) * 1_000_000_000 + i128::from(o.header.stamp.nanosec),
+        )
+    })?;
+    let r = rotation(&q);
+    // R v and R C R^T: the transpose of `to_body` and `cov_to_body`.
+    let rt = [0, 1, 2].map(|i| [0, 1, 2].map(|j| r[j][i]));
+    let mut vel_cov_body = [[0.0; 3]; 3];
+    let mut cov = [[0.0; 6]; 6];
+    for i in 0..3 {
+        for j in 0..3 {
+            cov[i][j] = o.pose.covariance.0[i * 6 + j];
+            vel_cov_body[i][j] = o.twist.covariance.0[i * 6 + j];
+        }
+    }
+    let vel_cov = cov_to_body(&rt, &vel_cov_body);
+    for i in 0..3 {
+        for j in 0..3 {
+            cov[i + 3][j + 3] = vel_cov[i][j];
+        }
+    }
+    Ok(FusedState {
+        header: insuwb_msg::Header::new(0, meas_time_ns),
+        pos_m,
+        vel_mps: to_body(&rt, &[v.x, v.y, v.z]),
+        quat: [w, x, y, z],
+        yaw_rad: (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z)),
+        cov,
+        frame_id: insuwb_msg::fixed_name(&o.header.frame_id),
+        ..FusedState::default()
+    })
+}
+
 /// `frame_id -> child_frame_id` on `/tf` from a fused state.
 ///
 /// # Errors
@@ -617,6 +675,59 @@ mod tests {
         assert_eq!(c.at(3, 3), UNKNOWN_VARIANCE);
         assert_eq!(c.at(5, 5), UNKNOWN_VARIANCE);
         assert_eq!(o.twist.twist.angular, Vector3::default());
+    }
+
+    #[test]
+    fn odometry_reads_back_into_the_fused_state() {
+        let mut s = fused();
+        // A heading off the axes, so that the rotation back is exercised.
+        s.quat = yaw(0.7);
+        s.yaw_rad = 0.7;
+        s.frame_id = fixed_name("map");
+        for i in 0..3 {
+            for j in 0..3 {
+                // Symmetric blocks, as a covariance is.
+                s.cov[i][j] = if i == j { 0.5 } else { 0.01 * (i + j) as f64 };
+                s.cov[i + 3][j + 3] = if i == j { 0.2 + 0.1 * i as f64 } else { 0.02 };
+            }
+        }
+        let clock = ClockOffset {
+            offset_ns: 1_700_000_000_000_000_000,
+        };
+        let o = fused_to_odometry(&s, &Frames::default(), &clock).unwrap();
+        let back = odometry_to_fused(&o, &clock).unwrap();
+        assert_eq!(back.header.meas_time_ns, s.header.meas_time_ns);
+        assert_eq!(back.pos_m, s.pos_m);
+        assert_eq!(back.frame_id, s.frame_id);
+        assert!((back.yaw_rad - 0.7).abs() < 1e-12, "{}", back.yaw_rad);
+        for i in 0..4 {
+            assert!((back.quat[i] - s.quat[i]).abs() < 1e-12);
+        }
+        for i in 0..3 {
+            assert!((back.vel_mps[i] - s.vel_mps[i]).abs() < 1e-12);
+        }
+        for i in 0..6 {
+            for j in 0..6 {
+                let want = if (i < 3) == (j < 3) { s.cov[i][j] } else { 0.0 };
+                assert!((back.cov[i][j] - want).abs() < 1e-12, "({i}, {j})");
+            }
+        }
+        let mut bad = o.clone();
+        bad.pose.pose.position.x = f64::NAN;
+        assert!(matches!(
+            odometry_to_fused(&bad, &clock),
+            Err(ConvertError::NotFinite("pose.position"))
+        ));
+        // A stamp before the monotonic clock's start.
+        assert!(matches!(
+            odometry_to_fused(
+                &o,
+                &ClockOffset {
+                    offset_ns: i64::MAX
+                }
+            ),
+            Err(ConvertError::StampOutOfRange(_))
+        ));
     }
 
     #[test]

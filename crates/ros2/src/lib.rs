@@ -1,6 +1,8 @@
 //! The ROS 2 bridge of insuwb: the fused pose, the IMU samples and the
 //! stages' health as ROS 2 topics, with no ROS installation.
 //!
+//! - [`cdr`]: their ROS 2 CDR encoding and decoding (the MCAP export's
+//!   and the Zenoh bridge's payload);
 //! - [`msgs`]: the ROS 2 messages (serde structs in `.msg` field order),
 //!   their type names and `ros2msg` definitions;
 //! - [`convert`]: pure conversions from insuwb samples (stamps, frames,
@@ -29,6 +31,7 @@
 
 #[cfg(feature = "dds")]
 pub mod bridge;
+pub mod cdr;
 pub mod config;
 pub mod convert;
 pub mod health;

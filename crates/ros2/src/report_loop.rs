@@ -13,7 +13,8 @@ use std::time::Duration;
 use insuwb_msg::{FusedState, Health};
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{
-    monotonic_ns, HealthCounters, HealthReporter, PublishError, Stage, Sub, WaitError, Wake,
+    monotonic_ns, HealthCounters, HealthReporter, PublishError, ReceiveError, Stage, Sub,
+    WaitError, Wake,
 };
 
 use crate::convert::{ClockOffset, StampClock};
@@ -22,6 +23,21 @@ use crate::health::GroupSeen;
 /// Longest time the other inputs wait undrained while no fused state wakes
 /// the loop.
 pub const DRAIN_PERIOD_NS: u64 = 20_000_000;
+
+/// Why a report loop ended: the run error of every stage it runs (the
+/// ROS 2 bridge, the Foxglove live view, the Zenoh bridge).
+#[derive(Debug, thiserror::Error)]
+pub enum ReportLoopError {
+    /// Waiting (epoll, timers, signals).
+    #[error("ReportLoopError::Wait: {0}")]
+    Wait(#[from] WaitError),
+    /// Receiving from iceoryx2.
+    #[error("ReportLoopError::Receive: {0}")]
+    Receive(#[from] ReceiveError),
+    /// Publishing the heartbeat.
+    #[error("ReportLoopError::Heartbeat: {0}")]
+    Heartbeat(#[from] PublishError),
+}
 
 /// The outputs of a stage run by [`ReportLoop::run`]: what it does at each
 /// wake.

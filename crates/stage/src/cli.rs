@@ -110,6 +110,9 @@ fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
         StageRole::Foxglove => Err(anyhow::anyhow!(
             "the foxglove stage is its own binary insuwb-stage-foxglove"
         )),
+        StageRole::Zenoh => Err(anyhow::anyhow!(
+            "the zenoh stage is its own binary insuwb-stage-zenoh"
+        )),
     };
     match result {
         Err(e)

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use insuwb_fusion::config::build_estimator;
+use insuwb_fusion::config::{build_estimator, FusionConfig};
 use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
 use insuwb_fusion::output::{OutputPolicy, OutputPolicyConfig};
 use insuwb_msg::{
@@ -60,22 +60,18 @@ pub fn eager_lag_s(cfg: &RobotConfig) -> Option<f64> {
         .then_some(cfg.fusion.eager_lag_s)
 }
 
-/// The coasting and stale-input policy of the robot config's `[fusion]`
-/// table (`coast_timeout_s`, `coast_rate_hz`, `stale_ins_timeout_s`).
+/// The coasting and stale-input policy: the fusion settings'
+/// `[fusion.output]`, the one the lockstep runner of `insuwb eval` and
+/// replay applies, or its defaults where the settings have none.
 #[must_use]
-pub fn output_policy(cfg: &RobotConfig) -> OutputPolicyConfig {
-    OutputPolicyConfig {
-        coast_timeout_s: cfg.fusion.coast_timeout_s,
-        coast_rate_hz: cfg.fusion.coast_rate_hz,
-        stale_ins_timeout_s: cfg.fusion.stale_ins_timeout_s,
-    }
+pub fn output_policy(fcfg: &FusionConfig) -> OutputPolicyConfig {
+    fcfg.output.clone().unwrap_or_default()
 }
 
 /// The engine the stage runs: the configured filter, eager in real time
 /// ([`eager_lag_s`]), tight epochs aligned to the group's epoch.
-fn engine_for(cfg: &RobotConfig, epoch_ns: u64) -> Result<FusionEngine> {
-    let fcfg = cfg.fusion_config()?;
-    let est = build_estimator(cfg.filter_kind(), &fcfg)?;
+fn engine_for(cfg: &RobotConfig, fcfg: &FusionConfig, epoch_ns: u64) -> Result<FusionEngine> {
+    let est = build_estimator(cfg.filter_kind(), fcfg)?;
     let mut ecfg = fcfg.engine.clone();
     ecfg.eager_lag_s = eager_lag_s(cfg);
     let mut engine = FusionEngine::new(ecfg, est);
@@ -161,7 +157,9 @@ impl CheckpointWriter {
 /// start epoch (the drivers stamp samples `epoch + t`).
 pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     let stage = Stage::new(cfg.runtime(StageRole::Fusion.name()))?;
-    let mut engine = engine_for(cfg, epoch_ns)?;
+    let fcfg = cfg.fusion_config()?;
+    let policy_cfg = output_policy(&fcfg);
+    let mut engine = engine_for(cfg, &fcfg, epoch_ns)?;
     let tight = engine.estimator().is_tight();
     std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
         format!(
@@ -191,7 +189,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     let nav_a = waiter.attach(&nav_sub)?;
     let fix_a = waiter.attach(&fix_sub)?;
     let tdoa_a = tdoa_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
-    let tick_period = Duration::from_secs_f64((0.5 / cfg.fusion.coast_rate_hz).min(0.05));
+    let tick_period = Duration::from_secs_f64((0.5 / policy_cfg.coast_rate_hz).min(0.05));
     let tick = waiter.attach_interval(tick_period)?;
     let tick_ns = u64::try_from(tick_period.as_nanos()).unwrap_or(u64::MAX);
     let hb = waiter.attach_interval(health.period())?;
@@ -203,8 +201,8 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     out.diag.reserve(64);
     out.corrections.reserve(64);
     let ckpt_ns = (cfg.fusion.checkpoint_period_s * 1e9) as u64;
-    let mut policy = OutputPolicy::new(&output_policy(cfg), tick_ns, monotonic_ns())
-        .map_err(|e| anyhow::anyhow!("fusion.{e}"))?;
+    let mut policy = OutputPolicy::new(&policy_cfg, tick_ns, monotonic_ns())
+        .map_err(|e| anyhow::anyhow!("fusion.output.{e}"))?;
     let mut last_ckpt = 0u64;
     let mut counters = HealthCounters::default();
     let mut writer = CheckpointWriter::spawn(ckpt_path)?;

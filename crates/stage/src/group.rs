@@ -108,13 +108,6 @@ pub struct FusionStageConfig {
     /// Fusion settings file (with a `[fusion]` table); empty: the scenario's
     /// (sim sources) or the replayed log's own.
     pub config: String,
-    /// With no UWB update for this long, publish the INS-only coasting state
-    /// at `coast_rate_hz`, flagged degraded, s.
-    pub coast_timeout_s: f64,
-    /// Rate of coasting outputs, Hz.
-    pub coast_rate_hz: f64,
-    /// An INS state older than this is stale: outputs are flagged and not valid, s.
-    pub stale_ins_timeout_s: f64,
     /// Checkpoint period, s (a restarted fusion stage resumes from it).
     pub checkpoint_period_s: f64,
     /// Predict through INS states as they arrive, keeping the newest this
@@ -136,9 +129,6 @@ impl Default for FusionStageConfig {
         Self {
             filter: FilterKind::Iakf,
             config: String::new(),
-            coast_timeout_s: 0.15,
-            coast_rate_hz: 10.0,
-            stale_ins_timeout_s: 0.25,
             checkpoint_period_s: 0.5,
             eager_lag_s: 0.005,
         }
@@ -228,8 +218,8 @@ pub struct RobotConfig {
     /// Logger.
     pub logger: LoggerConfig,
     /// Stages to run, in start order (default: imu, uwb, ins, fusion,
-    /// logger; `ros2` and `foxglove` run only where listed, always after
-    /// fusion, `foxglove` after `ros2`, and always optional).
+    /// logger; `ros2`, `foxglove` and `zenoh` run only where listed, always
+    /// after fusion, in that order, and always optional).
     pub stages: Vec<StageRole>,
     /// Restart policy of the launcher.
     pub launch: insuwb_launch::RestartPolicy,
@@ -240,6 +230,10 @@ pub struct RobotConfig {
     /// The Foxglove live view (`insuwb-stage-foxglove`, when `stages` lists
     /// `foxglove`).
     pub foxglove: insuwb_foxglove::FoxgloveConfig,
+    /// The Zenoh bridge to the fleet's station (`insuwb-stage-zenoh`, when
+    /// `stages` lists `zenoh`); its certificate paths are relative to the
+    /// file's folder.
+    pub zenoh: insuwb_zenoh::ZenohConfig,
     /// Optional CPU pinning and SCHED_FIFO per stage (`[realtime.fusion]`
     /// `cpus = [1]`, `fifo_priority = 50`); none by default.
     pub realtime: std::collections::BTreeMap<String, insuwb_runtime::realtime::RealtimeConfig>,
@@ -413,21 +407,9 @@ impl RobotConfig {
             }
             self.fusion.config = p.display().to_string();
         }
-        for (key, v) in [
-            ("fusion.coast_timeout_s", self.fusion.coast_timeout_s),
-            ("fusion.coast_rate_hz", self.fusion.coast_rate_hz),
-            (
-                "fusion.stale_ins_timeout_s",
-                self.fusion.stale_ins_timeout_s,
-            ),
-            (
-                "fusion.checkpoint_period_s",
-                self.fusion.checkpoint_period_s,
-            ),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                bail!("{origin}: key '{key}': must be > 0, got {v}");
-            }
+        let v = self.fusion.checkpoint_period_s;
+        if !(v.is_finite() && v > 0.0) {
+            bail!("{origin}: key 'fusion.checkpoint_period_s': must be > 0, got {v}");
         }
         self.launch
             .validate()
@@ -449,6 +431,13 @@ impl RobotConfig {
         self.foxglove
             .validate()
             .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
+        self.zenoh.resolve_paths(base);
+        if self.stages.contains(&StageRole::Zenoh) {
+            self.zenoh.validate_enabled()
+        } else {
+            self.zenoh.validate()
+        }
+        .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
         self.logger
             .segments
             .validate()
@@ -461,15 +450,16 @@ impl RobotConfig {
         Ok(())
     }
 
-    /// The ROS 2 bridge and the Foxglove live view, when listed, start
-    /// after fusion (their input), the live view after the bridge, and are
+    /// The ROS 2 bridge, the Foxglove live view and the Zenoh bridge, when
+    /// listed, start after fusion (their input), in that order, and are
     /// optional: one that keeps failing is given up alone, the fix path
     /// keeps running.
     fn place_optional(&mut self) {
-        let after_ros2 = [StageRole::Fusion, StageRole::Ros2];
+        let after = [StageRole::Fusion, StageRole::Ros2, StageRole::Foxglove];
         for (role, after) in [
-            (StageRole::Ros2, &after_ros2[..1]),
-            (StageRole::Foxglove, &after_ros2[..]),
+            (StageRole::Ros2, &after[..1]),
+            (StageRole::Foxglove, &after[..2]),
+            (StageRole::Zenoh, &after[..]),
         ] {
             let Some(at) = self.stages.iter().position(|s| *s == role) else {
                 continue;
@@ -626,7 +616,11 @@ mod tests {
             "",
         )
         .unwrap();
-        assert_eq!(all.stages, StageRole::ALL, "foxglove moved after ros2");
+        let want: Vec<StageRole> = StageRole::ALL
+            .into_iter()
+            .filter(|r| *r != StageRole::Zenoh)
+            .collect();
+        assert_eq!(all.stages, want, "foxglove moved after ros2");
         assert!(all.launch.is_optional("foxglove") && all.launch.is_optional("ros2"));
         let mut c = RobotConfig::from_str(
             "stages = [\"imu\", \"foxglove\", \"uwb\", \"ins\", \"fusion\"]\n[launch]\noptional = []\n[foxglove]\nbind = \"127.0.0.1:0\"\npath_length = 10\n",
@@ -638,6 +632,68 @@ mod tests {
         assert_eq!(c.foxglove.path_length, 10);
         c.place_optional();
         assert_eq!(c.launch.optional, ["foxglove"], "added once");
+    }
+
+    /// The Zenoh bridge likewise, last of the three; its table is checked
+    /// as the bridge needs it only where it runs.
+    #[test]
+    fn zenoh_runs_only_when_listed_after_the_other_bridges_and_optional() {
+        let plain = load("", "").unwrap();
+        assert!(!plain.stages.contains(&StageRole::Zenoh));
+        assert_eq!(plain.zenoh, insuwb_zenoh::ZenohConfig::default());
+        let table = "[zenoh]\nrobot = \"r1\"\nconnect = [\"tcp/127.0.0.1:7447\"]\n";
+        let all = RobotConfig::from_str(
+            &format!("stages = [\"zenoh\", \"imu\", \"uwb\", \"ins\", \"fusion\", \"ros2\", \"foxglove\", \"logger\"]\n{table}"),
+            "robot.toml",
+            Path::new("/tmp"),
+        )
+        .unwrap();
+        assert_eq!(all.stages, StageRole::ALL, "zenoh moved after foxglove");
+        assert!(all.launch.is_optional("zenoh"));
+        assert_eq!(all.zenoh.robot, "r1");
+        // Listed without a robot id or an endpoint: refused, naming the key.
+        for (text, key) in [
+            (
+                "[zenoh]\nconnect = [\"tcp/127.0.0.1:7447\"]\n",
+                "zenoh.robot",
+            ),
+            ("[zenoh]\nrobot = \"r1\"\n", "zenoh.connect"),
+        ] {
+            let e = RobotConfig::from_str(
+                &format!("stages = [\"imu\", \"uwb\", \"ins\", \"fusion\", \"zenoh\"]\n{text}"),
+                "robot.toml",
+                Path::new("/tmp"),
+            );
+            let msg = format!("{:#}", e.unwrap_err());
+            assert!(msg.contains(&format!("robot.toml: key '{key}'")), "{msg}");
+        }
+    }
+
+    #[test]
+    fn a_bad_zenoh_key_is_named_and_certificates_are_under_the_file() {
+        let e = RobotConfig::from_str(
+            "[zenoh]\nlisten = [\"udp/0.0.0.0:7447\"]\n",
+            "robot.toml",
+            Path::new("/tmp"),
+        );
+        let msg = format!("{:#}", e.unwrap_err());
+        assert!(msg.contains("robot.toml: key 'zenoh.listen'"), "{msg}");
+        let e = RobotConfig::from_str(
+            "[zenoh.tls]\nroot_ca_certificate = \"certs/ca.pem\"\n",
+            "robot.toml",
+            Path::new("/nonexistent-insuwb"),
+        );
+        let msg = format!("{:#}", e.unwrap_err());
+        assert!(
+            msg.contains("key 'zenoh.tls.root_ca_certificate': file /nonexistent-insuwb/certs/ca.pem does not exist"),
+            "{msg}"
+        );
+        let e = RobotConfig::from_str(
+            "[zenoh]\nscouting = true\n",
+            "robot.toml",
+            Path::new("/tmp"),
+        );
+        assert!(format!("{:#}", e.unwrap_err()).contains("zenoh"));
     }
 
     #[test]

@@ -389,3 +389,72 @@ pub fn assert_restarted_once(report: &serde_json::Value, stderr: &str, role: &st
         "/dev/shm files left"
     );
 }
+
+/// A loopback port free now (the kernel's pick, released for the process
+/// that listens on it next).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+impl Group {
+    /// Puts `stages = [...]` at the top of the group's config (a top-level
+    /// key: before the first table).
+    pub fn set_stages(&self, stages: &[&str]) {
+        let path = self.dir.join("robot.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let list: Vec<String> = stages.iter().map(|s| format!("\"{s}\"")).collect();
+        std::fs::write(&path, format!("stages = [{}]\n{text}", list.join(", "))).unwrap();
+    }
+
+    /// Starts `insuwb launch` for `secs` with `--json`, its standard error
+    /// into `launch.err` of the group's folder (read it with
+    /// [`Group::launch_log`]), its standard output piped.
+    pub fn spawn_launch(&self, secs: f64) -> Child {
+        let err = std::fs::File::create(self.dir.join("launch.err")).unwrap();
+        Command::new(insuwb())
+            .arg("launch")
+            .arg(self.dir.join("robot.toml"))
+            .args(["--duration", &secs.to_string(), "--json"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(err)
+            .spawn()
+            .unwrap()
+    }
+
+    /// What [`Group::spawn_launch`]'s launcher wrote on standard error.
+    pub fn launch_log(&self) -> String {
+        std::fs::read_to_string(self.dir.join("launch.err")).unwrap_or_default()
+    }
+}
+
+/// Sends signal `sig` (`TERM`, `KILL`, ...) to process `pid`.
+pub fn signal(pid: u32, sig: &str) {
+    let status = Command::new("kill")
+        .args([&format!("-{sig}"), &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success(), "kill -{sig} {pid}");
+}
+
+/// The JSON objects a child prints one a line on its standard output, as
+/// they come (a thread reads them; lines that are not JSON are skipped).
+pub fn json_lines(out: std::process::ChildStdout) -> std::sync::mpsc::Receiver<serde_json::Value> {
+    use std::io::BufRead;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(out).lines() {
+            let Ok(line) = line else { break };
+            if let Ok(v) = serde_json::from_str(&line) {
+                if tx.send(v).is_err() {
+                    break;
+                }
+            }
+        }
+    });
+    rx
+}

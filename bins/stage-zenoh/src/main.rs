@@ -1,0 +1,71 @@
+//! The insuwb Zenoh bridge stage (`insuwb-stage-zenoh`): reads the robot
+//! config, takes the `zenoh` role's lock, and runs `insuwb_zenoh::bridge`
+//! (iceoryx2 `fused`, `health`, and `uwb_fix`, `diag` when asked, in;
+//! Zenoh `insuwb/<robot>/pose`, `health`, `fix`, `diag` out to the
+//! endpoints of `[zenoh]`) until SIGINT/SIGTERM. Normally started by
+//! `insuwb launch` when `stages` lists `zenoh`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use insuwb_msg::StageRole;
+use insuwb_runtime::StageError;
+use insuwb_stage::group::RobotConfig;
+use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
+use insuwb_zenoh::bridge::{Bridge, BridgeOpenError, BridgeSetup};
+
+/// Arguments.
+#[derive(Debug, Parser)]
+#[command(
+    version,
+    about = "The insuwb Zenoh bridge: the fused pose, the stages' health and optionally UWB fixes and filter diagnostics to the fleet's station over Zenoh, under insuwb/<robot>/... (normally started by `insuwb launch`)."
+)]
+struct Args {
+    /// The robot group configuration (config/robot.toml) with its `[zenoh]` table.
+    #[arg(long)]
+    config: PathBuf,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let _ = insuwb_runtime::init_tracing(StageRole::Zenoh.name());
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<()> {
+    let cfg = RobotConfig::load(&args.config)?;
+    let role = StageRole::Zenoh.name();
+    // One bridge per group, before anything of the group is opened.
+    let _lock = StageLock::acquire(&cfg.group, role, STAGE_LOCK_WAIT)?;
+    let setup = BridgeSetup {
+        runtime: cfg.runtime(role),
+        zenoh: cfg.zenoh.clone(),
+        stages: cfg.stages.iter().map(|s| s.name().to_owned()).collect(),
+    };
+    let bridge = match Bridge::open(setup) {
+        Ok(b) => b,
+        // SIGTERM while starting: a clean stop.
+        Err(BridgeOpenError::Stage(StageError::ShutdownRequested(_))) => return Ok(()),
+        Err(e) => return Err(e).context("opening the Zenoh bridge"),
+    };
+    let stats = bridge.run().context("the Zenoh bridge")?;
+    tracing::info!(
+        "zenoh: put {} poses, {} health, {} fixes, {} diagnostics; {} invalid samples, {} too old, {} put failures",
+        stats.poses,
+        stats.health,
+        stats.fixes,
+        stats.diags,
+        stats.invalid,
+        stats.old,
+        stats.put_failures
+    );
+    Ok(())
+}
