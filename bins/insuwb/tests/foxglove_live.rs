@@ -63,24 +63,6 @@ fn python() -> Option<PathBuf> {
     common::pyenv_python("websockets, foxglove_schemas_protobuf, google.protobuf")
 }
 
-/// A loopback port free now (the kernel's pick, released for the stage).
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// utime + stime of process `pid`, in clock ticks.
-fn cpu_ticks(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    // Fields 14 and 15 of stat(5), counted from the state (field 3).
-    Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
-}
-
 #[test]
 fn foxglove_channels_reach_a_websocket_client() {
     let _one = one_at_a_time();
@@ -88,7 +70,7 @@ fn foxglove_channels_reach_a_websocket_client() {
         skip_or_fail("no Python environment with websockets and foxglove-schemas-protobuf (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install websockets==17.4 foxglove-schemas-protobuf==0.4.0 protobuf==7.36.2)");
         return;
     };
-    let port = free_port();
+    let port = common::free_port();
     let g = Group::with_config(
         "foxglove",
         SIM,
@@ -130,10 +112,10 @@ fn foxglove_channels_reach_a_websocket_client() {
         .into_iter()
         .find(|(_, comm)| comm == "insuwb-stage-fo")
         .map(|(pid, _)| pid);
-    let cpu0 = stage_pid.and_then(cpu_ticks);
+    let cpu0 = stage_pid.and_then(common::cpu_ticks);
     let t0 = Instant::now();
     let cl = run_bounded(&mut client, BOUND);
-    if let (Some(a), Some(b)) = (cpu0, stage_pid.and_then(cpu_ticks)) {
+    if let (Some(a), Some(b)) = (cpu0, stage_pid.and_then(common::cpu_ticks)) {
         // USER_HZ is 100 on Linux.
         let share = (b - a) as f64 / 100.0 / t0.elapsed().as_secs_f64() * 100.0;
         eprintln!("foxglove stage CPU while the client listened: {share:.1} % of one core");

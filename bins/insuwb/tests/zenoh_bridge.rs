@@ -55,25 +55,6 @@ fn python() -> Option<PathBuf> {
     common::pyenv_python("zenoh, rosbags")
 }
 
-/// A loopback port free now (the kernel's pick, released for the
-/// subscriber).
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// utime + stime of process `pid`, in clock ticks.
-fn cpu_ticks(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    // Fields 14 and 15 of stat(5), counted from the state (field 3).
-    Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
-}
-
 #[test]
 fn poses_and_health_reach_a_python_zenoh_subscriber() {
     let _one = one_at_a_time();
@@ -81,7 +62,7 @@ fn poses_and_health_reach_a_python_zenoh_subscriber() {
         skip_or_fail("no Python environment with eclipse-zenoh and rosbags (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install eclipse-zenoh==1.10.2 rosbags==0.11.9)");
         return;
     };
-    let port = free_port();
+    let port = common::free_port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let g = Group::with_config(
         "zenoh",
@@ -135,9 +116,9 @@ fn poses_and_health_reach_a_python_zenoh_subscriber() {
         }
         pid
     });
-    let cpu0 = stage_pid.and_then(cpu_ticks);
+    let cpu0 = stage_pid.and_then(common::cpu_ticks);
     std::thread::sleep(Duration::from_secs_f64(KILL_AT_S * 0.5));
-    if let (Some(a), Some(b)) = (cpu0, stage_pid.and_then(cpu_ticks)) {
+    if let (Some(a), Some(b)) = (cpu0, stage_pid.and_then(common::cpu_ticks)) {
         // USER_HZ is 100 on Linux.
         let share = (b - a) as f64 / 100.0 / t0.elapsed().as_secs_f64() * 100.0;
         eprintln!("zenoh bridge CPU: {share:.1} % of one core");
@@ -196,7 +177,7 @@ fn the_demo_publishes_as_robot_demo_to_its_endpoint() {
         );
         return;
     };
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let endpoint = format!("tcp/127.0.0.1:{}", common::free_port());
     let dir = std::env::temp_dir().join(format!("insuwb-test-zenoh-demo-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out_json = dir.join("received.json");
