@@ -444,8 +444,8 @@ fn group_round(
     let cfg = RobotConfig::load(&cfg_path)?;
     let trace_path = run_dir.join("fused_recv.txt");
     let probe =
-        with_ros2.then(|| DdsProbe::start(cfg.ros2.clone(), duration + Duration::from_secs(10)));
-    let zprobe = zenoh_endpoint.map(|e| ZenohProbe::start(e, duration + Duration::from_secs(10)));
+        with_ros2.then(|| PoseProbe::dds(cfg.ros2.clone(), duration + Duration::from_secs(10)));
+    let zprobe = zenoh_endpoint.map(|e| PoseProbe::zenoh(e, duration + Duration::from_secs(10)));
     let sampler = spawn_cpu_sampler(
         CPU_FROM,
         duration.saturating_sub(Duration::from_millis(200)),
@@ -584,20 +584,30 @@ fn print_table(what: &str, r: &RunLatency, cpu: &[(String, f64)]) {
     eprintln!("  cpu (one core): {}", cpu.join(", "));
 }
 
-/// A DDS reader of the ROS 2 bridge's odometry in this process, on its own
-/// thread: `(stamp, receive time)` of each message, CLOCK_MONOTONIC ns.
-struct DdsProbe {
+/// A probe of a bridge's poses in this process, on its own thread:
+/// `(stamp, receive time)` of each pose, CLOCK_MONOTONIC ns. The thread ends
+/// when told to or after its bound.
+struct PoseProbe {
+    what: &'static str,
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     handle: std::thread::JoinHandle<Result<Vec<(u64, u64)>>>,
 }
 
-impl DdsProbe {
-    /// Starts reading; the thread ends when told to or after `bound`.
-    fn start(ros2: insuwb_ros2::Ros2Config, bound: Duration) -> Self {
-        use std::sync::atomic::{AtomicBool, Ordering};
-        let stop = std::sync::Arc::new(AtomicBool::new(false));
+impl PoseProbe {
+    /// Runs `body` on its own thread with the stop flag.
+    fn spawn(
+        what: &'static str,
+        body: impl FnOnce(&std::sync::atomic::AtomicBool) -> Result<Vec<(u64, u64)>> + Send + 'static,
+    ) -> Self {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
         let flag = stop.clone();
-        let handle = std::thread::spawn(move || -> Result<Vec<(u64, u64)>> {
+        let handle = std::thread::spawn(move || body(&flag));
+        Self { what, stop, handle }
+    }
+
+    /// A DDS reader of the ROS 2 bridge's odometry.
+    fn dds(ros2: insuwb_ros2::Ros2Config, bound: Duration) -> Self {
+        Self::spawn("DDS reader", move |stop| {
             use insuwb_ros2::msgs::Odometry;
             use insuwb_ros2::subscribe::{odometry_qos, Subscriber};
             let mut sub = Subscriber::<Odometry>::open_with(
@@ -609,7 +619,7 @@ impl DdsProbe {
             .context("opening the DDS reader of the bridge's odometry")?;
             let t0 = std::time::Instant::now();
             let mut out = Vec::new();
-            while !flag.load(Ordering::Relaxed) && t0.elapsed() < bound {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) && t0.elapsed() < bound {
                 let mut next = sub.recv_timeout(Duration::from_millis(20));
                 while let Ok(Some(m)) = next {
                     let rx = monotonic_ns();
@@ -626,39 +636,15 @@ impl DdsProbe {
                 }
             }
             Ok(out)
-        });
-        Self { stop, handle }
+        })
     }
 
-    /// Stops the reader and returns what it received.
-    fn finish(self) -> Result<Vec<(u64, u64)>> {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        self.handle
-            .join()
-            .map_err(|_| anyhow::anyhow!("the DDS reader thread panicked"))?
-    }
-}
-
-/// The robot id of the group's Zenoh bridge (`--with zenoh`).
-const ZENOH_ROBOT: &str = "bench";
-
-/// A Zenoh subscriber of the bridge's poses in this process, listening on
-/// its endpoint (the bridge connects to it) on its own thread: `(stamp,
-/// receive time)` of each pose, CLOCK_MONOTONIC ns.
-struct ZenohProbe {
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-    handle: std::thread::JoinHandle<Result<Vec<(u64, u64)>>>,
-}
-
-impl ZenohProbe {
-    /// Starts listening; the thread ends when told to or after `bound`.
-    fn start(endpoint: String, bound: Duration) -> Self {
-        use std::sync::atomic::{AtomicBool, Ordering};
-        use zenoh::Wait;
-        let stop = std::sync::Arc::new(AtomicBool::new(false));
-        let flag = stop.clone();
-        let handle = std::thread::spawn(move || -> Result<Vec<(u64, u64)>> {
+    /// A Zenoh subscriber of the Zenoh bridge's poses, listening on
+    /// `endpoint` (the bridge connects to it).
+    fn zenoh(endpoint: String, bound: Duration) -> Self {
+        Self::spawn("Zenoh subscriber", move |stop| {
             use insuwb_zenoh::config::{LinkConfig, Mode};
+            use zenoh::Wait;
             let link = LinkConfig {
                 mode: Mode::Peer,
                 listen: vec![endpoint],
@@ -673,7 +659,7 @@ impl ZenohProbe {
                 .map_err(|e| anyhow::anyhow!("subscribing to {key}: {e}"))?;
             let t0 = std::time::Instant::now();
             let mut out = Vec::new();
-            while !flag.load(Ordering::Relaxed) && t0.elapsed() < bound {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) && t0.elapsed() < bound {
                 let Ok(Some(sample)) = sub.recv_timeout(Duration::from_millis(20)) else {
                     continue;
                 };
@@ -685,18 +671,20 @@ impl ZenohProbe {
                 }
             }
             Ok(out)
-        });
-        Self { stop, handle }
+        })
     }
 
-    /// Stops the subscriber and returns what it received.
+    /// Stops the probe and returns what it received.
     fn finish(self) -> Result<Vec<(u64, u64)>> {
         self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
         self.handle
             .join()
-            .map_err(|_| anyhow::anyhow!("the Zenoh subscriber thread panicked"))?
+            .map_err(|_| anyhow::anyhow!("the {} thread panicked", self.what))?
     }
 }
+
+/// The robot id of the group's Zenoh bridge (`--with zenoh`).
+const ZENOH_ROBOT: &str = "bench";
 
 /// `(fix -> odometry received, fix -> fused published)`, ns, for every
 /// odometry message whose stamp is the measurement time of a fused update
