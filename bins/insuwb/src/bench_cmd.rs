@@ -22,9 +22,9 @@ use insuwb_bench::analysis::{
     samples, AnalysisConfig, Cycle, Hops, LatencySamples, Percentiles, RunLatency,
 };
 use insuwb_bench::graph::{cpu_percent, cpu_snapshot, run_floor_graph, FloorGraphOptions};
+use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
 use insuwb_runtime::monotonic_ns;
-use insuwb_stage::group::RobotConfig;
 
 use crate::group_cmd::{run_group, RunOptions};
 

@@ -16,8 +16,8 @@ use insuwb_devices::emulator::{
 use insuwb_devices::play::{self, Encoding};
 use insuwb_devices::{eliko, Protocol};
 use insuwb_group::recording::{self, Recording};
+use insuwb_group::robot::choose_start_epoch;
 use insuwb_runtime::monotonic_ns;
-use insuwb_stage::group::choose_start_epoch;
 
 /// Longest garbage burst injected before a chunk, bytes.
 pub const GARBAGE_MAX_LEN: usize = 32;

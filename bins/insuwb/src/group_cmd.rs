@@ -8,10 +8,10 @@ use anyhow::{bail, Context, Result};
 use insuwb_devices::emulator::{DeviceSink, Faults, PlayReport, Player, PtyEmulator, TcpEmulator};
 use insuwb_devices::Protocol;
 use insuwb_group::launch::{shutdown_order, supervise, FaultInjector, LoopEnd, LoopOptions, Watch};
+use insuwb_group::robot::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
 use insuwb_launch::{StageSpec, Supervisor};
 use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, StageRole, UwbFix};
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
-use insuwb_stage::group::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
 
 use crate::monitor::Monitor;
 
@@ -449,9 +449,12 @@ pub struct DemoArgs {
     /// The live view's address, IP:PORT (implies --foxglove).
     #[arg(long, value_name = "IP:PORT")]
     pub foxglove_bind: Option<String>,
-    /// Run the Zenoh bridge too (stage `zenoh`) as robot `demo`, connected to ENDPOINT (e.g. tcp/127.0.0.1:7447, where a fleet station or any Zenoh peer or router listens): it publishes insuwb/demo/pose and insuwb/demo/health (docs/ZENOH.md).
+    /// Run the Zenoh bridge too (stage `zenoh`) as robot `demo` (or --robot ID), connected to ENDPOINT (e.g. tcp/127.0.0.1:7447, where a fleet station or any Zenoh peer or router listens): it publishes insuwb/demo/pose and insuwb/demo/health (docs/ZENOH.md).
     #[arg(long, value_name = "ENDPOINT")]
     pub zenoh: Option<String>,
+    /// The robot id the Zenoh bridge publishes as (with --zenoh): two demos with different ids join one station as two robots.
+    #[arg(long, value_name = "ID", default_value = "demo", requires = "zenoh")]
+    pub robot: String,
 }
 
 /// The emulated devices of `insuwb demo --via-devices`, playing.
@@ -542,8 +545,6 @@ const DEMO_SCENARIO: &str = "nlos-long";
 const DEMO_SEED: u64 = 1;
 /// The Eliko tag id of the device demo.
 const DEMO_TAG: u32 = 1;
-/// The demo's robot id in the fleet (`--zenoh`).
-const DEMO_ROBOT: &str = "demo";
 
 /// Runs `insuwb demo`: the whole group on simulated sensors in real time.
 pub fn demo(a: &DemoArgs) -> Result<()> {
@@ -556,6 +557,8 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
     if let Some(e) = &a.zenoh {
         insuwb_zenoh::config::check_endpoint("connect", e)
             .map_err(|e| anyhow::anyhow!("--zenoh: {}", e.reason))?;
+        insuwb_fleet::keys::check_robot_id(&a.robot)
+            .map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
     }
     if a.via_devices && a.filter == insuwb_msg::FilterKind::IakfTdoa {
         bail!("--via-devices needs a loosely coupled filter (kf, shaf, stf, iakf): the devices report positions, not TDOA");
@@ -638,7 +641,8 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
         .as_ref()
         .map(|e| {
             format!(
-                "[zenoh]\nrobot = \"{DEMO_ROBOT}\"\nconnect = [{}]\n",
+                "[zenoh]\nrobot = {}\nconnect = [{}]\n",
+                toml::Value::String(a.robot.clone()),
                 toml::Value::String(e.clone())
             )
         })
@@ -652,7 +656,7 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
     let cfg_path = run_dir.join("demo.toml");
     let result = std::fs::write(&cfg_path, &text)
         .map_err(anyhow::Error::from)
-        .and_then(|()| RobotConfig::load(&cfg_path))
+        .and_then(|()| Ok(RobotConfig::load(&cfg_path)?))
         .and_then(|cfg| {
             eprintln!(
                 "insuwb demo: {} stages on the simulated scenario {DEMO_SCENARIO}{} for {} s (run directory {})",
@@ -669,8 +673,9 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
             }
             if cfg.stages.contains(&StageRole::Zenoh) {
                 eprintln!(
-                    "insuwb demo: Zenoh bridge as robot {DEMO_ROBOT}, connecting to {} (keys insuwb/{DEMO_ROBOT}/pose and insuwb/{DEMO_ROBOT}/health, docs/ZENOH.md)",
-                    cfg.zenoh.connect.join(", ")
+                    "insuwb demo: Zenoh bridge as robot {robot}, connecting to {} (keys insuwb/{robot}/pose and insuwb/{robot}/health, docs/ZENOH.md)",
+                    cfg.zenoh.connect.join(", "),
+                    robot = cfg.zenoh.robot
                 );
             }
             run_group_with(

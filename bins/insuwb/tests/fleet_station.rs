@@ -508,7 +508,7 @@ fn a_station_without_an_endpoint_or_with_a_bad_key_is_refused() {
         ),
         (
             vec!["fleet", "--config", &unknown],
-            format!("{unknown}: key 'station"),
+            format!("{unknown}:2: key 'station"),
         ),
         (
             vec!["fleet", "--config", &lost],

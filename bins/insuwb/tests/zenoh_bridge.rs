@@ -158,11 +158,11 @@ fn poses_and_health_reach_a_python_zenoh_subscriber() {
     check_health(&got);
 }
 
-/// `insuwb demo --zenoh ENDPOINT`: the demo group's bridge reaches the same
-/// subscriber as robot `demo`; a bad endpoint is refused before anything
-/// starts.
+/// `insuwb demo --zenoh ENDPOINT --robot d7`: the demo group's bridge
+/// reaches the same subscriber as robot `d7`; a bad endpoint or robot id is
+/// refused before anything starts.
 #[test]
-fn the_demo_publishes_as_robot_demo_to_its_endpoint() {
+fn the_demo_publishes_as_its_robot_id_to_its_endpoint() {
     let _one = one_at_a_time();
     let out = common::run(&["demo", "--duration", "5", "--zenoh", "udp/127.0.0.1:7447"]);
     assert!(!out.status.success());
@@ -171,6 +171,18 @@ fn the_demo_publishes_as_robot_demo_to_its_endpoint() {
         err.contains("--zenoh") && err.contains("udp/127.0.0.1:7447"),
         "{err}"
     );
+    let out = common::run(&[
+        "demo",
+        "--duration",
+        "5",
+        "--zenoh",
+        "tcp/127.0.0.1:7447",
+        "--robot",
+        "r/1",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--robot") && err.contains("r/1"), "{err}");
     let Some(py) = python() else {
         skip_or_fail(
             "no Python environment with eclipse-zenoh and rosbags (target/pyenv: run .ci/run)",
@@ -183,7 +195,7 @@ fn the_demo_publishes_as_robot_demo_to_its_endpoint() {
     let out_json = dir.join("received.json");
     let mut sub = Command::new(&py)
         .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/zenoh/subscriber.py"))
-        .args(["--listen", &endpoint, "--robot", "demo", "--duration", "2"])
+        .args(["--listen", &endpoint, "--robot", "d7", "--duration", "2"])
         .args(["--first-timeout", "60", "--out"])
         .arg(&out_json)
         .stdin(Stdio::null())
@@ -193,6 +205,7 @@ fn the_demo_publishes_as_robot_demo_to_its_endpoint() {
         .unwrap();
     let mut demo = Command::new(insuwb())
         .args(["demo", "--duration", "12", "--json", "--zenoh", &endpoint])
+        .args(["--robot", "d7"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -205,7 +218,7 @@ fn the_demo_publishes_as_robot_demo_to_its_endpoint() {
     assert!(out.status.success(), "demo failed:\n{stderr}");
     assert!(
         stderr.contains(&format!(
-            "Zenoh bridge as robot demo, connecting to {endpoint}"
+            "Zenoh bridge as robot d7, connecting to {endpoint}"
         )),
         "{stderr}"
     );
@@ -218,9 +231,9 @@ fn the_demo_publishes_as_robot_demo_to_its_endpoint() {
     let _ = std::fs::remove_dir_all(&dir);
     let poses = got["poses"].as_array().unwrap();
     assert!(poses.len() >= 10, "{} poses", poses.len());
-    assert!(poses.iter().all(|p| p["key"] == "insuwb/demo/pose"));
+    assert!(poses.iter().all(|p| p["key"] == "insuwb/d7/pose"));
     let health = got["health"].as_array().unwrap();
-    assert!(health.iter().all(|h| h["body"]["robot"] == "demo"));
+    assert!(health.iter().all(|h| h["body"]["robot"] == "d7"));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(f(&report, "restarts"), 0.0, "{report}");
 }

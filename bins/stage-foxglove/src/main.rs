@@ -12,9 +12,9 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use insuwb_foxglove::convert::Anchor;
 use insuwb_foxglove::live::{LiveOpenError, LiveSetup, LiveView};
+use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
 use insuwb_runtime::StageError;
-use insuwb_stage::group::RobotConfig;
 use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 
 /// Arguments.

@@ -9,10 +9,10 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
 use insuwb_ros2::bridge::{Bridge, BridgeOpenError, BridgeSetup};
 use insuwb_runtime::StageError;
-use insuwb_stage::group::RobotConfig;
 use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 
 /// Arguments.

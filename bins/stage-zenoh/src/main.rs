@@ -10,9 +10,9 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
 use insuwb_runtime::StageError;
-use insuwb_stage::group::RobotConfig;
 use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 use insuwb_zenoh::bridge::{Bridge, BridgeOpenError, BridgeSetup};
 

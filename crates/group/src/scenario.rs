@@ -62,12 +62,7 @@ impl ScenarioFile {
     pub fn load(name_or_path: &str) -> Result<Self, ScenarioError> {
         let path = std::path::Path::new(name_or_path);
         if path.extension().is_some_and(|e| e == "toml") || path.exists() {
-            let text = std::fs::read_to_string(path).map_err(|error| {
-                insuwb_config::ConfigError::Read {
-                    path: path.to_owned(),
-                    error,
-                }
-            })?;
+            let text = insuwb_config::read_text(path)?;
             return Self::from_str(&text, name_or_path);
         }
         let b = insuwb_config::builtin("scenario", name_or_path)?;

@@ -20,9 +20,9 @@
 
 use std::time::Duration;
 
+use insuwb_group::robot::RobotConfig;
 use insuwb_msg::{name_str, topics, FusedState};
 use insuwb_runtime::{monotonic_ns, Stage, Wake};
-use insuwb_stage::group::RobotConfig;
 
 fn main() -> anyhow::Result<()> {
     let path = std::env::args()

@@ -5,9 +5,9 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
-use crate::group::{start_epoch_ns, RobotConfig};
 use crate::lock::STAGE_LOCK_WAIT;
 use crate::source::Want;
+use insuwb_group::robot::{start_epoch_ns, RobotConfig};
 
 pub use insuwb_msg::StageRole;
 

@@ -76,8 +76,8 @@ use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 use insuwb_uwb::velocity::{VelocityConfig, VelocityConfigError, VelocityEstimator};
 
 use crate::driver::imu_ok;
-use crate::group::{DeviceConfig, RobotConfig};
 use crate::source::Want;
+use insuwb_group::robot::{DeviceConfig, RobotConfig};
 
 /// Meaning of a device driver's `Health::extra` counters, in order.
 pub const DEVICE_EXTRA: [&str; 4] = [

@@ -18,7 +18,7 @@ use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 use serde::{Deserialize, Serialize};
 
-use crate::group::RobotConfig;
+use insuwb_group::robot::RobotConfig;
 
 /// What a checkpoint holds: enough to resume without re-converging.
 #[derive(Debug, Clone, Serialize, Deserialize)]

@@ -12,7 +12,7 @@ use insuwb_fusion::ins_engine::{InsBiases, InsEngine};
 use insuwb_msg::{topics, FusedState, Health, ImuSample, InsCorrection, NavState, StageRole};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 
-use crate::group::RobotConfig;
+use insuwb_group::robot::RobotConfig;
 
 /// How often the INS writes its bias estimates, ns.
 const CHECKPOINT_PERIOD_NS: u64 = 1_000_000_000;

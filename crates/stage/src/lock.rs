@@ -32,7 +32,7 @@
 //! replaced meanwhile is locked again.
 //!
 //! ```
-//! use insuwb_stage::group::GroupConfig;
+//! use insuwb_group::robot::GroupConfig;
 //! use insuwb_stage::lock::{GroupLock, LockError};
 //!
 //! let id = std::process::id();
@@ -63,7 +63,7 @@ use std::time::{Duration, Instant};
 use insuwb_runtime::cleanup::SHM_DIR;
 use insuwb_runtime::MAX_PREFIX_LEN;
 
-use crate::group::GroupConfig;
+use insuwb_group::robot::GroupConfig;
 
 /// How long a stage waits for its role's lock before refusing: its
 /// predecessor, SIGKILLed by the launcher, is reaped before the restart, so

@@ -34,7 +34,7 @@ use insuwb_msg::{
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage};
 
-use crate::group::RobotConfig;
+use insuwb_group::robot::RobotConfig;
 
 /// Environment variable naming a file: when set, the logger notes the
 /// receive time of every fused state and writes one line

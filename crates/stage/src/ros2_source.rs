@@ -55,7 +55,7 @@ use insuwb_ros2::msgs::Imu;
 
 use crate::device::SILENT_NS;
 use crate::driver::imu_ok;
-use crate::group::RobotConfig;
+use insuwb_group::robot::RobotConfig;
 
 /// The prefix of a ROS 2 source: `ros2:/TOPIC`.
 pub const SOURCE_PREFIX: &str = "ros2:";

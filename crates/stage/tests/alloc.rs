@@ -20,7 +20,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use insuwb_stage::group::RobotConfig;
+use insuwb_group::robot::RobotConfig;
 use insuwb_stage::source::Want;
 
 const SLOTS: [&str; 6] = ["other", "imu", "uwb", "ins", "fusion", "logger"];

@@ -23,8 +23,8 @@
 //!   benchmark (`insuwb bench fleet`).
 //!
 //! Without `transport` the crate is the config and the payloads alone
-//! (what `insuwb-stage` reads, and a decoder that brings its own
-//! transport).
+//! (what `insuwb-group` reads for the robot config, and a decoder that
+//! brings its own transport).
 //!
 //! ```
 //! use insuwb_zenoh::ZenohConfig;

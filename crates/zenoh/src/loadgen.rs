@@ -33,7 +33,7 @@ use std::time::Duration;
 use insuwb_fleet::delivery::DelayHistogram;
 use insuwb_fleet::keys::{Key, Kind};
 use insuwb_fleet::station::StageState;
-use insuwb_msg::{FusedState, Header};
+use insuwb_msg::{FusedState, Header, StageRole};
 use insuwb_ros2::convert::ClockOffset;
 use insuwb_runtime::monotonic_ns;
 use serde::Serialize;
@@ -215,9 +215,10 @@ fn health_at(robot: &str, t_ns: u64) -> HealthPayload {
         version: VERSION,
         robot: robot.to_owned(),
         stamp_ns: t_ns,
-        stages: ["imu", "uwb", "ins", "fusion", "zenoh", "logger"]
+        stages: StageRole::DEFAULT
             .into_iter()
-            .map(stage)
+            .chain([StageRole::Zenoh])
+            .map(|role| stage(role.name()))
             .collect(),
     }
 }

@@ -6,8 +6,8 @@ use insuwb_msg::{topics, GroundTruth, ImuSample};
 use insuwb_runtime::{HealthCounters, Pub, Stage};
 
 use super::pacing::{self, Paced, Progress};
-use crate::group::RobotConfig;
 use crate::source::{self, Item, Want};
+use insuwb_group::robot::RobotConfig;
 
 /// Largest plausible accelerometer (m/s^2) and gyro (rad/s) magnitudes.
 const MAX_ACCEL_MPS2: f64 = 400.0;

@@ -39,8 +39,8 @@ pub mod uwb;
 
 use anyhow::Result;
 
-use crate::group::RobotConfig;
 use crate::source::Want;
+use insuwb_group::robot::RobotConfig;
 
 pub use imu::imu_ok;
 pub use uwb::{SKIP_LOG_PERIOD_NS, UWB_EXTRA};

@@ -9,8 +9,8 @@ use insuwb_runtime::{monotonic_ns, HealthCounters, Pub, Stage};
 use insuwb_uwb::fix::{FixBuilder, FixStats};
 
 use super::pacing::{self, Paced, Progress};
-use crate::group::RobotConfig;
 use crate::source::{self, Item, Want};
+use insuwb_group::robot::RobotConfig;
 
 /// Meaning of the UWB driver's `Health::extra` counters, in order.
 pub const UWB_EXTRA: [&str; 4] = [

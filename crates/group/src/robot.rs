@@ -1,13 +1,47 @@
 //! The robot group configuration (`config/robot.toml`): deployment (prefix,
-//! run directory), sensor sources, fusion settings, logger and restart
-//! policy. Every stage and the launcher read the same file, so they agree.
+//! run directory), sensor sources, fusion settings, logger, restart policy
+//! and the bridges' tables. Every stage and the launcher read the same file,
+//! so they agree. [`RobotConfig::load`] parses it, makes its relative paths
+//! absolute under the file's folder and checks each section; an error names
+//! the file, the line and the key ([`RobotConfigError`]).
 
-use std::path::{Path, PathBuf};
+use std::collections::BTreeMap;
+use std::path::{Component, Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use insuwb_config::{invalid, ConfigError};
 use insuwb_fusion::config::FusionConfig;
+use insuwb_launch::RestartPolicy;
 use insuwb_msg::{FilterKind, StageRole};
+use insuwb_runtime::realtime::RealtimeConfig;
 use serde::{Deserialize, Serialize};
+
+use crate::scenario::{fusion_table, ScenarioError, ScenarioFile};
+
+/// Why a robot config could not be loaded, or its fusion settings read.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotConfigError {
+    /// A file could not be read or parsed, or a value is not acceptable;
+    /// the message names the file, the line and the key.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The current directory, which a relative config path starts from,
+    /// could not be read.
+    #[error("reading the current directory: {0}")]
+    CurrentDir(std::io::Error),
+    /// The replayed log, whose metadata holds the fusion settings, could
+    /// not be read.
+    #[error("{path}: cannot read: {error}")]
+    Log {
+        /// The log.
+        path: String,
+        /// Why.
+        error: insuwb_log::OpenError,
+    },
+    /// The scenario, which holds the fusion settings of `sim` sources, could
+    /// not be loaded.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+}
 
 /// Environment variable carrying the replay start epoch (CLOCK_MONOTONIC ns),
 /// set by the launcher so the drivers replay in step.
@@ -44,7 +78,7 @@ impl Default for GroupConfig {
 pub struct SourcesConfig {
     /// IMU source: `sim`, `replay:FILE` (an insuwb log), `device` or
     /// `ros2:/TOPIC` (`sensor_msgs/Imu` over DDS, node, namespace and domain
-    /// from `[ros2]`; see `crate::ros2_source`).
+    /// from `[ros2]`; see `insuwb_stage::ros2_source`).
     pub imu: String,
     /// UWB source: `sim` or `replay:FILE`.
     pub uwb: String,
@@ -222,7 +256,7 @@ pub struct RobotConfig {
     /// after fusion, in that order, and always optional).
     pub stages: Vec<StageRole>,
     /// Restart policy of the launcher.
-    pub launch: insuwb_launch::RestartPolicy,
+    pub launch: RestartPolicy,
     /// Real sensors (drivers whose source is `device`).
     pub devices: DevicesConfig,
     /// The ROS 2 bridge (`insuwb-stage-ros2`, when `stages` lists `ros2`).
@@ -236,218 +270,91 @@ pub struct RobotConfig {
     pub zenoh: insuwb_zenoh::ZenohConfig,
     /// Optional CPU pinning and SCHED_FIFO per stage (`[realtime.fusion]`
     /// `cpus = [1]`, `fifo_priority = 50`); none by default.
-    pub realtime: std::collections::BTreeMap<String, insuwb_runtime::realtime::RealtimeConfig>,
+    pub realtime: BTreeMap<String, RealtimeConfig>,
 }
 
 impl RobotConfig {
     /// Loads and checks a robot config file; relative paths become relative to its folder.
-    pub fn load(path: &Path) -> Result<Self> {
-        let mut c: Self = insuwb_config::load_file(path)?;
-        let base = path.parent().unwrap_or(Path::new("."));
+    ///
+    /// # Errors
+    /// [`RobotConfigError::Config`] for a file that cannot be read or
+    /// parsed or holds a value not accepted; [`RobotConfigError::CurrentDir`]
+    /// when a relative `path` cannot be made absolute.
+    pub fn load(path: &Path) -> Result<Self, RobotConfigError> {
+        let text = insuwb_config::read_text(path)?;
+        let origin = path.display().to_string();
+        let mut c: Self = insuwb_config::load_str(&text, &origin)?;
         // Relative paths in the file are relative to its folder, made
         // absolute here (the iceoryx2 root must be absolute).
+        let base = path.parent().unwrap_or(Path::new("."));
         let base = if base.is_absolute() {
             base.to_path_buf()
         } else {
             std::env::current_dir()
-                .context("reading the current directory")?
+                .map_err(RobotConfigError::CurrentDir)?
                 .join(base)
         };
-        c.resolve(&base, &path.display().to_string())?;
+        c.resolve(&base, &origin, &text)?;
         Ok(c)
     }
 
-    /// Parses a config text (for built-ins and tests).
-    pub fn from_str(text: &str, origin: &str, base: &Path) -> Result<Self> {
+    /// Parses a config text (for built-ins and tests); relative paths
+    /// become relative to `base`.
+    ///
+    /// # Errors
+    /// [`RobotConfigError::Config`] for a text that does not parse or holds
+    /// a value not accepted.
+    pub fn from_str(text: &str, origin: &str, base: &Path) -> Result<Self, RobotConfigError> {
         let mut c: Self = insuwb_config::load_str(text, origin)?;
-        c.resolve(base, origin)?;
+        c.resolve(base, origin, text)?;
         Ok(c)
     }
 
-    fn resolve(&mut self, base: &Path, origin: &str) -> Result<()> {
+    /// Fills in the default stages, makes the relative paths absolute
+    /// under `base` and checks each section; the error gets the line of its
+    /// key in `text`.
+    fn resolve(&mut self, base: &Path, origin: &str, text: &str) -> Result<(), ConfigError> {
+        self.resolve_sections(base, origin)
+            .map_err(|e| e.with_line_in(text))
+    }
+
+    /// [`RobotConfig::resolve`] without the line.
+    fn resolve_sections(&mut self, base: &Path, origin: &str) -> Result<(), ConfigError> {
         if self.stages.is_empty() {
             self.stages = StageRole::DEFAULT.to_vec();
         }
         self.place_optional();
-        check_path(origin, "group.run_dir", &self.group.run_dir)?;
-        if self.group.run_dir.is_relative() {
-            self.group.run_dir = base.join(&self.group.run_dir);
-        }
-        if let Some(dir) = &self.logger.dir {
-            check_path(origin, "logger.dir", dir)?;
-            if dir.is_relative()
-                && dir
-                    .components()
-                    .any(|c| matches!(c, std::path::Component::ParentDir))
-            {
-                bail!(
-                    "{origin}: key 'logger.dir': a relative path must stay inside the run directory (no '..'), got {}",
-                    dir.display()
-                );
-            }
-        }
-        for (key, src) in [
-            ("sources.imu", &mut self.sources.imu),
-            ("sources.uwb", &mut self.sources.uwb),
-        ] {
-            match src.split_once(':') {
-                None if src == "sim" => {}
-                None if src == "device" => {}
-                Some(("replay", file)) => {
-                    let p = Path::new(file);
-                    let p = if p.is_relative() {
-                        base.join(p)
-                    } else {
-                        p.to_owned()
-                    };
-                    if !p.is_file() {
-                        bail!(
-                            "{origin}: key '{key}': replay file {} does not exist",
-                            p.display()
-                        );
-                    }
-                    *src = format!("replay:{}", p.display());
-                }
-                Some(("ros2", topic)) if key == "sources.imu" => {
-                    if let Err(e) = insuwb_ros2::config::check_topic_name(topic) {
-                        bail!("{origin}: key '{key}': ros2:TOPIC: {e}");
-                    }
-                }
-                Some(("ros2", _)) => bail!(
-                    "{origin}: key '{key}': a ROS 2 source (ros2:TOPIC) is for the IMU only, got '{src}'"
-                ),
-                _ if key == "sources.imu" => bail!(
-                    "{origin}: key '{key}': unknown source '{src}' (sim, replay:FILE, device or ros2:/TOPIC)"
-                ),
-                _ => bail!(
-                    "{origin}: key '{key}': unknown source '{src}' (sim, replay:FILE or device)"
-                ),
-            }
-        }
-        for (key, want, dev, protocols) in [
-            (
-                "imu",
-                self.sources.imu == "device",
-                &self.devices.imu,
-                ["witmotion", "mavlink"],
-            ),
-            (
-                "uwb",
-                self.sources.uwb == "device",
-                &self.devices.uwb,
-                ["nlink", "eliko"],
-            ),
-        ] {
-            match (want, dev) {
-                (true, None) => {
-                    bail!("{origin}: key 'sources.{key}': \"device\" needs a [devices.{key}] table")
-                }
-                (_, Some(d)) => {
-                    if !protocols.contains(&d.protocol.as_str()) {
-                        bail!(
-                            "{origin}: key 'devices.{key}.protocol': unknown protocol '{}' (known: {})",
-                            d.protocol,
-                            protocols.join(", ")
-                        );
-                    }
-                    if let Err(e) = d.source.parse::<insuwb_devices::link::LinkSpec>() {
-                        bail!("{origin}: key 'devices.{key}.source': {e}");
-                    }
-                    if d.baud == 0 || d.wrong_baud_bytes == 0 {
-                        bail!(
-                            "{origin}: key 'devices.{key}': baud and wrong_baud_bytes must be > 0"
-                        );
-                    }
-                    if !(d.position_sigma_m.is_finite() && d.position_sigma_m > 0.0) {
-                        bail!("{origin}: key 'devices.{key}.position_sigma_m': must be > 0");
-                    }
-                    if d.reconnect_initial_ms == 0 || d.reconnect_max_ms < d.reconnect_initial_ms {
-                        bail!(
-                            "{origin}: key 'devices.{key}': need 0 < reconnect_initial_ms <= reconnect_max_ms"
-                        );
-                    }
-                    if d.rotation_deg
-                        .iter()
-                        .chain(&d.lever_arm_m)
-                        .any(|v| !v.is_finite())
-                    {
-                        bail!("{origin}: key 'devices.{key}': rotation_deg and lever_arm_m must be finite");
-                    }
-                }
-                (false, None) => {}
-            }
-        }
-        for (stage, rt) in &self.realtime {
-            if stage.parse::<StageRole>().is_err() {
-                bail!(
-                    "{origin}: key 'realtime.{stage}': unknown stage (known: {})",
-                    StageRole::NAMES.join(", ")
-                );
-            }
-            if let Err(e) = rt.validate() {
-                bail!("{origin}: key 'realtime.{stage}': {e}");
-            }
-        }
-        let sp = self.sources.speed;
-        if !(sp > 0.0 && (sp <= 1000.0 || sp.is_infinite())) {
-            bail!("{origin}: key 'sources.speed': must be in (0, 1000] or \"max\", got {sp}");
-        }
-        if !self.fusion.config.is_empty() {
-            let p = Path::new(&self.fusion.config);
-            let p = if p.is_relative() {
-                base.join(p)
-            } else {
-                p.to_owned()
-            };
-            if !p.is_file() {
-                bail!(
-                    "{origin}: key 'fusion.config': file {} does not exist",
-                    p.display()
-                );
-            }
-            self.fusion.config = p.display().to_string();
-        }
-        let v = self.fusion.checkpoint_period_s;
-        if !(v.is_finite() && v > 0.0) {
-            bail!("{origin}: key 'fusion.checkpoint_period_s': must be > 0, got {v}");
-        }
-        self.launch
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{origin}: key 'launch': {e}"))?;
-        if let Some(s) = self
-            .launch
-            .optional
-            .iter()
-            .find(|s| s.parse::<StageRole>().is_err())
-        {
-            bail!(
-                "{origin}: key 'launch.optional': unknown stage '{s}' (known: {})",
-                StageRole::NAMES.join(", ")
-            );
-        }
+        self.group.resolve(base, origin)?;
+        self.logger.check_dir(origin)?;
+        self.sources.resolve(base, origin)?;
+        self.devices.check(&self.sources, origin)?;
+        check_realtime(&self.realtime, origin)?;
+        self.sources.check_speed(origin)?;
+        self.fusion.resolve(base, origin)?;
+        check_launch(&self.launch, origin)?;
+        self.check_bridges(base, origin)?;
+        self.logger.check_segments(origin)?;
+        self.sources.check_scenario(origin)
+    }
+
+    /// The `[ros2]`, `[foxglove]` and `[zenoh]` tables, each as its bridge
+    /// needs it (the Zenoh bridge's robot id and endpoint only where
+    /// `stages` lists it); the Zenoh certificates' paths become absolute
+    /// under `base`.
+    fn check_bridges(&mut self, base: &Path, origin: &str) -> Result<(), ConfigError> {
         self.ros2
             .validate()
-            .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
+            .map_err(|e| invalid(origin, &format!("ros2.{}", e.key), e.reason))?;
         self.foxglove
             .validate()
-            .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
+            .map_err(|e| invalid(origin, &format!("foxglove.{}", e.key), e.reason))?;
         self.zenoh.resolve_paths(base);
         if self.stages.contains(&StageRole::Zenoh) {
             self.zenoh.validate_enabled()
         } else {
             self.zenoh.validate()
         }
-        .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
-        self.logger
-            .segments
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{origin}: key 'logger.segments': {e}"))?;
-        if matches!(self.sources.imu.as_str(), "sim") || matches!(self.sources.uwb.as_str(), "sim")
-        {
-            insuwb_group::ScenarioFile::load(&self.sources.scenario)
-                .with_context(|| format!("{origin}: key 'sources.scenario'"))?;
-        }
-        Ok(())
+        .map_err(|e| invalid(origin, &format!("zenoh.{}", e.key), e.reason))
     }
 
     /// The ROS 2 bridge, the Foxglove live view and the Zenoh bridge, when
@@ -503,7 +410,10 @@ impl RobotConfig {
     /// The fusion settings every stage uses: `fusion.config`'s `[fusion]`
     /// table if set, else the scenario's (sim, INS start for `sources.seed`),
     /// else the replayed log's metadata.
-    pub fn fusion_config(&self) -> Result<FusionConfig> {
+    ///
+    /// # Errors
+    /// [`RobotConfigError`] when that file, log or scenario cannot be read.
+    pub fn fusion_config(&self) -> Result<FusionConfig, RobotConfigError> {
         let mut f = self.fusion_config_file()?;
         // A UWB device's antenna lever arm (robot.toml) is the loose filters'.
         if let (true, Some(d)) = (self.sources.uwb == "device", &self.devices.uwb) {
@@ -514,33 +424,303 @@ impl RobotConfig {
         Ok(f)
     }
 
-    fn fusion_config_file(&self) -> Result<FusionConfig> {
+    fn fusion_config_file(&self) -> Result<FusionConfig, RobotConfigError> {
         if !self.fusion.config.is_empty() {
-            let text = std::fs::read_to_string(&self.fusion.config)
-                .with_context(|| format!("{}: cannot read", self.fusion.config))?;
+            let text = insuwb_config::read_text(Path::new(&self.fusion.config))?;
             // Only the [fusion] table matters here; other tables are the file's business.
-            return Ok(insuwb_group::fusion_table(&text, &self.fusion.config)?);
+            return Ok(fusion_table(&text, &self.fusion.config)?);
         }
         if let Some(file) = self.sources.imu.strip_prefix("replay:") {
             let (_, _, header) =
-                insuwb_log::read_all(file).with_context(|| format!("{file}: cannot read"))?;
+                insuwb_log::read_all(file).map_err(|error| RobotConfigError::Log {
+                    path: file.to_owned(),
+                    error,
+                })?;
             return Ok(match header.meta.entries.get("fusion_config") {
-                Some(text) => insuwb_group::fusion_table(text, file)?,
+                Some(text) => fusion_table(text, file)?,
                 None => FusionConfig::default(),
             });
         }
-        let sc = insuwb_group::ScenarioFile::load(&self.sources.scenario)?;
+        let sc = ScenarioFile::load(&self.sources.scenario)?;
         Ok(sc.fusion_for_seed(self.sources.seed)?)
     }
 }
 
-/// A configured path must be non-empty and free of NUL bytes.
-fn check_path(origin: &str, key: &str, p: &Path) -> Result<()> {
-    let bytes = p.as_os_str().as_encoded_bytes();
-    if bytes.is_empty() || bytes.contains(&0) {
-        bail!("{origin}: key '{key}': must be a non-empty path without NUL bytes, got {p:?}");
+impl GroupConfig {
+    /// `run_dir`: a path, absolute under `base` where relative.
+    fn resolve(&mut self, base: &Path, origin: &str) -> Result<(), ConfigError> {
+        check_path(origin, "group.run_dir", &self.run_dir)?;
+        if self.run_dir.is_relative() {
+            self.run_dir = base.join(&self.run_dir);
+        }
+        Ok(())
+    }
+}
+
+impl SourcesConfig {
+    /// The drivers' sources, a replayed file's path absolute under `base`.
+    fn resolve(&mut self, base: &Path, origin: &str) -> Result<(), ConfigError> {
+        resolve_source("sources.imu", &mut self.imu, base, origin)?;
+        resolve_source("sources.uwb", &mut self.uwb, base, origin)
+    }
+
+    /// `speed`: a factor in (0, 1000] or `"max"`.
+    fn check_speed(&self, origin: &str) -> Result<(), ConfigError> {
+        let sp = self.speed;
+        if sp > 0.0 && (sp <= 1000.0 || sp.is_infinite()) {
+            return Ok(());
+        }
+        Err(invalid(
+            origin,
+            "sources.speed",
+            format!("must be in (0, 1000] or \"max\", got {sp}"),
+        ))
+    }
+
+    /// The scenario loads where a source is `sim`.
+    fn check_scenario(&self, origin: &str) -> Result<(), ConfigError> {
+        if self.imu == "sim" || self.uwb == "sim" {
+            ScenarioFile::load(&self.scenario)
+                .map_err(|e| invalid(origin, "sources.scenario", e.to_string()))?;
+        }
+        Ok(())
+    }
+}
+
+/// One driver's source (`key`: `sources.imu` or `sources.uwb`): `sim`,
+/// `device`, `replay:FILE` (made absolute under `base`, must exist) or, for
+/// the IMU, `ros2:TOPIC`.
+fn resolve_source(
+    key: &str,
+    src: &mut String,
+    base: &Path,
+    origin: &str,
+) -> Result<(), ConfigError> {
+    let imu = key == "sources.imu";
+    let bad = |message: String| Err(invalid(origin, key, message));
+    match src.split_once(':') {
+        None if src == "sim" || src == "device" => Ok(()),
+        Some(("replay", file)) => {
+            let p = under(base, file);
+            if !p.is_file() {
+                return bad(format!("replay file {} does not exist", p.display()));
+            }
+            *src = format!("replay:{}", p.display());
+            Ok(())
+        }
+        Some(("ros2", topic)) if imu => insuwb_ros2::config::check_topic_name(topic)
+            .map_err(|e| invalid(origin, key, format!("ros2:TOPIC: {e}"))),
+        Some(("ros2", _)) => bad(format!(
+            "a ROS 2 source (ros2:TOPIC) is for the IMU only, got '{src}'"
+        )),
+        _ if imu => bad(format!(
+            "unknown source '{src}' (sim, replay:FILE, device or ros2:/TOPIC)"
+        )),
+        _ => bad(format!(
+            "unknown source '{src}' (sim, replay:FILE or device)"
+        )),
+    }
+}
+
+impl DevicesConfig {
+    /// Each table present, and one for each driver whose source is `device`.
+    fn check(&self, sources: &SourcesConfig, origin: &str) -> Result<(), ConfigError> {
+        for (name, wanted, dev, protocols) in [
+            (
+                "imu",
+                sources.imu == "device",
+                &self.imu,
+                ["witmotion", "mavlink"],
+            ),
+            (
+                "uwb",
+                sources.uwb == "device",
+                &self.uwb,
+                ["nlink", "eliko"],
+            ),
+        ] {
+            match dev {
+                Some(d) => d.check(name, &protocols, origin)?,
+                None if wanted => {
+                    return Err(invalid(
+                        origin,
+                        &format!("sources.{name}"),
+                        format!("\"device\" needs a [devices.{name}] table"),
+                    ))
+                }
+                None => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+impl DeviceConfig {
+    /// `[devices.<name>]`: a known protocol, a link, sane rates, backoff
+    /// and geometry.
+    fn check(&self, name: &str, protocols: &[&str], origin: &str) -> Result<(), ConfigError> {
+        let table = format!("devices.{name}");
+        let bad = |key: &str, message: String| Err(invalid(origin, key, message));
+        if !protocols.contains(&self.protocol.as_str()) {
+            return bad(
+                &format!("{table}.protocol"),
+                format!(
+                    "unknown protocol '{}' (known: {})",
+                    self.protocol,
+                    protocols.join(", ")
+                ),
+            );
+        }
+        if let Err(e) = self.source.parse::<insuwb_devices::link::LinkSpec>() {
+            return bad(&format!("{table}.source"), e.to_string());
+        }
+        if self.baud == 0 || self.wrong_baud_bytes == 0 {
+            return bad(&table, "baud and wrong_baud_bytes must be > 0".to_owned());
+        }
+        if !(self.position_sigma_m.is_finite() && self.position_sigma_m > 0.0) {
+            return bad(
+                &format!("{table}.position_sigma_m"),
+                "must be > 0".to_owned(),
+            );
+        }
+        if self.reconnect_initial_ms == 0 || self.reconnect_max_ms < self.reconnect_initial_ms {
+            return bad(
+                &table,
+                "need 0 < reconnect_initial_ms <= reconnect_max_ms".to_owned(),
+            );
+        }
+        if self
+            .rotation_deg
+            .iter()
+            .chain(&self.lever_arm_m)
+            .any(|v| !v.is_finite())
+        {
+            return bad(
+                &table,
+                "rotation_deg and lever_arm_m must be finite".to_owned(),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// `[realtime.<stage>]`: a stage role each, with valid settings.
+fn check_realtime(
+    realtime: &BTreeMap<String, RealtimeConfig>,
+    origin: &str,
+) -> Result<(), ConfigError> {
+    for (stage, rt) in realtime {
+        let key = format!("realtime.{stage}");
+        if stage.parse::<StageRole>().is_err() {
+            return Err(invalid(
+                origin,
+                &key,
+                format!("unknown stage (known: {})", StageRole::NAMES.join(", ")),
+            ));
+        }
+        rt.validate()
+            .map_err(|e| invalid(origin, &key, e.to_string()))?;
     }
     Ok(())
+}
+
+impl FusionStageConfig {
+    /// `config`: a file, absolute under `base`; a positive checkpoint period.
+    fn resolve(&mut self, base: &Path, origin: &str) -> Result<(), ConfigError> {
+        if !self.config.is_empty() {
+            let p = under(base, &self.config);
+            if !p.is_file() {
+                return Err(invalid(
+                    origin,
+                    "fusion.config",
+                    format!("file {} does not exist", p.display()),
+                ));
+            }
+            self.config = p.display().to_string();
+        }
+        let v = self.checkpoint_period_s;
+        if !(v.is_finite() && v > 0.0) {
+            return Err(invalid(
+                origin,
+                "fusion.checkpoint_period_s",
+                format!("must be > 0, got {v}"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// `[launch]`: a valid restart policy whose optional stages are stage roles.
+fn check_launch(launch: &RestartPolicy, origin: &str) -> Result<(), ConfigError> {
+    launch
+        .validate()
+        .map_err(|e| invalid(origin, "launch", e.to_string()))?;
+    match launch
+        .optional
+        .iter()
+        .find(|s| s.parse::<StageRole>().is_err())
+    {
+        Some(s) => Err(invalid(
+            origin,
+            "launch.optional",
+            format!(
+                "unknown stage '{s}' (known: {})",
+                StageRole::NAMES.join(", ")
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+impl LoggerConfig {
+    /// `dir`: a path, relative ones without `..`.
+    fn check_dir(&self, origin: &str) -> Result<(), ConfigError> {
+        let Some(dir) = &self.dir else {
+            return Ok(());
+        };
+        check_path(origin, "logger.dir", dir)?;
+        if dir.is_relative() && dir.components().any(|c| matches!(c, Component::ParentDir)) {
+            return Err(invalid(
+                origin,
+                "logger.dir",
+                format!(
+                    "a relative path must stay inside the run directory (no '..'), got {}",
+                    dir.display()
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `[logger.segments]`.
+    fn check_segments(&self, origin: &str) -> Result<(), ConfigError> {
+        self.segments
+            .validate()
+            .map_err(|e| invalid(origin, "logger.segments", e.to_string()))
+    }
+}
+
+/// A configured path must be non-empty and free of NUL bytes.
+fn check_path(origin: &str, key: &str, p: &Path) -> Result<(), ConfigError> {
+    let bytes = p.as_os_str().as_encoded_bytes();
+    if bytes.is_empty() || bytes.contains(&0) {
+        return Err(invalid(
+            origin,
+            key,
+            format!("must be a non-empty path without NUL bytes, got {p:?}"),
+        ));
+    }
+    Ok(())
+}
+
+/// `file` under `base` where relative.
+fn under(base: &Path, file: &str) -> PathBuf {
+    let p = Path::new(file);
+    if p.is_relative() {
+        base.join(p)
+    } else {
+        p.to_owned()
+    }
 }
 
 /// The start epoch from the environment, or one chosen now: the next epoch
@@ -569,7 +749,7 @@ mod tests {
 
     const ROBOT: &str = include_str!("../../../config/robot.toml");
 
-    fn load(extra_top: &str, extra_tables: &str) -> Result<RobotConfig> {
+    fn load(extra_top: &str, extra_tables: &str) -> Result<RobotConfig, RobotConfigError> {
         RobotConfig::from_str(
             &format!("{extra_top}{ROBOT}{extra_tables}"),
             "robot.toml",
@@ -651,7 +831,8 @@ mod tests {
         assert_eq!(all.stages, StageRole::ALL, "zenoh moved after foxglove");
         assert!(all.launch.is_optional("zenoh"));
         assert_eq!(all.zenoh.robot, "r1");
-        // Listed without a robot id or an endpoint: refused, naming the key.
+        // Listed without a robot id or an endpoint: refused, naming the key
+        // and the line of its table.
         for (text, key) in [
             (
                 "[zenoh]\nconnect = [\"tcp/127.0.0.1:7447\"]\n",
@@ -665,7 +846,7 @@ mod tests {
                 Path::new("/tmp"),
             );
             let msg = format!("{:#}", e.unwrap_err());
-            assert!(msg.contains(&format!("robot.toml: key '{key}'")), "{msg}");
+            assert!(msg.contains(&format!("robot.toml:2: key '{key}'")), "{msg}");
         }
     }
 
@@ -677,7 +858,7 @@ mod tests {
             Path::new("/tmp"),
         );
         let msg = format!("{:#}", e.unwrap_err());
-        assert!(msg.contains("robot.toml: key 'zenoh.listen'"), "{msg}");
+        assert!(msg.contains("robot.toml:2: key 'zenoh.listen'"), "{msg}");
         let e = RobotConfig::from_str(
             "[zenoh.tls]\nroot_ca_certificate = \"certs/ca.pem\"\n",
             "robot.toml",
@@ -685,7 +866,7 @@ mod tests {
         );
         let msg = format!("{:#}", e.unwrap_err());
         assert!(
-            msg.contains("key 'zenoh.tls.root_ca_certificate': file /nonexistent-insuwb/certs/ca.pem does not exist"),
+            msg.contains("robot.toml:2: key 'zenoh.tls.root_ca_certificate': file /nonexistent-insuwb/certs/ca.pem does not exist"),
             "{msg}"
         );
         let e = RobotConfig::from_str(
@@ -704,7 +885,7 @@ mod tests {
             Path::new("/tmp"),
         );
         let msg = format!("{:#}", e.unwrap_err());
-        assert!(msg.contains("robot.toml: key 'foxglove.bind'"), "{msg}");
+        assert!(msg.contains("robot.toml:2: key 'foxglove.bind'"), "{msg}");
         let e = RobotConfig::from_str("[foxglove]\nport = 1\n", "robot.toml", Path::new("/tmp"));
         assert!(format!("{:#}", e.unwrap_err()).contains("foxglove"));
     }
@@ -713,15 +894,22 @@ mod tests {
     fn a_bad_ros2_key_is_named() {
         let text = ROBOT.replacen("frame_id = \"map\"", "frame_id = \"/map\"", 1);
         assert_ne!(text, ROBOT);
+        let line = 1 + text
+            .lines()
+            .position(|l| l.starts_with("frame_id = \"/map\""))
+            .unwrap();
         let e = RobotConfig::from_str(&text, "robot.toml", Path::new("/tmp"));
         let msg = format!("{:#}", e.unwrap_err());
-        assert!(msg.contains("robot.toml: key 'ros2.frame_id'"), "{msg}");
+        assert!(
+            msg.contains(&format!("robot.toml:{line}: key 'ros2.frame_id'")),
+            "{msg}"
+        );
         let e = RobotConfig::from_str("[ros2]\nodom = \"x\"\n", "robot.toml", Path::new("/tmp"));
         assert!(format!("{:#}", e.unwrap_err()).contains("ros2"));
     }
 
     /// `sources.imu = "ros2:/TOPIC"`: a ROS topic name, IMU only; the
-    /// error names the file and the key.
+    /// error names the file, the line and the key.
     #[test]
     fn a_ros2_imu_source_is_checked() {
         let with = |imu: &str, uwb: &str| {
@@ -736,11 +924,11 @@ mod tests {
         with("ros2:imu", "sim").unwrap();
         for bad in ["ros2:/imu//data", "ros2:", "ros2:/9imu", "ros2:/imu/"] {
             let msg = format!("{:#}", with(bad, "sim").unwrap_err());
-            assert!(msg.contains("robot.toml: key 'sources.imu'"), "{msg}");
+            assert!(msg.contains("robot.toml:2: key 'sources.imu'"), "{msg}");
         }
         let msg = format!("{:#}", with("sim", "ros2:/uwb").unwrap_err());
         assert!(
-            msg.contains("robot.toml: key 'sources.uwb'") && msg.contains("IMU only"),
+            msg.contains("robot.toml:3: key 'sources.uwb'") && msg.contains("IMU only"),
             "{msg}"
         );
         let msg = format!("{:#}", with("ros:/imu", "sim").unwrap_err());
