@@ -65,7 +65,7 @@ fn resident_memory_stays_flat_over_a_long_run_at_full_speed() {
         .replace("SCENARIO", &scenario_path.display().to_string());
     std::fs::write(&cfg, text).unwrap();
 
-    let run_s = 50.0;
+    let run_s = 40.0;
     let mut child = Command::new(insuwb())
         .arg("launch")
         .arg(&cfg)

@@ -213,16 +213,16 @@ fn replay_at_10x_through_the_processes_equals_eval() {
 }
 
 #[test]
-fn chaos_for_60_s_loses_nothing_and_leaves_nothing() {
+fn chaos_for_45_s_loses_nothing_and_leaves_nothing() {
     let _lock = lock();
     let out = Command::new(insuwb())
-        .args(["chaos", "--duration", "60", "--seed", "11", "--json"])
+        .args(["chaos", "--duration", "45", "--seed", "11", "--json"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "chaos failed:\n{stderr}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    eprintln!("chaos 60 s: {v}");
+    eprintln!("chaos 45 s: {v}");
     // No stretch of 5 s without a valid fused state; the longest gap (a
     // frozen stage: the 500 ms watchdog, then the restart) is a figure of
     // the chaos runs in docs/RELIABILITY.md.
