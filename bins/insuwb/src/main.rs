@@ -66,23 +66,15 @@ enum ImportCmd {
     Util(eval_cmd::ImportUtilArgs),
 }
 
-/// The log filter when `RUST_LOG` is unset: RustDDS (the DDS reader of
-/// `bench latency --with ros2`) reports every socket and discovery event at
-/// `info`, ros2-client warns when `ROS_DISTRO` is unset, Zenoh (the
-/// station of `insuwb fleet`, the simulated robots of `bench fleet`)
-/// reports its listeners and links at `info` and warns at each peer
-/// session that gossip is off (on purpose: nothing is scouted).
-const DEFAULT_FILTER: &str = "info,rustdds=warn,ros2_client=warn,ros2_client::distributions=error,\
-     zenoh=warn,zenoh::net::routing::hat::peer=error";
-
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_FILTER)),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+                tracing_subscriber::EnvFilter::new(insuwb_runtime::DEFAULT_LOG_FILTER)
+            }),
         )
         .init();
     match run(cli) {

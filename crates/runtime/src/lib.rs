@@ -131,9 +131,20 @@ pub enum TracingInitError {
     AlreadySet,
 }
 
-/// Logs to stderr with the `RUST_LOG` filter (default `info`), each line
-/// prefixed by `stage_name`. Also sets iceoryx2's own log level to `warn`
-/// (unless `IOX2_LOG_LEVEL` says otherwise).
+/// The log filter of every insuwb process when `RUST_LOG` is unset:
+/// `info`, but RustDDS (the ROS 2 bridge, the IMU source `ros2:`, the
+/// latency bench's DDS reader) reports every socket and discovery event at
+/// `info`, ros2-client warns when `ROS_DISTRO` is unset, and Zenoh (the
+/// Zenoh bridge, the fleet's station, the simulated robots of `bench
+/// fleet`) reports its listeners and links at `info` and warns at each
+/// peer session that gossip is off (on purpose: nothing is scouted).
+pub const DEFAULT_LOG_FILTER: &str = "info,rustdds=warn,ros2_client=warn,\
+     ros2_client::distributions=error,zenoh=warn,zenoh::net::routing::hat::peer=error";
+
+/// Logs to stderr with the `RUST_LOG` filter (default
+/// [`DEFAULT_LOG_FILTER`]), each line prefixed by `stage_name`. Also sets
+/// iceoryx2's own log level to `warn` (unless `IOX2_LOG_LEVEL` says
+/// otherwise).
 pub fn init_tracing(stage_name: &str) -> Result<(), TracingInitError> {
     use tracing_subscriber::EnvFilter;
     let filter = match std::env::var("RUST_LOG") {
@@ -143,7 +154,7 @@ pub fn init_tracing(stage_name: &str) -> Result<(), TracingInitError> {
                 reason: e.to_string(),
             })?
         }
-        _ => EnvFilter::new("info"),
+        _ => EnvFilter::new(DEFAULT_LOG_FILTER),
     };
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Warn);
     tracing_subscriber::fmt()
