@@ -25,8 +25,8 @@
 mod common;
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{f, insuwb, one_at_a_time, skip_or_fail, wait_bounded, Group};
@@ -79,18 +79,7 @@ fn poses_and_health_reach_a_python_zenoh_subscriber() {
     std::fs::write(&path, format!("stages = [{}]\n{text}", stages.join(", "))).unwrap();
     // The subscriber first: its peer listens, the bridge connects to it.
     let out_json = g.dir.join("received.json");
-    let mut sub = Command::new(&py)
-        .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/zenoh/subscriber.py"))
-        .args(["--listen", &endpoint, "--robot", ROBOT])
-        .args(["--duration", &LISTEN_S.to_string()])
-        .args(["--first-timeout", "60"])
-        .arg("--out")
-        .arg(&out_json)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut sub = subscriber(&py, &endpoint, ROBOT, LISTEN_S, &out_json);
     let mut launcher = Command::new(insuwb())
         .arg("launch")
         .arg(&path)
@@ -193,16 +182,7 @@ fn the_demo_publishes_as_its_robot_id_to_its_endpoint() {
     let dir = std::env::temp_dir().join(format!("insuwb-test-zenoh-demo-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out_json = dir.join("received.json");
-    let mut sub = Command::new(&py)
-        .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/zenoh/subscriber.py"))
-        .args(["--listen", &endpoint, "--robot", "d7", "--duration", "2"])
-        .args(["--first-timeout", "60", "--out"])
-        .arg(&out_json)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut sub = subscriber(&py, &endpoint, "d7", 2.0, &out_json);
     let mut demo = Command::new(insuwb())
         .args(["demo", "--duration", "12", "--json", "--zenoh", &endpoint])
         .args(["--robot", "d7"])
@@ -236,6 +216,23 @@ fn the_demo_publishes_as_its_robot_id_to_its_endpoint() {
     assert!(health.iter().all(|h| h["body"]["robot"] == "d7"));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(f(&report, "restarts"), 0.0, "{report}");
+}
+
+/// The PyPI subscriber (`tests/zenoh/subscriber.py`): its peer listens on
+/// `endpoint`, takes `robot`'s samples for `listen_s` after the first pose
+/// (waiting up to 60 s for it) and writes them to `out` as JSON.
+fn subscriber(py: &Path, endpoint: &str, robot: &str, listen_s: f64, out: &Path) -> Child {
+    Command::new(py)
+        .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/zenoh/subscriber.py"))
+        .args(["--listen", endpoint, "--robot", robot])
+        .args(["--duration", &listen_s.to_string()])
+        .args(["--first-timeout", "60", "--out"])
+        .arg(out)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
 }
 
 fn nums(v: &Value) -> Vec<f64> {
