@@ -1,8 +1,12 @@
 //! The fleet's station with real processes, all on 127.0.0.1: a station
-//! (`insuwb fleet record DIR --listen tcp/127.0.0.1:PORT --json`, a free
-//! port) and three groups on one machine (their own prefixes and run
+//! (`insuwb fleet record DIR --config station.toml --json`, listening on
+//! `tcp/127.0.0.1:PORT` and, with mutual TLS, on `tls/127.0.0.1:PORT2`,
+//! free ports) and three groups on one machine (their own prefixes and run
 //! directories, robot ids r1-r3, the simulated demo scenario at 10 Hz),
-//! each with its Zenoh bridge connected to the station.
+//! each with its Zenoh bridge connected to the station: r1 and r2 over
+//! TCP, r3 over TLS with its client certificate (`tools/fleet_certs.sh`;
+//! where `openssl` is missing r3 uses TCP too and the test says so, unless
+//! `CI` is set: then it fails).
 //!
 //! - The station sees three robots at 10 +/- 0.5 Hz each (poses received
 //!   over 5 s of its snapshots).
@@ -50,6 +54,8 @@ const STAGES: [&str; 6] = ["imu", "uwb", "ins", "fusion", "zenoh", "logger"];
 /// Seconds the groups run (they outlast both stations: about 20 s of
 /// checks).
 const GROUP_S: f64 = 30.0;
+/// The robot whose bridge connects over TLS.
+const TLS_ROBOT: usize = 2;
 /// The victim's restart delay, ms: longer than the lost time.
 const RESTART_DELAY_MS: u64 = 3000;
 /// The station's name in its recordings.
@@ -171,14 +177,51 @@ fn bridge_pid(launcher: u32) -> Option<u32> {
         .map(|(pid, _)| pid)
 }
 
-fn zenoh_table(robot: &str, endpoint: &str, victim: bool) -> String {
+/// The robot's `[zenoh]` table: `endpoint`, and where `certs` is given,
+/// TLS with `certs/<robot>.pem`.
+fn zenoh_table(robot: &str, endpoint: &str, certs: Option<&Path>, victim: bool) -> String {
     let mut t = format!("[zenoh]\nrobot = \"{robot}\"\nconnect = [\"{endpoint}\"]\n");
+    if let Some(c) = certs {
+        let c = c.display();
+        t.push_str(&format!(
+            "[zenoh.tls]\nroot_ca_certificate = \"{c}/ca.pem\"\n\
+             certificate = \"{c}/{robot}.pem\"\nprivate_key = \"{c}/{robot}.key\"\n"
+        ));
+    }
     if victim {
         t.push_str(&format!(
             "[launch]\nbackoff_initial_ms = {RESTART_DELAY_MS}\nbackoff_max_ms = {RESTART_DELAY_MS}\n"
         ));
     }
     t
+}
+
+/// The fleet's certificates in `dir` (`tools/fleet_certs.sh`, the station's
+/// for 127.0.0.1, r3's); `None` where there is no `openssl` and `CI` is
+/// not set.
+fn fleet_certs(dir: &Path) -> Option<PathBuf> {
+    if Command::new("openssl").arg("version").output().is_err() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "no openssl command; CI is set, so this fails instead of running r3 over TCP"
+        );
+        eprintln!("no openssl command: r3 connects over TCP, TLS is not tested");
+        return None;
+    }
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/fleet_certs.sh");
+    let out = Command::new("bash")
+        .arg(script)
+        .arg(dir)
+        .args(["IP:127.0.0.1", ROBOTS[TLS_ROBOT]])
+        .env("INSUWB_CERT_DAYS", "2")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "fleet_certs.sh: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Some(dir.to_owned())
 }
 
 /// The count of `topic` records in `insuwb log info`'s output.
@@ -295,19 +338,37 @@ fn check_recording(dir: &Path, id: &str, last: &Value, work: &Path) {
 #[test]
 fn three_robots_at_a_station_one_lost_and_back_and_a_station_restart() {
     let _one = one_at_a_time();
-    let endpoint = format!("tcp/127.0.0.1:{}", common::free_port());
     let work = std::env::temp_dir().join(format!("insuwb-test-{}-fleet", std::process::id()));
     let _ = std::fs::remove_dir_all(&work);
     std::fs::create_dir_all(&work).unwrap();
     let rec = work.join("rec");
+    let certs = fleet_certs(&work.join("certs"));
+    let tcp = format!("tcp/127.0.0.1:{}", common::free_port());
+    let tls = format!("tls/127.0.0.1:{}", common::free_port());
+    // The station's config: certificate paths relative to the file.
+    let station_toml = work.join("station.toml");
+    std::fs::write(
+        &station_toml,
+        if certs.is_some() {
+            format!(
+                "[station]\nlisten = [\"{tcp}\", \"{tls}\"]\n[station.tls]\n\
+                 root_ca_certificate = \"certs/ca.pem\"\ncertificate = \"certs/station.pem\"\n\
+                 private_key = \"certs/station.key\"\n"
+            )
+        } else {
+            format!("[station]\nlisten = [\"{tcp}\"]\n")
+        },
+    )
+    .unwrap();
+    let station_toml = station_toml.to_str().unwrap();
     // The station first: it listens, the bridges connect to it.
     let mut st = Station::start(
         &[
             "fleet",
             "record",
             rec.to_str().unwrap(),
-            "--listen",
-            &endpoint,
+            "--config",
+            station_toml,
             "--json",
             "--period",
             "0.5",
@@ -326,12 +387,21 @@ fn three_robots_at_a_station_one_lost_and_back_and_a_station_restart() {
                 &format!("fleet_{r}"),
                 SIM,
                 "filter = \"iakf\"\n",
-                &zenoh_table(r, &endpoint, i == VICTIM),
+                &match (&certs, i == TLS_ROBOT) {
+                    (Some(c), true) => zenoh_table(r, &tls, Some(c), i == VICTIM),
+                    _ => zenoh_table(r, &tcp, None, i == VICTIM),
+                },
             );
             g.set_stages(&STAGES);
             g
         })
         .collect();
+    if certs.is_some() {
+        eprintln!(
+            "{} connects over TLS ({tls}) with its client certificate, the others over TCP ({tcp})",
+            ROBOTS[TLS_ROBOT]
+        );
+    }
     let mut launchers: Vec<Child> = groups.iter().map(|g| g.spawn_launch(GROUP_S)).collect();
     for (g, l) in groups.iter().zip(&mut launchers) {
         common::wait_for_lock(g, l, BOUND, "zenoh");
@@ -420,8 +490,8 @@ fn three_robots_at_a_station_one_lost_and_back_and_a_station_restart() {
     let mut st2 = Station::start(
         &[
             "fleet",
-            "--listen",
-            &endpoint,
+            "--config",
+            station_toml,
             "--json",
             "--period",
             "0.5",

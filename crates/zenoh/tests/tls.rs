@@ -1,8 +1,8 @@
 //! TLS with client certificates, end to end on 127.0.0.1: certificates
-//! made here with the `openssl` command (a CA, the station's for
-//! `127.0.0.1`, a robot's, and a robot's from another CA); a station
-//! session (router) listens on `tls/` with mutual TLS and subscribes to
-//! every robot's poses. A robot session with a certificate the CA signed
+//! made with `tools/fleet_certs.sh` (the `openssl` command: a CA, the
+//! station's for `127.0.0.1`, a robot's, and a robot's of another fleet's
+//! CA); a station session (router) listens on `tls/` with mutual TLS and
+//! subscribes to every robot's poses. A robot session with a certificate the CA signed
 //! connects and its poses arrive, decoded; a client without a certificate,
 //! and one whose certificate another CA signed, are refused (their session
 //! does not open: a client waits for its router).
@@ -28,95 +28,31 @@ use zenoh::Wait;
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(30);
 
-fn openssl(dir: &Path, args: &[&str]) {
-    let out = Command::new("openssl")
-        .current_dir(dir)
-        .args(args)
+/// `tools/fleet_certs.sh DIR SAN ROBOT`: a fleet's CA, the station's
+/// certificate for `san` and `robot`'s, in `dir`.
+fn fleet_certs(dir: &Path, san: &str, robot: &str) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/fleet_certs.sh");
+    let out = Command::new("bash")
+        .arg(script)
+        .arg(dir)
+        .args([san, robot])
+        .env("INSUWB_CERT_DAYS", "2")
         .output()
         .unwrap();
     assert!(
         out.status.success(),
-        "openssl {args:?}: {}",
+        "fleet_certs.sh: {}",
         String::from_utf8_lossy(&out.stderr)
     );
 }
 
-/// A CA named `name`: `name.key`, `name.pem`.
-fn ca(dir: &Path, name: &str) {
-    openssl(
-        dir,
-        &[
-            "req",
-            "-x509",
-            "-newkey",
-            "ec",
-            "-pkeyopt",
-            "ec_paramgen_curve:P-256",
-            "-nodes",
-            "-days",
-            "2",
-            "-keyout",
-            &format!("{name}.key"),
-            "-out",
-            &format!("{name}.pem"),
-            "-subj",
-            &format!("/CN={name}"),
-        ],
-    );
-}
-
-/// A certificate `name.pem` (key `name.key`) signed by CA `ca`, for the
-/// subject alternative names `san`.
-fn cert(dir: &Path, name: &str, ca: &str, san: &str) {
-    openssl(
-        dir,
-        &[
-            "req",
-            "-newkey",
-            "ec",
-            "-pkeyopt",
-            "ec_paramgen_curve:P-256",
-            "-nodes",
-            "-keyout",
-            &format!("{name}.key"),
-            "-out",
-            &format!("{name}.csr"),
-            "-subj",
-            &format!("/CN={name}"),
-        ],
-    );
-    std::fs::write(
-        dir.join(format!("{name}.ext")),
-        format!("subjectAltName={san}\n"),
-    )
-    .unwrap();
-    openssl(
-        dir,
-        &[
-            "x509",
-            "-req",
-            "-in",
-            &format!("{name}.csr"),
-            "-CA",
-            &format!("{ca}.pem"),
-            "-CAkey",
-            &format!("{ca}.key"),
-            "-CAcreateserial",
-            "-days",
-            "2",
-            "-out",
-            &format!("{name}.pem"),
-            "-extfile",
-            &format!("{name}.ext"),
-        ],
-    );
-}
-
-fn tls(dir: &Path, ca: &str, own: Option<&str>, mutual: bool) -> TlsConfig {
+/// The TLS settings of a session: the CA of folder `ca`, and the
+/// certificate and key `own` from folder `ca` too.
+fn tls(dir: &Path, ca: &str, own: Option<(&str, &str)>, mutual: bool) -> TlsConfig {
     TlsConfig {
-        root_ca_certificate: Some(dir.join(format!("{ca}.pem"))),
-        certificate: own.map(|n| dir.join(format!("{n}.pem"))),
-        private_key: own.map(|n| dir.join(format!("{n}.key"))),
+        root_ca_certificate: Some(dir.join(ca).join("ca.pem")),
+        certificate: own.map(|(d, n)| dir.join(d).join(format!("{n}.pem"))),
+        private_key: own.map(|(d, n)| dir.join(d).join(format!("{n}.key"))),
         mutual,
         verify_name: true,
     }
@@ -153,18 +89,15 @@ fn a_robot_with_a_client_certificate_gets_through_and_others_are_refused() {
     let _ = std::fs::remove_dir_all(&dir.0);
     std::fs::create_dir_all(&dir.0).unwrap();
     let d = dir.0.as_path();
-    ca(d, "fleet-ca");
-    ca(d, "other-ca");
-    cert(d, "station", "fleet-ca", "IP:127.0.0.1,DNS:localhost");
-    cert(d, "r1", "fleet-ca", "DNS:r1");
-    cert(d, "intruder", "other-ca", "DNS:intruder");
+    fleet_certs(&d.join("fleet"), "IP:127.0.0.1,DNS:localhost", "r1");
+    fleet_certs(&d.join("other"), "DNS:other", "intruder");
 
     let endpoint = format!("tls/127.0.0.1:{}", free_port());
     let station = session::open(&LinkConfig {
         mode: Mode::Router,
         listen: vec![endpoint.clone()],
         connect: Vec::new(),
-        tls: tls(d, "fleet-ca", Some("station"), true),
+        tls: tls(d, "fleet", Some(("fleet", "station")), true),
     })
     .unwrap();
     let poses = station
@@ -178,16 +111,16 @@ fn a_robot_with_a_client_certificate_gets_through_and_others_are_refused() {
         mode: Mode::Client,
         connect: vec![endpoint.clone()],
         listen: Vec::new(),
-        tls: tls(d, "fleet-ca", Some("r1"), true),
+        tls: tls(d, "fleet", Some(("fleet", "r1")), true),
     })
     .unwrap();
     // Refused, while the robot is connected: no client certificate, and a
     // certificate of another CA.
     for (what, t) in [
-        ("no certificate", tls(d, "fleet-ca", None, false)),
+        ("no certificate", tls(d, "fleet", None, false)),
         (
             "another CA's certificate",
-            tls(d, "fleet-ca", Some("intruder"), true),
+            tls(d, "fleet", Some(("other", "intruder")), true),
         ),
     ] {
         let r = session::open(&LinkConfig {
