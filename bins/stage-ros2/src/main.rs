@@ -27,20 +27,8 @@ struct Args {
     config: PathBuf,
 }
 
-/// The log filter when `RUST_LOG` is unset: RustDDS reports every socket
-/// and discovery event at `info` and warns of each datagram above 1500
-/// bytes (the diagnostics array; the IP layer fragments it), and
-/// ros2-client warns when `ROS_DISTRO` is unset (no ROS installation is
-/// the point).
-const DEFAULT_FILTER: &str = "info,rustdds=warn,rustdds::network::udp_sender=error,\
-ros2_client=warn,ros2_client::distributions=error";
-
 fn main() -> ExitCode {
     let args = Args::parse();
-    if std::env::var_os("RUST_LOG").is_none_or(|v| v.is_empty()) {
-        // Single-threaded still: nothing reads the environment concurrently.
-        std::env::set_var("RUST_LOG", DEFAULT_FILTER);
-    }
     let _ = insuwb_runtime::init_tracing(StageRole::Ros2.name());
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,

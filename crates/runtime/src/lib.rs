@@ -134,12 +134,15 @@ pub enum TracingInitError {
 /// The log filter of every insuwb process when `RUST_LOG` is unset:
 /// `info`, but RustDDS (the ROS 2 bridge, the IMU source `ros2:`, the
 /// latency bench's DDS reader) reports every socket and discovery event at
-/// `info`, ros2-client warns when `ROS_DISTRO` is unset, and Zenoh (the
+/// `info` and warns of each datagram above 1500 bytes (the bridge's
+/// diagnostics array; the IP layer fragments it), ros2-client warns when
+/// `ROS_DISTRO` is unset (no ROS installation is the point), and Zenoh (the
 /// Zenoh bridge, the fleet's station, the simulated robots of `bench
 /// fleet`) reports its listeners and links at `info` and warns at each
 /// peer session that gossip is off (on purpose: nothing is scouted).
-pub const DEFAULT_LOG_FILTER: &str = "info,rustdds=warn,ros2_client=warn,\
-     ros2_client::distributions=error,zenoh=warn,zenoh::net::routing::hat::peer=error";
+pub const DEFAULT_LOG_FILTER: &str = "info,rustdds=warn,rustdds::network::udp_sender=error,\
+     ros2_client=warn,ros2_client::distributions=error,zenoh=warn,\
+     zenoh::net::routing::hat::peer=error";
 
 /// Logs to stderr with the `RUST_LOG` filter (default
 /// [`DEFAULT_LOG_FILTER`]), each line prefixed by `stage_name`. Also sets
