@@ -46,7 +46,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let a = Args::parse();
-    let _ = insuwb_runtime::init_tracing(&format!("floor-{}", a.role.name()));
+    let name = format!("floor-{}", a.role.name());
     let cfg = FloorConfig {
         prefix: a.prefix,
         root_path: a.root_path,
@@ -58,11 +58,5 @@ fn main() -> ExitCode {
         fifo_priority: a.fifo_priority,
         ..FloorConfig::default()
     };
-    match run_role(a.role, &cfg) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e}");
-            ExitCode::FAILURE
-        }
-    }
+    insuwb_runtime::stage_main(&name, || run_role(a.role, &cfg))
 }

@@ -31,14 +31,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let _ = insuwb_runtime::init_tracing(StageRole::Foxglove.name());
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    insuwb_runtime::stage_main(StageRole::Foxglove.name(), || run(&args))
 }
 
 /// The anchors the config knows: the simulated scenario's (other sources

@@ -29,14 +29,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let _ = insuwb_runtime::init_tracing(StageRole::Ros2.name());
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    insuwb_runtime::stage_main(StageRole::Ros2.name(), || run(&args))
 }
 
 fn run(args: &Args) -> Result<()> {

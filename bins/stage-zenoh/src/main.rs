@@ -30,14 +30,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let _ = insuwb_runtime::init_tracing(StageRole::Zenoh.name());
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    insuwb_runtime::stage_main(StageRole::Zenoh.name(), || run(&args))
 }
 
 fn run(args: &Args) -> Result<()> {

@@ -172,6 +172,33 @@ pub fn init_tracing(stage_name: &str) -> Result<(), TracingInitError> {
         .map_err(|_| TracingInitError::AlreadySet)
 }
 
+/// The `main` of a stage process once its arguments are parsed: logging
+/// with [`init_tracing`] for `stage_name`, then `run`. An error is logged
+/// as the process's last line, with its causes where its alternate form
+/// (`{:#}`, as anyhow's) shows them, and gives the exit status 1. Where
+/// logging cannot start (an invalid `RUST_LOG`), that is said on standard
+/// error and the stage runs on, its error then written there too.
+pub fn stage_main<E: std::fmt::Display>(
+    stage_name: &str,
+    run: impl FnOnce() -> Result<(), E>,
+) -> std::process::ExitCode {
+    let logging = init_tracing(stage_name);
+    if let Err(e) = &logging {
+        eprintln!("[{stage_name}] logging: {e}");
+    }
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            if logging.is_ok() {
+                tracing::error!("{e:#}");
+            } else {
+                eprintln!("[{stage_name}] error: {e:#}");
+            }
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
 /// Event formatter writing `[stage] ` before the default format.
 struct StagePrefixed<F> {
     stage: String,

@@ -69,14 +69,7 @@ pub fn apply_speed(cfg: &mut RobotConfig, speed: Option<f64>) -> anyhow::Result<
 #[must_use]
 pub fn main(kind: StageRole) -> ExitCode {
     let args = StageArgs::parse();
-    let _ = insuwb_runtime::init_tracing(kind.name());
-    match run(kind, &args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    insuwb_runtime::stage_main(kind.name(), || run(kind, &args))
 }
 
 fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
