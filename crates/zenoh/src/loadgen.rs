@@ -253,10 +253,11 @@ impl LoadFleet {
             connect: vec![spec.endpoint.clone()],
             ..LinkConfig::default()
         };
+        let robot0 = || format!("{}0000", spec.prefix);
         // The open returns at once (no wait for scouted peers, see
         // `session`): readiness is the publishers' matching, below.
         let config = session::zenoh_config(&link).map_err(|error| LoadOpenError::Session {
-            robot: format!("{}0000", spec.prefix),
+            robot: robot0(),
             error,
         })?;
         let mut robots = Vec::with_capacity(spec.robots);
