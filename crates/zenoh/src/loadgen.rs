@@ -254,12 +254,22 @@ impl LoadFleet {
             ..LinkConfig::default()
         };
         let robot0 = || format!("{}0000", spec.prefix);
-        // The open returns at once (no wait for scouted peers, see
-        // `session`): readiness is the publishers' matching, below.
-        let config = session::zenoh_config(&link).map_err(|error| LoadOpenError::Session {
+        let mut config = session::zenoh_config(&link).map_err(|error| LoadOpenError::Session {
             robot: robot0(),
             error,
         })?;
+        // A peer's open waits up to the scouting delay (0.5 s) for start
+        // conditions a router never signals: 500 robots would take 250 s
+        // to open. Readiness is the publishers' matching, below.
+        config
+            .insert_json5("open/return_conditions/connect_scouted", "false")
+            .map_err(|e| LoadOpenError::Session {
+                robot: robot0(),
+                error: SessionError::ZenohConfig {
+                    key: "open/return_conditions/connect_scouted",
+                    reason: e.to_string(),
+                },
+            })?;
         let mut robots = Vec::with_capacity(spec.robots);
         for i in 0..spec.robots {
             let id = format!("{}{i:04}", spec.prefix);

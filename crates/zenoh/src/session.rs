@@ -13,10 +13,6 @@
 //! - `listen/endpoints`: the link's `listen`, empty by default (Zenoh's own
 //!   default would listen on every interface);
 //! - `scouting/multicast/enabled` and `scouting/gossip/enabled`: `false`;
-//! - `open/return_conditions/connect_scouted`: `false`. With nothing
-//!   scouted, a peer's open would otherwise wait the scouting delay (0.5 s)
-//!   for start conditions a router never signals, then log a warning; a
-//!   publisher's readiness is its matching status, not the open;
 //! - where TLS is configured, `transport/link/tls/root_ca_certificate`,
 //!   `listen_certificate` and `listen_private_key` (this side's
 //!   certificate), `connect_certificate` and `connect_private_key` (the
@@ -111,7 +107,6 @@ pub fn zenoh_config(link: &LinkConfig) -> Result<zenoh::Config, SessionError> {
     set("listen/endpoints", json(&link.listen))?;
     set("scouting/multicast/enabled", "false".into())?;
     set("scouting/gossip/enabled", "false".into())?;
-    set("open/return_conditions/connect_scouted", "false".into())?;
     let t = &link.tls;
     let uses_tls = link.connect.iter().chain(&link.listen).any(|e| is_tls(e));
     if uses_tls || t.root_ca_certificate.is_some() {
@@ -189,7 +184,6 @@ mod tests {
         assert_eq!(get(&c, "listen/endpoints"), serde_json::json!([]));
         assert_eq!(get(&c, "scouting/multicast/enabled"), false);
         assert_eq!(get(&c, "scouting/gossip/enabled"), false);
-        assert_eq!(get(&c, "open/return_conditions/connect_scouted"), false);
         assert!(get(&c, "transport/link/tls/root_ca_certificate").is_null());
         let router = zenoh_config(&LinkConfig {
             mode: Mode::Router,
