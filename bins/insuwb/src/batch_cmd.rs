@@ -15,6 +15,11 @@ use crate::eval_cmd::{evaluate_file, print_result, write_plots, EvalArgs};
 /// Runs `insuwb eval --flights MANIFEST`.
 pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
     let manifest = Manifest::load(manifest_path)?;
+    let calibration = a
+        .calibration
+        .as_deref()
+        .map(crate::calibrate_cmd::CalibrationFile::load)
+        .transpose()?;
     let jobs = a.jobs.map_or_else(
         || std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get),
         std::num::NonZeroUsize::get,
@@ -45,8 +50,10 @@ pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
         |i| {
             let f = &manifest.flights[i];
             match &quiet {
-                Some(d) => tracing::dispatcher::with_default(d, || evaluate_flight(a, f)),
-                None => evaluate_flight(a, f),
+                Some(d) => tracing::dispatcher::with_default(d, || {
+                    evaluate_flight(a, f, calibration.as_ref())
+                }),
+                None => evaluate_flight(a, f, calibration.as_ref()),
             }
         },
         |done, _| {
@@ -91,13 +98,19 @@ pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
 }
 
 /// Evaluates one flight; with `--plot DIR`, its figures go to `DIR/<name>/`.
-fn evaluate_flight(a: &EvalArgs, f: &ManifestFlight) -> Result<FlightMetrics> {
+fn evaluate_flight(
+    a: &EvalArgs,
+    f: &ManifestFlight,
+    calibration: Option<&crate::calibrate_cmd::CalibrationFile>,
+) -> Result<FlightMetrics> {
     let (loaded, rep) = evaluate_file(
         &f.file,
         f.anchors.as_ref(),
         a.config.as_deref(),
         a.ignore_crc,
         a.filters.as_deref(),
+        calibration,
+        a.vehicle,
     )?;
     if let Some(dir) = &a.plot {
         write_plots(&rep, &loaded.data, &dir.join(figure_folder(&f.name)))

@@ -80,6 +80,17 @@ pub struct EvalArgs {
     /// epoch into this CSV file (one row per solution and epoch).
     #[arg(long, conflicts_with = "flights")]
     pub tracks: Option<PathBuf>,
+    /// A site calibration of the TDOA differences (`insuwb calibrate`),
+    /// applied to every difference before the fixes and the tight filter
+    /// use it; refused for a log whose anchors are not the calibration's.
+    #[arg(long, conflicts_with = "scenario")]
+    pub calibration: Option<PathBuf>,
+    /// The vehicle model of the INS and every filter, overriding the
+    /// config's `[fusion] vehicle`: free (every accelerometer axis
+    /// integrated), multirotor (thrust along body z and rotor drag) or
+    /// ground (no lateral or vertical body velocity).
+    #[arg(long)]
+    pub vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
 }
 
 /// Runs `insuwb eval`.
@@ -94,6 +105,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         let mut file = ScenarioFile::load(name)?;
         if let Some(c) = &a.config {
             file.fusion = ConfigFile::load(c)?.fusion;
+        }
+        if let Some(v) = a.vehicle {
+            file.fusion.vehicle = v;
         }
         let filters = parse_filters(a.filters.as_deref(), &DEFAULT_FILTERS)?;
         let seed = a.seed.unwrap_or(file.sim.seed);
@@ -118,9 +132,17 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             ),
         )
     } else if let Some(path) = &a.file {
-        let loaded = dataset::load(path, a.anchors.as_ref(), a.config.as_deref(), a.ignore_crc)?;
+        let mut loaded =
+            dataset::load(path, a.anchors.as_ref(), a.config.as_deref(), a.ignore_crc)?;
         if !loaded.recorded.is_empty() {
             return eval_recorded(a, path, &loaded);
+        }
+        if let Some(v) = a.vehicle {
+            loaded.config.fusion.vehicle = v;
+        }
+        if let Some(c) = &a.calibration {
+            let c = crate::calibrate_cmd::CalibrationFile::load(c)?;
+            c.apply(&mut loaded, a.anchors.as_ref(), path)?;
         }
         let (loaded, rep) = evaluate_loaded(loaded, a.filters.as_deref())?;
         if let Some(dir) = &a.plot {
@@ -284,14 +306,22 @@ pub fn evaluate_file(
     config: Option<&str>,
     ignore_crc: bool,
     filters: Option<&str>,
+    calibration: Option<&crate::calibrate_cmd::CalibrationFile>,
+    vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
 ) -> Result<(dataset::Loaded, EvalReport)> {
-    let loaded = dataset::load(path, anchors, config, ignore_crc)?;
+    let mut loaded = dataset::load(path, anchors, config, ignore_crc)?;
+    if let Some(v) = vehicle {
+        loaded.config.fusion.vehicle = v;
+    }
     if !loaded.recorded.is_empty() {
         bail!(
             "{}: the log holds fused states but no IMU and UWB records to run the filters on: `insuwb eval {}` reports its recorded track",
             path.display(),
             path.display()
         );
+    }
+    if let Some(c) = calibration {
+        c.apply(&mut loaded, anchors, path)?;
     }
     evaluate_loaded(loaded, filters)
 }
@@ -302,15 +332,23 @@ fn evaluate_loaded(
     loaded: dataset::Loaded,
     filters: Option<&str>,
 ) -> Result<(dataset::Loaded, EvalReport)> {
+    let rep = evaluate_ref(&loaded, &loaded.config.fusion, filters)?;
+    Ok((loaded, rep))
+}
+
+/// Evaluates a loaded log with the fusion settings `fusion` (its own, or
+/// those with a calibration) and `filters`, else the filters its config
+/// names; logs the config and the run time.
+pub fn evaluate_ref(
+    loaded: &dataset::Loaded,
+    fusion: &insuwb_fusion::config::FusionConfig,
+    filters: Option<&str>,
+) -> Result<EvalReport> {
     tracing::info!("config: {}", loaded.config_origin);
     let filters = parse_filters(filters, &loaded.config.eval.filters)?;
     let t0 = std::time::Instant::now();
-    let rep = insuwb_eval::run::evaluate_at(
-        &loaded.data,
-        &loaded.config.fusion,
-        &filters,
-        loaded.config.eval.epochs,
-    )?;
+    let rep =
+        insuwb_eval::run::evaluate_at(&loaded.data, fusion, &filters, loaded.config.eval.epochs)?;
     let elapsed = t0.elapsed();
     let dur_s = loaded
         .data
@@ -324,7 +362,7 @@ fn evaluate_loaded(
         elapsed.as_secs_f64(),
         elapsed.as_secs_f64() / dur_s.max(1e-9)
     );
-    Ok((loaded, rep))
+    Ok(rep)
 }
 
 /// Writes the figures of one evaluation into `dir`, anchors taken from the TDOA stream.

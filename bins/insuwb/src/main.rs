@@ -1,5 +1,5 @@
 //! The `insuwb` command line: evaluation, simulation, AR fitting, import of
-//! real flights, log tools, the process group (launch, demo, inspect),
+//! real flights, site calibration of the UWB errors, log tools, the process group (launch, demo, inspect),
 //! device emulators (emulate), and the fleet's station (fleet).
 //!
 //! Logs go to standard error (`RUST_LOG` sets the level); with `--json` a
@@ -8,6 +8,7 @@
 mod batch_cmd;
 mod bench_cmd;
 mod bench_fleet;
+mod calibrate_cmd;
 mod dataset;
 mod emulate_cmd;
 mod eval_cmd;
@@ -32,6 +33,8 @@ struct Cli {
 enum Cmd {
     /// Run UWB-only, INS-only and the filters on a log or a simulated scenario, and print Table 1.
     Eval(eval_cmd::EvalArgs),
+    /// Learn a site calibration of the UWB TDOA errors from flights with ground truth (`--cross-validate`: leave-one-flight-out figures of every candidate family).
+    Calibrate(calibrate_cmd::CalibrateArgs),
     /// Simulate a scenario into a log.
     Sim(eval_cmd::SimArgs),
     /// Fit the AR(3) sensor error models on a static segment and print a config snippet.
@@ -89,6 +92,7 @@ fn main() -> std::process::ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Eval(a) => eval_cmd::eval(&a),
+        Cmd::Calibrate(a) => calibrate_cmd::run(&a),
         Cmd::Sim(a) => eval_cmd::sim(&a),
         Cmd::FitAr(a) => eval_cmd::fit_ar(&a),
         Cmd::Import(ImportCmd::Util(a)) => eval_cmd::import_util(&a),

@@ -30,7 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         (false, true, true),
     ] {
         let est = insuwb_fusion::config::build_estimator(FilterKind::Iakf, &cfg)?;
-        let mut ins = InsEngine::new(cfg.ins.clone())?;
+        let mut ins = InsEngine::new(cfg.ins_engine_config())?;
         let mut eng = FusionEngine::new(cfg.engine.clone(), est);
         let mut out = Outputs::default();
         let mut renav = Vec::new();

@@ -305,20 +305,37 @@ fn pair_key(a: &[f64; 3], b: &[f64; 3]) -> [u64; 6] {
     [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]
 }
 
+/// The velocity rows of the continuous error dynamics `F`:
+/// `δv̇ = a_vθ δθ + a_vb δb_a + a_vv δv` (see [`transition_matrix`] and
+/// [`Eskf::set_multirotor`]).
+#[derive(Debug, Clone, Copy)]
+struct VelRows {
+    /// `-[f x]`, plus the drag's attitude term for a multirotor.
+    a_vtheta: Matrix3<f64>,
+    /// `C`, or `C diag(0, 0, 1)` for a multirotor (only the thrust axis's
+    /// bias enters the integrated force).
+    a_vb: Matrix3<f64>,
+    /// Zero, or the drag's `-k C diag(1, 1, 0) C^T` for a multirotor.
+    a_vv: Option<Matrix3<f64>>,
+}
+
 /// Applies the continuous error dynamics `F` to `x` (15 x C), using its
-/// sparsity: rows δp <- δv; δv <- -[f x] δθ + C δb_a; δθ <- C δb_g.
+/// sparsity: rows δp <- δv; δv <- a_vθ δθ + a_vb δb_a (+ a_vv δv);
+/// δθ <- C δb_g.
 fn apply_f<const C: usize>(
-    minus_f_skew: &Matrix3<f64>,
+    rows: &VelRows,
     rot: &Matrix3<f64>,
     x: &SMatrix<f64, N_STATES, C>,
 ) -> SMatrix<f64, N_STATES, C> {
     let mut y = SMatrix::<f64, N_STATES, C>::zeros();
     y.fixed_view_mut::<3, C>(IDX_POS, 0)
         .copy_from(&x.fixed_view::<3, C>(IDX_VEL, 0));
-    y.fixed_view_mut::<3, C>(IDX_VEL, 0).copy_from(
-        &(minus_f_skew * x.fixed_view::<3, C>(IDX_ATT, 0)
-            + rot * x.fixed_view::<3, C>(IDX_ACCEL_BIAS, 0)),
-    );
+    let mut vel = rows.a_vtheta * x.fixed_view::<3, C>(IDX_ATT, 0)
+        + rows.a_vb * x.fixed_view::<3, C>(IDX_ACCEL_BIAS, 0);
+    if let Some(a_vv) = rows.a_vv {
+        vel += a_vv * x.fixed_view::<3, C>(IDX_VEL, 0);
+    }
+    y.fixed_view_mut::<3, C>(IDX_VEL, 0).copy_from(&vel);
     y.fixed_view_mut::<3, C>(IDX_ATT, 0)
         .copy_from(&(rot * x.fixed_view::<3, C>(IDX_GYRO_BIAS, 0)));
     y
@@ -398,8 +415,12 @@ pub fn transition_matrix(
             max_dt_s: f64::INFINITY,
         });
     }
-    let minus_f_skew = -skew(&Vector3::from(f_nav_mps2));
-    Ok(Covariance::identity() + apply_f(&minus_f_skew, &rot, &Covariance::identity()) * dt_s)
+    let rows = VelRows {
+        a_vtheta: -skew(&Vector3::from(f_nav_mps2)),
+        a_vb: rot,
+        a_vv: None,
+    };
+    Ok(Covariance::identity() + apply_f(&rows, &rot, &Covariance::identity()) * dt_s)
 }
 
 /// Evaluates the TDOA model `|p_ant - b| - |p_ant - a|`, `p_ant = p + C(q) l`,
@@ -490,6 +511,38 @@ pub struct Eskf {
     /// Velocity noise density added to the accelerometer's, m^2/s^3
     /// ([`Eskf::set_extra_velocity_noise`]).
     q_vel_extra: f64,
+    /// The multirotor error dynamics ([`Eskf::set_multirotor`]); `None`: free.
+    multirotor: Option<MultirotorDynamics>,
+}
+
+/// The multirotor model's parameters in the error dynamics
+/// ([`Eskf::set_multirotor`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MultirotorDynamics {
+    /// Linear drag coefficient, 1/s.
+    pub drag_per_s: f64,
+    /// White-noise density of the unmodelled body x/y force, m/s^2/sqrt(Hz).
+    pub model_noise_mps2_per_rthz: f64,
+}
+
+/// What a pseudo-measurement update did ([`Eskf::update_pseudo`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PseudoUpdateReport {
+    /// Normalised innovation squared.
+    pub nis: f64,
+    /// Applied (not beyond the hard gate).
+    pub applied: bool,
+}
+
+/// Why a pseudo-measurement was refused (the filter is unchanged).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum PseudoUpdateError {
+    /// The Jacobian row or the innovation holds NaN or an infinity.
+    #[error("pseudo-measurement: Jacobian or innovation not finite")]
+    NonFinite,
+    /// The variance is not finite and positive.
+    #[error("pseudo-measurement: variance {0} must be finite and > 0")]
+    Variance(f64),
 }
 
 /// Updates the process-noise scale looks back over (median window).
@@ -562,6 +615,7 @@ impl Eskf {
             q_adapt: QAdapt::new(),
             f_last: [0.0; 3],
             q_vel_extra: 0.0,
+            multirotor: None,
         })
     }
 
@@ -620,8 +674,26 @@ impl Eskf {
         quat: [f64; 4],
         f_nav_mps2: [f64; 3],
     ) -> Result<(), PredictError> {
+        self.predict_moving(dt_s, quat, f_nav_mps2, [0.0; 3])
+    }
+
+    /// [`Eskf::predict`] with the INS velocity `vel_nav_mps` (ENU), which
+    /// the multirotor model's drag terms need ([`Eskf::set_multirotor`]);
+    /// for a free vehicle the velocity does not enter `F` and this is
+    /// [`Eskf::predict`].
+    ///
+    /// # Errors
+    /// As [`Eskf::predict`], and a non-finite velocity.
+    pub fn predict_moving(
+        &mut self,
+        dt_s: f64,
+        quat: [f64; 4],
+        f_nav_mps2: [f64; 3],
+        vel_nav_mps: [f64; 3],
+    ) -> Result<(), PredictError> {
         finite("dt_s", &[dt_s])?;
         finite("f_nav_mps2", &f_nav_mps2)?;
+        finite("vel_nav_mps", &vel_nav_mps)?;
         let rot = checked_rotation(quat)?;
         if !(0.0..=self.config.max_dt_s).contains(&dt_s) {
             return Err(PredictError::DtOutOfRange {
@@ -633,26 +705,54 @@ impl Eskf {
             return Ok(());
         }
         self.f_last = f_nav_mps2;
-        let minus_f_skew = -skew(&Vector3::from(f_nav_mps2));
+        let mut rows = VelRows {
+            a_vtheta: -skew(&Vector3::from(f_nav_mps2)),
+            a_vb: rot,
+            a_vv: None,
+        };
+        if let Some(m) = self.multirotor {
+            // Body x/y force -k E C^T v: its error is -k C E C^T (δv + [v x] δθ);
+            // only the thrust axis's bias is integrated.
+            let e = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0));
+            let drag = rot * e * rot.transpose() * (-m.drag_per_s);
+            rows.a_vtheta += drag * skew(&Vector3::from(vel_nav_mps));
+            rows.a_vv = Some(drag);
+            rows.a_vb = rot * Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, 1.0));
+        }
         // Φ P Φ^T = P + dt (F P + P F^T) + dt^2 F P F^T, with F P F^T = F (F P)^T.
-        let fp = apply_f(&minus_f_skew, &rot, &self.p);
-        let fpft = apply_f(&minus_f_skew, &rot, &fp.transpose());
+        let fp = apply_f(&rows, &rot, &self.p);
+        let fpft = apply_f(&rows, &rot, &fp.transpose());
         self.p += (fp + fp.transpose()) * dt_s + fpft * (dt_s * dt_s);
         let q = process_noise(&self.config, dt_s);
         // The scale applies to the accelerometer's noise and bias walk: the
         // position innovations it is read from measure the velocity drift.
         let alpha = self.q_adapt.alpha;
         for i in 0..N_STATES {
-            let accel = (IDX_VEL..IDX_VEL + 3).contains(&i)
-                || (IDX_ACCEL_BIAS..IDX_ACCEL_BIAS + 3).contains(&i);
+            let vel = (IDX_VEL..IDX_VEL + 3).contains(&i);
+            if vel && self.multirotor.is_some() {
+                continue;
+            }
+            let accel = vel || (IDX_ACCEL_BIAS..IDX_ACCEL_BIAS + 3).contains(&i);
             self.p[(i, i)] += if accel { alpha * q[i] } else { q[i] };
+        }
+        if let Some(m) = self.multirotor {
+            // The model's error (unmodelled forces) in body x/y, the
+            // accelerometer's noise on the thrust axis: C diag C^T.
+            let (sm, sa) = (
+                m.model_noise_mps2_per_rthz,
+                self.config.accel_noise_mps2_per_rthz,
+            );
+            let d = Matrix3::from_diagonal(&Vector3::new(sm * sm, sm * sm, sa * sa));
+            let qv = rot * d * rot.transpose() * (alpha * dt_s);
+            let mut block = self.p.fixed_view_mut::<3, 3>(IDX_VEL, IDX_VEL);
+            block += qv;
         }
         for i in IDX_VEL..IDX_VEL + 2 {
             self.p[(i, i)] += self.q_vel_extra * dt_s;
         }
         symmetrize(&mut self.p);
         if self.x.iter().any(|&v| v != 0.0) {
-            self.x += apply_f(&minus_f_skew, &rot, &self.x) * dt_s;
+            self.x += apply_f(&rows, &rot, &self.x) * dt_s;
         }
         self.time_s += dt_s;
         self.stats.predicts += 1;
@@ -660,6 +760,82 @@ impl Eskf {
             self.needs_reset = true;
         }
         Ok(())
+    }
+
+    /// Switches the error dynamics to the multirotor model of
+    /// `insuwb_nav::vehicle` (thrust along body z, linear drag
+    /// `drag_per_s` in body x/y), as the INS integrates it: the velocity
+    /// error is driven by the attitude error through the thrust, damped by
+    /// the drag, and only the z accelerometer bias enters it; the velocity
+    /// noise is `model_noise_mps2_per_rthz` in body x/y (unmodelled forces)
+    /// and the accelerometer's on body z. `None` returns to the free model.
+    /// Values that are not finite and non-negative are refused (`false`,
+    /// the filter unchanged).
+    pub fn set_multirotor(&mut self, model: Option<MultirotorDynamics>) -> bool {
+        if let Some(m) = model {
+            let ok = [m.drag_per_s, m.model_noise_mps2_per_rthz]
+                .iter()
+                .all(|v| v.is_finite() && *v >= 0.0);
+            if !ok {
+                return false;
+            }
+        }
+        self.multirotor = model;
+        true
+    }
+
+    /// The multirotor dynamics in use ([`Eskf::set_multirotor`]).
+    #[must_use]
+    pub fn multirotor(&self) -> Option<MultirotorDynamics> {
+        self.multirotor
+    }
+
+    /// Fuses a scalar pseudo-measurement with Jacobian row `h`, innovation
+    /// `innovation` (measurement minus its prediction at the INS state,
+    /// before the error state; `h · δx` is removed here) and variance
+    /// `r` (> 0): a velocity constraint or a drag measurement, composed by
+    /// the caller. Robust as the TDOA updates (`kappa`, `hard_gate_sigma`,
+    /// `limit_mode`), but outside the process-noise adaptation and the pair
+    /// bookkeeping. Returns the NIS and whether it was applied.
+    ///
+    /// # Errors
+    /// [`PseudoUpdateError`] on a non-finite input or a variance that is not
+    /// positive; the filter is then unchanged.
+    pub fn update_pseudo(
+        &mut self,
+        h: &StateVector,
+        innovation: f64,
+        r: f64,
+    ) -> Result<PseudoUpdateReport, PseudoUpdateError> {
+        if !innovation.is_finite() || !h.iter().all(|v| v.is_finite()) {
+            return Err(PseudoUpdateError::NonFinite);
+        }
+        if !(r.is_finite() && r > 0.0) {
+            return Err(PseudoUpdateError::Variance(r));
+        }
+        let v = innovation - h.dot(&self.x);
+        let c = self.p * h;
+        let hph = h.dot(&c).max(0.0);
+        let s = hph + r;
+        let nis = v * v / s;
+        let ratio = nis.sqrt();
+        if ratio > self.config.hard_gate_sigma {
+            return Ok(PseudoUpdateReport {
+                nis,
+                applied: false,
+            });
+        }
+        let lambda = if ratio > self.config.kappa {
+            self.config.kappa / ratio
+        } else {
+            1.0
+        };
+        let (v_used, r_gain) = match self.config.limit_mode {
+            LimitMode::ScaleInnovation => (lambda * v, r),
+            LimitMode::InflateR => (v, r / (lambda * lambda)),
+        };
+        self.scalar_update(&c, hph, r_gain, v_used);
+        Ok(PseudoUpdateReport { nis, applied: true })
     }
 
     /// Sets a horizontal velocity noise density (m^2/s^3) added to the

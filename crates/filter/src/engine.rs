@@ -207,6 +207,35 @@ impl Core {
         self.updates += 1;
     }
 
+    /// A scalar linear measurement `z = h x + n`, `n ~ N(0, r)`, of the
+    /// error state (a velocity constraint): Joseph-form update of `x` and
+    /// `P`; `R`, the update count and the adaptive estimators' records are
+    /// untouched. Returns the NIS.
+    pub fn update_scalar(&mut self, h: &Vec14, z: f64, r: f64) -> Result<f64, UpdateError> {
+        if !z.is_finite() {
+            return Err(UpdateError::NonFiniteMeasurement { index: 0, value: z });
+        }
+        let c = self.p * h;
+        let s = h.dot(&c) + r;
+        if !(s.is_finite() && s > 0.0 && r > 0.0) {
+            return Err(UpdateError::NotPositiveDefinite {
+                what: "constraint innovation variance",
+            });
+        }
+        let v = z - h.dot(&self.x);
+        let k = c / s;
+        let x = self.x + k * v;
+        let kc = k * c.transpose();
+        let mut p = self.p + k * k.transpose() * s - kc - kc.transpose();
+        symmetrise(&mut p);
+        if !(all_finite(&x) && all_finite(&p)) {
+            return Err(UpdateError::NonFiniteResult);
+        }
+        self.x = x;
+        self.p = p;
+        Ok(v * v / s)
+    }
+
     pub fn take_correction(&mut self) -> Vec14 {
         let x = self.x;
         self.x = Vec14::zeros();

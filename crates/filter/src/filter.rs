@@ -202,6 +202,14 @@ pub trait ErrorFilter: core::fmt::Debug + Send {
     /// # Errors
     /// [`UpdateError`]; the filter is then unchanged.
     fn update_pos(&mut self, z: &SVector<f64, 2>) -> Result<UpdateReport, UpdateError>;
+    /// Updates with a scalar linear measurement `z = h x + n` of the error
+    /// state, `n ~ N(0, r)` (a vehicle's velocity constraint): a plain
+    /// Kalman update for every filter, outside their adaptive estimators
+    /// (`R`, fading and the update count are untouched). Returns the NIS.
+    ///
+    /// # Errors
+    /// [`UpdateError`]; the filter is then unchanged.
+    fn update_constraint(&mut self, h: &Vec14, z: f64, r: f64) -> Result<f64, UpdateError>;
     /// The error state.
     fn state(&self) -> &Vec14;
     /// Its covariance.
@@ -248,6 +256,9 @@ macro_rules! common_filter_methods {
         }
         fn update_pos(&mut self, z: &SVector<f64, 2>) -> Result<UpdateReport, UpdateError> {
             self.update_m::<2>(z)
+        }
+        fn update_constraint(&mut self, h: &Vec14, z: f64, r: f64) -> Result<f64, UpdateError> {
+            self.core.update_scalar(h, z, r)
         }
         fn state(&self) -> &Vec14 {
             &self.core.x

@@ -12,7 +12,9 @@ use crate::estimator::{Estimator, LooseConfig, LooseConfigError, PaperEstimator}
 use crate::ins_engine::{InsEngineConfig, InsEngineError};
 use crate::output::{OutputPolicyConfig, OutputPolicyConfigError};
 use crate::tight::{TightBuildError, TightConfig, TightEstimator};
+use crate::vehicle::{GroundConfig, MultirotorConfig, VehicleConfigError, VehicleSettings};
 use crate::vibration::{VibrationConfig, VibrationConfigError};
+use insuwb_nav::vehicle::VehicleKind;
 
 /// Everything a run needs: the INS, the fix builder, the engine, every
 /// filter's settings and the runner's output policy.
@@ -40,11 +42,26 @@ pub struct FusionConfig {
     pub tight: TightConfig,
     /// Velocity noise from the vibration the IMU measures, for every filter.
     pub vibration: VibrationConfig,
+    /// The vehicle model of the INS and every filter: `free` (default, the
+    /// paper's), `multirotor` (thrust along body z, rotor drag) or `ground`
+    /// (no lateral or vertical body velocity); see [`crate::vehicle`].
+    pub vehicle: VehicleKind,
+    /// The multirotor model's settings (`vehicle = "multirotor"`).
+    pub multirotor: MultirotorConfig,
+    /// The ground model's settings (`vehicle = "ground"`).
+    pub ground: GroundConfig,
     /// The coasting and stale-input policy (`[fusion.output]`), its one
     /// home: the fusion stage applies it on the monotonic clock (its
     /// defaults where absent), the lockstep runner on the recording's clock
     /// (absent: the runner publishes the updates' fused states only).
     pub output: Option<OutputPolicyConfig>,
+    /// The site calibration of the TDOA differences, applied by the fix
+    /// builder before the fixes and the tight filter use them
+    /// (`insuwb_uwb::calibration`). Never read from or written to a
+    /// `[fusion]` table: it comes from a file named on the command line
+    /// (`--calibration`) or in the robot config (`[uwb] calibration`).
+    #[serde(skip)]
+    pub calibration: Option<std::sync::Arc<insuwb_uwb::calibration::SiteCalibration>>,
 }
 
 /// Why a fusion configuration was refused (by [`build_estimator`], or by
@@ -72,6 +89,9 @@ pub enum ConfigError {
     /// The vibration settings were refused.
     #[error(transparent)]
     Vibration(#[from] VibrationConfigError),
+    /// The vehicle model's settings were refused.
+    #[error(transparent)]
+    Vehicle(#[from] VehicleConfigError),
     /// The engine's divergence monitor config was refused (the message
     /// names the key, `engine.monitor.*`).
     #[error("engine.{0}")]
@@ -112,6 +132,27 @@ impl From<OutputPolicyConfigError> for ConfigError {
     }
 }
 
+impl FusionConfig {
+    /// The vehicle model's settings.
+    #[must_use]
+    pub fn vehicle_settings(&self) -> VehicleSettings<'_> {
+        VehicleSettings {
+            kind: self.vehicle,
+            multirotor: &self.multirotor,
+            ground: &self.ground,
+        }
+    }
+
+    /// The INS engine's settings with the vehicle's mechanisation: what
+    /// every INS of a run (the INS stage, the lockstep runner) is built from.
+    #[must_use]
+    pub fn ins_engine_config(&self) -> InsEngineConfig {
+        let mut ins = self.ins.clone();
+        ins.ins.mechanisation = self.vehicle_settings().mechanisation();
+        ins
+    }
+}
+
 /// Builds the estimator for `kind` from `cfg`: the paper's filters from
 /// `model`, `filter`, `setup` and `loose`; [`FilterKind::IakfTdoa`] the
 /// tightly coupled ESKF from `eskf` and `tight`. Checks the engine's
@@ -125,6 +166,8 @@ pub fn build_estimator(
 ) -> Result<Box<dyn Estimator>, ConfigError> {
     cfg.engine.validate()?;
     cfg.vibration.validate()?;
+    let vehicle = cfg.vehicle_settings();
+    vehicle.validate()?;
     if kind == FilterKind::IakfTdoa {
         return Ok(Box::new(
             TightEstimator::new(
@@ -132,7 +175,8 @@ pub fn build_estimator(
                 cfg.tight.clone(),
                 cfg.ins.ins.gravity_mps2,
             )?
-            .with_vibration(cfg.vibration.clone()),
+            .with_vibration(cfg.vibration.clone())
+            .with_vehicle(&vehicle),
         ));
     }
     cfg.loose.validate()?;
@@ -141,6 +185,7 @@ pub fn build_estimator(
     Ok(Box::new(
         PaperEstimator::new(f, cfg.loose.clone(), cfg.setup.p0())
             .with_gravity(cfg.ins.ins.gravity_mps2)
-            .with_vibration(cfg.vibration.clone()),
+            .with_vibration(cfg.vibration.clone())
+            .with_vehicle(&vehicle),
     ))
 }

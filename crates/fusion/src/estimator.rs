@@ -270,6 +270,13 @@ pub struct PaperEstimator {
     /// Vibration settings and meter ([`crate::vibration`]).
     vib_cfg: VibrationConfig,
     vib: VibrationMeter,
+    /// What the INS integrates ([`PaperEstimator::with_vehicle`]).
+    mech: insuwb_nav::vehicle::Mechanisation,
+    /// The ground robot's lateral-velocity constraint and the time since
+    /// its last update, s.
+    ground: Option<(crate::vehicle::GroundConfig, f64)>,
+    /// Constraint updates refused by the filter.
+    constraint_errors: u64,
 }
 
 impl PaperEstimator {
@@ -292,6 +299,9 @@ impl PaperEstimator {
             last_update_vel: false,
             vib_cfg: VibrationConfig::default(),
             vib: VibrationMeter::default(),
+            mech: insuwb_nav::vehicle::Mechanisation::Free,
+            ground: None,
+            constraint_errors: 0,
             filter,
             cfg,
             p0,
@@ -391,6 +401,54 @@ impl PaperEstimator {
         self
     }
 
+    /// Linearises about the vehicle model the INS integrates
+    /// (`insuwb_nav::vehicle`): the heading coupling uses the model's
+    /// horizontal acceleration (for a multirotor, the thrust's tilt and the
+    /// drag) instead of the accelerometer's.
+    /// A ground robot's zero lateral velocity is fused as a constraint
+    /// ([`insuwb_filter::ErrorFilter::update_constraint`]) every
+    /// `ground.period_s`.
+    #[must_use]
+    pub fn with_vehicle(mut self, vehicle: &crate::vehicle::VehicleSettings<'_>) -> Self {
+        self.mech = vehicle.mechanisation();
+        self.ground = (vehicle.kind == insuwb_nav::vehicle::VehicleKind::Ground)
+            .then(|| (vehicle.ground.clone(), 0.0));
+        self
+    }
+
+    /// Constraint updates the filter refused.
+    #[must_use]
+    pub fn constraint_errors(&self) -> u64 {
+        self.constraint_errors
+    }
+
+    /// The ground robot's zero lateral velocity: with yaw `psi` (INS minus
+    /// truth heading error `x[THETA]`), `v_lat = -sin(psi) v_e +
+    /// cos(psi) v_n`, and to first order `v_lat,ins = -s δv_e + c δv_n -
+    /// v_fwd δpsi` when the true lateral velocity is zero.
+    fn ground_update(&mut self, nav: &NavState, sigma_mps: f64) {
+        use insuwb_filter::model::idx;
+        let q = nav.quat;
+        let att = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[0], q[1], q[2], q[3],
+        ));
+        let psi = insuwb_nav::ins::yaw_of(&att);
+        let (s, c) = psi.sin_cos();
+        let [ve, vn, _] = nav.vel_mps;
+        let mut h = insuwb_filter::model::Vec14::zeros();
+        h[idx::VE] = -s;
+        h[idx::VN] = c;
+        h[idx::THETA] = -(c * ve + s * vn);
+        let z = -s * ve + c * vn;
+        if self
+            .filter
+            .update_constraint(&h, z, sigma_mps * sigma_mps)
+            .is_err()
+        {
+            self.constraint_errors += 1;
+        }
+    }
+
     /// The wrapped filter.
     #[must_use]
     pub fn filter(&self) -> &dyn insuwb_filter::ErrorFilter {
@@ -462,11 +520,26 @@ impl Estimator for PaperEstimator {
         self.last_quat = nav.quat;
         let q = self.vib.push(&self.vib_cfg, dt_s, nav);
         self.filter.set_extra_velocity_noise(q);
+        let a = insuwb_nav::vehicle::model_accel_nav(
+            self.mech,
+            nav.quat,
+            nav.vel_mps,
+            nav.accel_nav_mps2,
+            self.gravity_mps2,
+        );
         self.acc_dt += dt_s;
-        self.acc_ae += nav.accel_nav_mps2[0] * dt_s;
-        self.acc_an += nav.accel_nav_mps2[1] * dt_s;
+        self.acc_ae += a[0] * dt_s;
+        self.acc_an += a[1] * dt_s;
         if self.acc_dt >= self.step_s * (1.0 - 1e-6) {
             self.run_predict();
+        }
+        if let Some((g, since)) = self.ground.as_mut() {
+            *since += dt_s;
+            if *since >= g.period_s && self.acc_dt == 0.0 {
+                *since = 0.0;
+                let sigma = g.lateral_sigma_mps;
+                self.ground_update(nav, sigma);
+            }
         }
     }
 

@@ -18,7 +18,9 @@
 //!   and the fusion engine wired in one process exactly as the stage
 //!   processes are (`insuwb eval`);
 //! - [`vibration`]: the vibration the IMU measures as process noise for
-//!   every filter.
+//!   every filter;
+//! - [`vehicle`]: the vehicle model (free, multirotor, ground) of the INS
+//!   and the filters, and the measurements it yields.
 #![warn(missing_docs)]
 
 pub mod config;
@@ -28,4 +30,5 @@ pub mod ins_engine;
 pub mod output;
 pub mod runner;
 pub mod tight;
+pub mod vehicle;
 pub mod vibration;

@@ -47,7 +47,8 @@ pub enum Input<'a> {
     /// An IMU sample (to the INS engine).
     Imu(&'a ImuSample),
     /// A TDOA measurement (to the fix builder, and to fusion when the
-    /// filter is tightly coupled).
+    /// filter is tightly coupled; corrected by [`FusionConfig::calibration`]
+    /// if set).
     Tdoa(&'a UwbTdoa),
 }
 
@@ -133,8 +134,9 @@ impl Runner {
             p.validate()?;
         }
         Ok(Self {
-            ins: InsEngine::new(cfg.ins.clone())?,
-            fixb: insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?,
+            ins: InsEngine::new(cfg.ins_engine_config())?,
+            fixb: insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?
+                .with_calibration(cfg.calibration.clone()),
             tight: est.is_tight(),
             fusion: FusionEngine::new(cfg.engine.clone(), est),
             policy_cfg: cfg.output.clone(),
@@ -171,12 +173,16 @@ impl Runner {
                 }
             }
             Input::Tdoa(m) => {
-                if let Ok(Some(f)) = self.fixb.push(m) {
+                // Corrected by the site calibration, if any, as the UWB
+                // driver publishes it: the fix builder and the tight filter
+                // use the same difference.
+                let m = self.fixb.calibrate(m);
+                if let Ok(Some(f)) = self.fixb.push(&m) {
                     self.on_fix(f);
                 }
                 if self.tight {
                     self.fusion
-                        .on_measurement(Measurement::Tdoa(*m), &mut self.o);
+                        .on_measurement(Measurement::Tdoa(m), &mut self.o);
                 }
             }
         }
@@ -273,7 +279,7 @@ pub fn run_with(
 /// # Errors
 /// An INS configuration that does not validate.
 pub fn run_ins_only(imu: &[ImuSample], cfg: &FusionConfig) -> Result<Vec<NavState>, ConfigError> {
-    let mut ins = InsEngine::new(cfg.ins.clone())?;
+    let mut ins = InsEngine::new(cfg.ins_engine_config())?;
     Ok(imu.iter().filter_map(|s| ins.on_imu(s)).collect())
 }
 
@@ -282,7 +288,8 @@ pub fn run_ins_only(imu: &[ImuSample], cfg: &FusionConfig) -> Result<Vec<NavStat
 /// # Errors
 /// A fix-builder configuration that does not validate.
 pub fn run_fixes(tdoa: &[UwbTdoa], cfg: &FusionConfig) -> Result<Vec<UwbFix>, ConfigError> {
-    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?;
+    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?
+        .with_calibration(cfg.calibration.clone());
     let mut out = Vec::new();
     for m in tdoa {
         if let Ok(f) = fixb.push(m) {

@@ -11,11 +11,15 @@
 //! the engine's monitor finds from each update's NIS as for every filter
 //! (and [`Estimator::needs_reset`] when the covariance stops being finite).
 
+use crate::vehicle::{DragMeasurement, DragMeter, GroundConfig, VehicleSettings};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_eskf::{
-    Covariance, Eskf, EskfConfig, EskfConfigError, TdoaOutcome, TdoaUpdateReport, N_STATES,
+    Covariance, Eskf, EskfConfig, EskfConfigError, MultirotorDynamics, StateVector, TdoaOutcome,
+    TdoaUpdateReport, IDX_ATT, IDX_VEL, N_STATES,
 };
 use insuwb_msg::{FilterKind, NavState, UwbFix, UwbTdoa};
+use insuwb_nav::vehicle::{model_accel_nav, Mechanisation};
+use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::estimator::{Delta, Estimator, InsAt, UpdateInfo};
@@ -107,6 +111,15 @@ pub struct TightEstimator {
     f_smooth: Option<[f64; 3]>,
     vib_cfg: VibrationConfig,
     vib: VibrationMeter,
+    /// What the INS integrates ([`TightEstimator::with_vehicle`]).
+    mech: Mechanisation,
+    /// The multirotor's drag measurements.
+    drag: Option<DragMeter>,
+    /// The ground robot's constraint and the time since its last update, s.
+    ground: Option<(GroundConfig, f64)>,
+    /// Pseudo-measurements (drag, velocity constraints) applied and gated out.
+    pseudo_applied: u64,
+    pseudo_rejected: u64,
     predict_errors: u64,
     update_errors: u64,
 }
@@ -134,9 +147,106 @@ impl TightEstimator {
             f_smooth: None,
             vib_cfg: VibrationConfig::default(),
             vib: VibrationMeter::default(),
+            mech: Mechanisation::Free,
+            drag: None,
+            ground: None,
+            pseudo_applied: 0,
+            pseudo_rejected: 0,
             predict_errors: 0,
             update_errors: 0,
         })
+    }
+
+    /// Uses the vehicle model of `vehicle` ([`crate::vehicle`]): the error
+    /// dynamics of the mechanisation the INS integrates, and the
+    /// multirotor's drag measurements or the ground robot's velocity
+    /// constraints (zero lateral and vertical body velocity) as
+    /// pseudo-measurements.
+    #[must_use]
+    pub fn with_vehicle(mut self, vehicle: &VehicleSettings<'_>) -> Self {
+        self.mech = vehicle.mechanisation();
+        self.drag = None;
+        self.ground = None;
+        if vehicle.kind == insuwb_nav::vehicle::VehicleKind::Ground {
+            self.ground = Some((vehicle.ground.clone(), 0.0));
+        }
+        match self.mech {
+            Mechanisation::Free => {
+                let _ = self.eskf.set_multirotor(None);
+            }
+            Mechanisation::ThrustDrag { drag_per_s } => {
+                let m = vehicle.multirotor;
+                let _ = self.eskf.set_multirotor(Some(MultirotorDynamics {
+                    drag_per_s,
+                    model_noise_mps2_per_rthz: m.model_noise_mps2_per_rthz,
+                }));
+                self.drag = Some(DragMeter::new(m));
+            }
+        }
+        self
+    }
+
+    /// Pseudo-measurements (drag, velocity constraints) applied and
+    /// gated out.
+    #[must_use]
+    pub fn pseudo_counts(&self) -> (u64, u64) {
+        (self.pseudo_applied, self.pseudo_rejected)
+    }
+
+    /// The online drag coefficient estimate, 1/s (multirotor only).
+    #[must_use]
+    pub fn drag_per_s(&self) -> Option<f64> {
+        self.drag.as_ref().map(DragMeter::drag_per_s)
+    }
+
+    fn pseudo(&mut self, h: &StateVector, innovation: f64, r: f64) {
+        match self.eskf.update_pseudo(h, innovation, r) {
+            Ok(rep) if rep.applied => self.pseudo_applied += 1,
+            Ok(_) => self.pseudo_rejected += 1,
+            Err(_) => self.update_errors += 1,
+        }
+    }
+
+    /// The drag measurement of body axis `i` (x, y): `f_i - c_i = -k v_b,i`,
+    /// with `v_b = C^T v` and, to first order, `v_b,true = v_b,ins -
+    /// C^T δv - C^T [v x] δθ`: `H = k [(C e_i)^T on δv, ((C e_i) x v)^T on δθ]`.
+    fn drag_update(&mut self, nav: &NavState, d: &DragMeasurement) {
+        let Some((att, vel)) = att_vel(nav) else {
+            return;
+        };
+        for i in 0..2 {
+            let axis = att * Vector3::ith(i, 1.0);
+            let mut h = StateVector::zeros();
+            h.fixed_rows_mut::<3>(IDX_VEL)
+                .copy_from(&(axis * d.drag_per_s));
+            h.fixed_rows_mut::<3>(IDX_ATT)
+                .copy_from(&(axis.cross(&vel) * d.drag_per_s));
+            let predicted = -d.drag_per_s * d.body_vel_lp_mps[i];
+            self.pseudo(
+                &h,
+                d.force_mps2[i] - predicted,
+                d.sigma_mps2[i] * d.sigma_mps2[i],
+            );
+        }
+    }
+
+    /// The ground robot's zero lateral (body y) and vertical (body z, when
+    /// configured) velocity: `H = -[(C e_i)^T on δv, ((C e_i) x v)^T on δθ]`.
+    fn ground_update(&mut self, nav: &NavState, g: &GroundConfig) {
+        let Some((att, vel)) = att_vel(nav) else {
+            return;
+        };
+        for (i, sigma) in [(1, g.lateral_sigma_mps), (2, g.vertical_sigma_mps)] {
+            if sigma <= 0.0 {
+                continue;
+            }
+            let axis = att * Vector3::ith(i, 1.0);
+            let mut h = StateVector::zeros();
+            h.fixed_rows_mut::<3>(IDX_VEL).copy_from(&(-axis));
+            h.fixed_rows_mut::<3>(IDX_ATT)
+                .copy_from(&(-axis.cross(&vel)));
+            self.pseudo(&h, -axis.dot(&vel), sigma * sigma);
+        }
     }
 
     /// Adds the velocity noise of the vibration the IMU measures to the
@@ -171,6 +281,16 @@ impl TightEstimator {
     pub fn update_errors(&self) -> u64 {
         self.update_errors
     }
+}
+
+/// The attitude and velocity of an INS state, if finite.
+fn att_vel(nav: &NavState) -> Option<(UnitQuaternion<f64>, Vector3<f64>)> {
+    let q = nav.quat;
+    if !q.iter().chain(&nav.vel_mps).all(|v| v.is_finite()) {
+        return None;
+    }
+    let att = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+    Some((att, Vector3::from(nav.vel_mps)))
 }
 
 /// The engine's record of one scalar TDOA update.
@@ -209,7 +329,13 @@ impl Estimator for TightEstimator {
         if !(dt_s > 0.0 && dt_s.is_finite()) {
             return;
         }
-        let a = nav.accel_nav_mps2;
+        let a = model_accel_nav(
+            self.mech,
+            nav.quat,
+            nav.vel_mps,
+            nav.accel_nav_mps2,
+            self.gravity_mps2,
+        );
         let q = self.vib.push(&self.vib_cfg, dt_s, nav);
         self.eskf.set_extra_velocity_noise(q);
         let raw = [a[0], a[1], a[2] + self.gravity_mps2];
@@ -237,9 +363,33 @@ impl Estimator for TightEstimator {
         // n is an integer in [1, MAX_PREDICT_SPLIT].
         #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         for _ in 0..(n as u32) {
-            if self.eskf.predict(step, nav.quat, f).is_err() {
+            if self
+                .eskf
+                .predict_moving(step, nav.quat, f, nav.vel_mps)
+                .is_err()
+            {
                 self.predict_errors += 1;
                 return;
+            }
+        }
+        if let Some(meter) = self.drag.as_mut() {
+            let m = meter.push(
+                dt_s,
+                nav.quat,
+                nav.vel_mps,
+                nav.accel_nav_mps2,
+                self.gravity_mps2,
+            );
+            if let Some(m) = m {
+                self.drag_update(nav, &m);
+            }
+        }
+        if let Some((g, since)) = self.ground.as_mut() {
+            *since += dt_s;
+            if *since >= g.period_s {
+                *since = 0.0;
+                let g = g.clone();
+                self.ground_update(nav, &g);
             }
         }
     }

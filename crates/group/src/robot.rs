@@ -169,6 +169,35 @@ impl Default for FusionStageConfig {
     }
 }
 
+/// UWB driver settings (`[uwb]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct UwbStageConfig {
+    /// A site calibration of the TDOA differences (`insuwb calibrate`),
+    /// relative to the robot config's folder; empty: none. The UWB driver
+    /// corrects every difference with it before the fixes and publishes
+    /// the corrected difference, flagged.
+    pub calibration: String,
+    /// The calibration read from `calibration` when the file was loaded.
+    #[serde(skip)]
+    pub loaded: Option<std::sync::Arc<insuwb_uwb::calibration::SiteCalibration>>,
+}
+
+impl UwbStageConfig {
+    /// `calibration`: a file, absolute under `base`, that reads as a calibration.
+    fn resolve(&mut self, base: &Path, origin: &str) -> Result<(), ConfigError> {
+        if self.calibration.is_empty() {
+            return Ok(());
+        }
+        let p = under(base, &self.calibration);
+        let c = insuwb_uwb::calibration::SiteCalibration::load(&p)
+            .map_err(|e| invalid(origin, "uwb.calibration", e.to_string()))?;
+        self.calibration = p.display().to_string();
+        self.loaded = Some(std::sync::Arc::new(c));
+        Ok(())
+    }
+}
+
 /// Logger settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
@@ -249,6 +278,8 @@ pub struct RobotConfig {
     pub sources: SourcesConfig,
     /// Fusion stage.
     pub fusion: FusionStageConfig,
+    /// UWB driver.
+    pub uwb: UwbStageConfig,
     /// Logger.
     pub logger: LoggerConfig,
     /// Stages to run, in start order (default: imu, uwb, ins, fusion,
@@ -331,6 +362,7 @@ impl RobotConfig {
         check_realtime(&self.realtime, origin)?;
         self.sources.check_speed(origin)?;
         self.fusion.resolve(base, origin)?;
+        self.uwb.resolve(base, origin)?;
         check_launch(&self.launch, origin)?;
         self.check_bridges(base, origin)?;
         self.logger.check_segments(origin)?;
@@ -409,12 +441,14 @@ impl RobotConfig {
 
     /// The fusion settings every stage uses: `fusion.config`'s `[fusion]`
     /// table if set, else the scenario's (sim, INS start for `sources.seed`),
-    /// else the replayed log's metadata.
+    /// else the replayed log's metadata; with `[uwb] calibration`'s site
+    /// calibration.
     ///
     /// # Errors
     /// [`RobotConfigError`] when that file, log or scenario cannot be read.
     pub fn fusion_config(&self) -> Result<FusionConfig, RobotConfigError> {
         let mut f = self.fusion_config_file()?;
+        f.calibration.clone_from(&self.uwb.loaded);
         // A UWB device's antenna lever arm (robot.toml) is the loose filters'.
         if let (true, Some(d)) = (self.sources.uwb == "device", &self.devices.uwb) {
             if d.lever_arm_m != [0.0; 3] {
@@ -848,6 +882,40 @@ mod tests {
             let msg = format!("{:#}", e.unwrap_err());
             assert!(msg.contains(&format!("robot.toml:2: key '{key}'")), "{msg}");
         }
+    }
+
+    /// `[uwb] calibration`: read (relative to the file's folder) when the
+    /// robot config is loaded and handed to every stage's fusion settings;
+    /// a file that is missing or not a calibration is named with the line
+    /// and the key.
+    #[test]
+    fn the_uwb_calibration_is_read_under_the_file() {
+        let dir = std::env::temp_dir().join(format!("insuwb-robot-calib-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("site.toml"),
+            "format_version = 1\n[site]\nfamily = \"pair_constant\"\nanchors = [{ id = 0, pos_m = [0, 0, 0] }, { id = 1, pos_m = [1, 0, 0] }]\n[[pairs]]\na = 0\nb = 1\nbias_m = 0.1\nnoise_m = 0.2\n",
+        )
+        .unwrap();
+        let c = RobotConfig::from_str("[uwb]\ncalibration = \"site.toml\"\n", "robot.toml", &dir)
+            .unwrap();
+        let f = c.fusion_config().unwrap();
+        assert_eq!(f.calibration.unwrap().bias(1, 0, None), -0.1);
+        let e = RobotConfig::from_str("[uwb]\ncalibration = \"nope.toml\"\n", "robot.toml", &dir);
+        let msg = format!("{:#}", e.unwrap_err());
+        assert!(
+            msg.contains("robot.toml:2: key 'uwb.calibration'") && msg.contains("nope.toml"),
+            "{msg}"
+        );
+        std::fs::write(
+            dir.join("bad.toml"),
+            "format_version = 1\n[site]\nfamily = \"x\"\nanchors = []\n",
+        )
+        .unwrap();
+        let e = RobotConfig::from_str("[uwb]\ncalibration = \"bad.toml\"\n", "robot.toml", &dir);
+        let msg = format!("{:#}", e.unwrap_err());
+        assert!(msg.contains("key 'site.family'"), "{msg}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -108,6 +108,10 @@ impl UwbTdoa {
     /// that measures all pairs at once, as the simulator does): the fix
     /// builder may close the epoch without waiting for the next one.
     pub const FLAG_EPOCH_END: u32 = 1;
+    /// `diff_m` has been corrected by a site calibration (its learnt
+    /// per-pair bias removed): a measurement so flagged is never corrected
+    /// again (`insuwb_uwb::calibration`).
+    pub const FLAG_CALIBRATED: u32 = 2;
 }
 
 /// A UWB position (and velocity) fix from multilateration (topic [`topics::UWB_FIX`]).

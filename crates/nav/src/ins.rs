@@ -35,6 +35,8 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::vehicle::{thrust_drag_force, Mechanisation};
+
 /// Standard gravity, m/s^2 (the default of [`InsConfig::gravity_mps2`]).
 pub const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
 
@@ -51,6 +53,10 @@ pub struct InsConfig {
     /// position for the rest. Default 0.05 s (5 samples at 100 Hz, 50 at
     /// 1 kHz: longer is a dropout). Valid range (0, 1].
     pub max_step_s: f64,
+    /// The vehicle model integrated ([`crate::vehicle`]); set from the
+    /// fusion settings' `vehicle`, not from this table. Default free.
+    #[serde(skip)]
+    pub mechanisation: Mechanisation,
 }
 
 impl Default for InsConfig {
@@ -58,6 +64,7 @@ impl Default for InsConfig {
         Self {
             gravity_mps2: STANDARD_GRAVITY_MPS2,
             max_step_s: 0.05,
+            mechanisation: Mechanisation::Free,
         }
     }
 }
@@ -71,6 +78,9 @@ pub enum InsConfigError {
     /// `max_step_s` is outside (0, 1] or not finite.
     #[error("ins.max_step_s must be in (0, 1] s, got {0}")]
     MaxStep(f64),
+    /// The multirotor drag coefficient is negative, not finite or above 10/s.
+    #[error("multirotor.drag_per_s must be finite and in [0, 10] 1/s, got {0}")]
+    Drag(f64),
 }
 
 impl InsConfig {
@@ -84,6 +94,11 @@ impl InsConfig {
         }
         if !(self.max_step_s > 0.0 && self.max_step_s <= 1.0) {
             return Err(InsConfigError::MaxStep(self.max_step_s));
+        }
+        if let Mechanisation::ThrustDrag { drag_per_s } = self.mechanisation {
+            if !(drag_per_s.is_finite() && (0.0..=10.0).contains(&drag_per_s)) {
+                return Err(InsConfigError::Drag(drag_per_s));
+            }
         }
         Ok(())
     }
@@ -378,8 +393,8 @@ impl Ins {
         };
 
         let s = &mut self.state;
-        let f0 = prev.accel_b - s.accel_bias_mps2;
-        let f1 = cur.accel_b - s.accel_bias_mps2;
+        let mut f0 = prev.accel_b - s.accel_bias_mps2;
+        let mut f1 = cur.accel_b - s.accel_bias_mps2;
         let w0 = prev.gyro_b - s.gyro_bias_rps;
         let w1 = cur.gyro_b - s.gyro_bias_rps;
 
@@ -390,6 +405,12 @@ impl Ins {
         let q0 = s.att;
         let mut q1 = q0 * exp_rotvec(&phi);
         q1.renormalize();
+        if let Mechanisation::ThrustDrag { drag_per_s } = self.cfg.mechanisation {
+            // Drag at the start of the step's velocity (explicit: the drag
+            // time constant, seconds, is far longer than a step).
+            f0 = thrust_drag_force(&f0, &q0, &s.vel_mps, drag_per_s);
+            f1 = thrust_drag_force(&f1, &q1, &s.vel_mps, drag_per_s);
+        }
 
         // Velocity: trapezoid of the ENU specific force, minus gravity.
         let g = Vector3::new(0.0, 0.0, self.cfg.gravity_mps2);

@@ -5,6 +5,8 @@
 //!   corrections in the "error = INS minus truth" convention;
 //! - [`align`]: static levelling, gyro bias from a static record and the
 //!   [`align::StaticDetector`] that finds the initial static phase of a stream;
+//! - [`vehicle`]: vehicle models (free, multirotor thrust and drag, ground
+//!   non-holonomic) shared by the mechanisation and the filters;
 //! - [`ar`]: AR(p) coefficients of a sensor-error record by Yule-Walker with
 //!   Levinson-Durbin, in the paper's sign convention (eq. 4).
 //!
@@ -16,6 +18,7 @@
 pub mod align;
 pub mod ar;
 pub mod ins;
+pub mod vehicle;
 
 #[cfg(test)]
 mod testutil;

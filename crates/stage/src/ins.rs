@@ -27,7 +27,7 @@ pub fn checkpoint_path(run_dir: &Path) -> PathBuf {
 pub fn run(cfg: &RobotConfig) -> Result<()> {
     let stage = Stage::new(cfg.runtime(StageRole::Ins.name()))?;
     let fcfg = cfg.fusion_config()?;
-    let mut ins = InsEngine::new(fcfg.ins.clone())?;
+    let mut ins = InsEngine::new(fcfg.ins_engine_config())?;
     let imu_sub = stage.subscriber::<ImuSample>(topics::IMU)?;
     let corr_sub = stage.subscriber::<InsCorrection>(topics::CORRECTION)?;
     let mut nav_pub = stage.publisher::<NavState>(topics::NAV)?;

@@ -66,10 +66,24 @@
 //! table are dropped, counted, and reported as a [`PushError`]; the builder
 //! stays usable after any error. With [`FixConfig::average_pairs`] an epoch
 //! is solved from each pair's mean, weighted by its count.
+//!
+//! # Site calibration
+//!
+//! With a [`SiteCalibration`] ([`FixBuilder::with_calibration`]) every
+//! measurement is corrected on [`FixBuilder::push`] by the bias its pair
+//! has at the previous fix's position (before the first fix, and after a
+//! [`FixBuilder::reset`], the pair's constant), and flagged
+//! [`UwbTdoa::FLAG_CALIBRATED`]; a flagged measurement is used as it is.
+//! [`FixBuilder::calibrate`] gives the measurement as `push` would use it:
+//! callers that forward the measurement too (to the tight filter, onto a
+//! topic) forward that one, then push it.
 
 use insuwb_msg::{Header, UwbFix, UwbTdoa};
 use serde::{Deserialize, Serialize};
 
+use std::sync::Arc;
+
+use crate::calibration::SiteCalibration;
 use crate::solve::{self, Seed, SolveError, SolverConfig, SolverConfigError, TdoaObs};
 use crate::velocity::{VelocityConfig, VelocityConfigError, VelocityEstimator};
 
@@ -347,6 +361,8 @@ pub struct FixBuilder {
     velocity: VelocityEstimator,
     stats: FixStats,
     last_skip: Option<SkipReason>,
+    /// Site calibration applied on push.
+    calibration: Option<Arc<SiteCalibration>>,
 }
 
 impl FixBuilder {
@@ -371,8 +387,35 @@ impl FixBuilder {
             velocity,
             stats: FixStats::default(),
             last_skip: None,
+            calibration: None,
             cfg,
         })
+    }
+
+    /// The builder with a site calibration applied to every measurement
+    /// (see the module doc); `None` removes it.
+    #[must_use]
+    pub fn with_calibration(mut self, calibration: Option<Arc<SiteCalibration>>) -> Self {
+        self.calibration = calibration;
+        self
+    }
+
+    /// The site calibration in use.
+    #[must_use]
+    pub fn calibration(&self) -> Option<&Arc<SiteCalibration>> {
+        self.calibration.as_ref()
+    }
+
+    /// `m` as [`FixBuilder::push`] uses it now: corrected by the site
+    /// calibration at the previous fix (flagged), or unchanged without a
+    /// calibration, when already flagged or when its anchors are not the
+    /// calibration's.
+    #[must_use]
+    pub fn calibrate(&self, m: &UwbTdoa) -> UwbTdoa {
+        match &self.calibration {
+            Some(c) => c.correct(m, self.prev_pos_m.as_ref()),
+            None => *m,
+        }
     }
 
     /// The settings in use.
@@ -411,7 +454,8 @@ impl FixBuilder {
         self.velocity.reset();
     }
 
-    /// Adds one measurement; returns the fix of the epoch it closed, if any.
+    /// Adds one measurement, corrected as [`FixBuilder::calibrate`] says;
+    /// returns the fix of the epoch it closed, if any.
     ///
     /// A measurement can close two groups (the open epoch, being of a later
     /// epoch, and then its own, when flagged [`UwbTdoa::FLAG_EPOCH_END`]), but
@@ -422,6 +466,8 @@ impl FixBuilder {
     /// # Errors
     /// The measurement was dropped (and counted); nothing else changed.
     pub fn push(&mut self, m: &UwbTdoa) -> Result<Option<UwbFix>, PushError> {
+        let corrected = self.calibrate(m);
+        let m = &corrected;
         if let Err(e) = self.check(m) {
             match e {
                 PushError::NonFinite { .. } => self.stats.dropped_non_finite += 1,

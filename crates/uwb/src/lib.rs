@@ -7,10 +7,14 @@
 //! - [`fix`]: [`fix::FixBuilder`] turns [`insuwb_msg::UwbTdoa`] samples into
 //!   [`insuwb_msg::UwbFix`] samples, deterministically.
 //! - [`velocity`]: sliding-window regression velocity and its covariance.
+//! - [`calibration`]: a site calibration of the per-pair TDOA biases,
+//!   learnt from flights with ground truth, applied by the fix builder.
 //!
-//! Pure library code: no I/O, no clock, no global state.
+//! Library code: no clock, no global state; the only I/O is reading and
+//! writing calibration files ([`calibration::SiteCalibration::load`], `save`).
 #![warn(missing_docs)]
 
+pub mod calibration;
 pub mod fix;
 pub mod solve;
 pub mod velocity;

@@ -522,3 +522,61 @@ fn averaged_pairs_use_every_difference_of_the_epoch() {
     let tr = |f: &insuwb_msg::UwbFix| f.pos_cov_m2[0][0] + f.pos_cov_m2[1][1];
     assert!(tr(&averaged) < tr(&last), "{averaged:?} {last:?}");
 }
+
+/// With a site calibration, the builder corrects each measurement by its
+/// pair's bias (the constant before the first fix, then at the previous
+/// fix) and flags it; [`FixBuilder::calibrate`] gives the same measurement
+/// as `push` uses, and a flagged one is not corrected again: the fix of
+/// biased measurements lands where the unbiased ones put it.
+#[test]
+fn a_calibration_removes_the_pair_biases_once() {
+    use insuwb_uwb::calibration::{Family, Sample, SiteCalibration};
+    use std::collections::BTreeMap;
+    use std::sync::Arc;
+    let (stream, anchors) = circle_stream(600, 3);
+    let bias = |a: u32, b: u32| {
+        let s = if a < b { 1.0 } else { -1.0 };
+        s * 0.1 * f64::from(a.min(b) + 2 * a.max(b)) / 7.0
+    };
+    let biased: Vec<UwbTdoa> = stream
+        .iter()
+        .map(|m| UwbTdoa {
+            diff_m: m.diff_m + bias(m.anchor_a, m.anchor_b),
+            ..*m
+        })
+        .collect();
+    let samples: Vec<Sample> = biased
+        .iter()
+        .zip(&stream)
+        .map(|(b, m)| Sample {
+            a: b.anchor_a,
+            b: b.anchor_b,
+            pos_m: [0.0, 0.0, 0.3],
+            residual_m: b.diff_m - m.diff_m,
+        })
+        .collect();
+    let an: BTreeMap<u32, [f64; 3]> = (0u32..).zip(anchors).collect();
+    let calib = Arc::new(SiteCalibration::learn(an, Family::PairConstant, &samples).unwrap());
+    let cfg = cfg_2d(0.3);
+    let mut plain = FixBuilder::new(cfg.clone()).unwrap();
+    let mut cal = FixBuilder::new(cfg.clone())
+        .unwrap()
+        .with_calibration(Some(calib.clone()));
+    let mut twice = FixBuilder::new(cfg).unwrap().with_calibration(Some(calib));
+    let (mut fp, mut fc, mut ft) = (Vec::new(), Vec::new(), Vec::new());
+    for (m, b) in stream.iter().zip(&biased) {
+        fp.extend(plain.push(m).unwrap());
+        let c = cal.calibrate(b);
+        assert_ne!(c.header.flags & UwbTdoa::FLAG_CALIBRATED, 0);
+        assert!((c.diff_m - m.diff_m).abs() < 1e-9);
+        assert_eq!(cal.calibrate(&c), c);
+        fc.extend(cal.push(b).unwrap());
+        ft.extend(twice.push(&c).unwrap());
+    }
+    assert_eq!(fp.len(), fc.len());
+    assert!(!fp.is_empty());
+    for ((p, c), t) in fp.iter().zip(&fc).zip(&ft) {
+        assert!(dist(p.pos_m, c.pos_m) < 1e-6, "{:?} {:?}", p.pos_m, c.pos_m);
+        assert_eq!(c.pos_m, t.pos_m);
+    }
+}

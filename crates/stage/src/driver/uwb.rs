@@ -1,7 +1,10 @@
 //! The UWB driver over a recorded source: publishes `uwb_tdoa` (checked)
 //! and the fixes the fix builder completes on `uwb_fix`, each fix before
 //! the measurement that completed it (the fusion stage relies on that
-//! order).
+//! order). With a site calibration (`[uwb] calibration`) the differences
+//! are corrected before the fix builder uses them and published corrected
+//! and flagged (`UwbTdoa::FLAG_CALIBRATED`): what fusion uses, and what a
+//! log records.
 
 use anyhow::Result;
 use insuwb_msg::{topics, UwbFix, UwbTdoa};
@@ -62,6 +65,8 @@ struct UwbDriver {
     counters: HealthCounters,
     skips_logged: u64,
     skip_logged_at: u64,
+    /// A measurement the calibration could not correct was warned about.
+    calibration_warned: bool,
 }
 
 impl Paced for UwbDriver {
@@ -98,6 +103,20 @@ impl Paced for UwbDriver {
         s.header.meas_time_ns = t_ns;
         s.header.generation = self.generation;
         s.header.source_id = self.source_id;
+        // Corrected by the site calibration (if any), then used and
+        // published so: the fix and the tight filter use the same value.
+        let s = self.fixes.calibrate(&s);
+        if !self.calibration_warned
+            && self.fixes.calibration().is_some()
+            && s.header.flags & UwbTdoa::FLAG_CALIBRATED == 0
+        {
+            self.calibration_warned = true;
+            tracing::warn!(
+                "uwb driver: anchors {} and {} are not those of the site calibration: their differences go uncorrected",
+                s.anchor_a,
+                s.anchor_b
+            );
+        }
         // The fixes this measurement completes go out before it.
         if let Ok(Some(f)) = self.fixes.push(&s) {
             self.fix.publish(f)?;
@@ -154,7 +173,7 @@ pub fn run(cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> R
     )?;
     tracing::info!("{name} driver: source {source_spec}");
     let fcfg = cfg.fusion_config()?;
-    let mut fixes = FixBuilder::new(fcfg.fix.clone())?;
+    let mut fixes = FixBuilder::new(fcfg.fix.clone())?.with_calibration(fcfg.calibration.clone());
     // Samples are stamped `epoch + t`: the fix epochs fall as for `t`.
     fixes.align_to(epoch_ns);
     let mut driver = UwbDriver {
@@ -171,6 +190,7 @@ pub fn run(cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> R
         counters: HealthCounters::default(),
         skips_logged: 0,
         skip_logged_at: 0,
+        calibration_warned: false,
     };
     pacing::run(&stage, name, src, speed, epoch_ns, &mut driver)
 }
