@@ -80,7 +80,6 @@ fn the_multirotor_model_ignores_horizontal_vibration_bias() {
                 header: Header::new(i, i * 1_000_000),
                 accel_mps2: [2.0, -1.5, cfg.ins.ins.gravity_mps2],
                 gyro_rps: [0.0; 3],
-                ..ImuSample::default()
             };
             if let Some(n) = ins.on_imu(&s) {
                 last = Some(n);
