@@ -135,6 +135,10 @@ pub struct TightEstimator {
     /// (m/s), and the newest attitude and velocity.
     acc_dt_s: f64,
     acc_f: [f64; 3],
+    /// How many intervals are accumulated, and the last one's specific
+    /// force (used as it is when it is the only one).
+    acc_n: u32,
+    acc_last_f: [f64; 3],
     acc_quat: [f64; 4],
     acc_vel: [f64; 3],
     /// Pseudo-measurements (drag, velocity constraints) applied and gated out.
@@ -172,6 +176,8 @@ impl TightEstimator {
             ground: None,
             acc_dt_s: 0.0,
             acc_f: [0.0; 3],
+            acc_n: 0,
+            acc_last_f: [0.0; 3],
             acc_quat: [1.0, 0.0, 0.0, 0.0],
             acc_vel: [0.0; 3],
             pseudo_applied: 0,
@@ -229,10 +235,15 @@ impl TightEstimator {
         if dt_s <= 0.0 {
             return;
         }
-        let f = self.acc_f.map(|v| v / dt_s);
+        let f = if self.acc_n == 1 {
+            self.acc_last_f
+        } else {
+            self.acc_f.map(|v| v / dt_s)
+        };
         let (quat, vel) = (self.acc_quat, self.acc_vel);
         self.acc_dt_s = 0.0;
         self.acc_f = [0.0; 3];
+        self.acc_n = 0;
         let max_dt = self.eskf.config().max_dt_s;
         // Split a long interval (an IMU gap) into equal steps the ESKF accepts.
         let n = (dt_s / max_dt).ceil().max(1.0);
@@ -413,6 +424,8 @@ impl Estimator for TightEstimator {
         for (acc, fi) in self.acc_f.iter_mut().zip(f) {
             *acc += fi * dt_s;
         }
+        self.acc_n = self.acc_n.saturating_add(1);
+        self.acc_last_f = f;
         self.acc_quat = nav.quat;
         self.acc_vel = nav.vel_mps;
         if self.acc_dt_s >= self.cfg.predict_period_s {
@@ -494,6 +507,7 @@ impl Estimator for TightEstimator {
     fn reset(&mut self) {
         self.acc_dt_s = 0.0;
         self.acc_f = [0.0; 3];
+        self.acc_n = 0;
         self.eskf.reset();
     }
 
