@@ -161,14 +161,6 @@ fn rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
     ]
 }
 
-fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f64>()
-        .sqrt()
-}
-
 /// The residual of every TDOA difference of the flight segment (truth
 /// height above `eval.min_height_m`): measured minus true difference at
 /// the antenna (truth interpolated to the measurement time, plus the lever
@@ -196,7 +188,8 @@ fn residuals(loaded: &Loaded) -> Vec<Sample> {
         }
         let r = rotate(g.quat, lever);
         let ant = [g.pos_m[0] + r[0], g.pos_m[1] + r[1], g.pos_m[2] + r[2]];
-        let truth = dist(&ant, &m.anchor_b_pos_m) - dist(&ant, &m.anchor_a_pos_m);
+        let truth =
+            insuwb_uwb::calibration::true_difference(&ant, &m.anchor_a_pos_m, &m.anchor_b_pos_m);
         out.push(Sample {
             a: m.anchor_a,
             b: m.anchor_b,

@@ -317,6 +317,13 @@ fn robust_sd(v: &[f64], centre: f64) -> f64 {
     MAD_TO_SD * median_of(&mut d).unwrap_or(0.0)
 }
 
+/// The true TDOA difference `|p - b| - |p - a|` at the antenna position `p`:
+/// what a [`Sample`]'s residual is measured against.
+#[must_use]
+pub fn true_difference(p: &[f64; 3], a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    dist(p, b) - dist(p, a)
+}
+
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     a.iter()
         .zip(b)
