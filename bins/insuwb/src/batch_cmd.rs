@@ -65,15 +65,7 @@ pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
     if let Some(b) = &bar {
         b.finish();
     }
-    let results = results.map_err(|e| {
-        let f = &manifest.flights[e.index];
-        e.error.context(format!(
-            "flight {} ({}, line {})",
-            f.name,
-            manifest.path.display(),
-            f.line
-        ))
-    })?;
+    let results = results.map_err(|e| e.error.context(manifest.flight_label(e.index)))?;
     tracing::info!(
         "evaluated {} flights in {:.2} s on {} thread(s)",
         results.len(),

@@ -251,15 +251,7 @@ fn load_all(a: &CalibrateArgs, manifest: &Manifest, jobs: usize) -> Result<Vec<F
         |i| load_flight(a, &manifest.flights[i]),
         |_, _| {},
     )
-    .map_err(|e| {
-        let f = &manifest.flights[e.index];
-        e.error.context(format!(
-            "flight {} ({}, line {})",
-            f.name,
-            manifest.path.display(),
-            f.line
-        ))
-    })
+    .map_err(|e| e.error.context(manifest.flight_label(e.index)))
 }
 
 /// The constellation of the flights: the first flight's anchors, every
@@ -274,7 +266,7 @@ fn constellation(manifest: &Manifest, flights: &[Flight]) -> Result<BTreeMap<u32
     // A calibration of the first flight's anchors, only to check the others.
     let probe = SiteCalibration::learn(first.anchors.clone(), Family::PairConstant, &first.samples)
         .with_context(|| format!("learning from {}", first.loaded.data.name))?;
-    for (f, m) in flights.iter().zip(&manifest.flights) {
+    for (i, f) in flights.iter().enumerate() {
         probe
             .check_anchors(
                 &f.anchors,
@@ -283,10 +275,8 @@ fn constellation(manifest: &Manifest, flights: &[Flight]) -> Result<BTreeMap<u32
             )
             .with_context(|| {
                 format!(
-                    "flight {} ({}, line {}): not the constellation of the first flight",
-                    m.name,
-                    manifest.path.display(),
-                    m.line
+                    "{}: not the constellation of the first flight",
+                    manifest.flight_label(i)
                 )
             })?;
     }
@@ -451,15 +441,7 @@ fn cross_validate(
         },
         |_, _| {},
     )
-    .map_err(|e| {
-        let f = &manifest.flights[e.index % n];
-        e.error.context(format!(
-            "flight {} ({}, line {})",
-            f.name,
-            manifest.path.display(),
-            f.line
-        ))
-    })?;
+    .map_err(|e| e.error.context(manifest.flight_label(e.index % n)))?;
     let blocks: Vec<&[FlightMetrics]> = results.chunks(n).collect();
     let Some((uncal, cal)) = blocks.split_last() else {
         bail!("nothing evaluated");
@@ -518,13 +500,7 @@ fn format_flights(
 ) -> String {
     use std::fmt::Write as _;
     let keys = keys(cal);
-    let w = manifest
-        .flights
-        .iter()
-        .map(|f| f.name.len())
-        .max()
-        .unwrap_or(0)
-        .max(6);
+    let w = manifest.name_width();
     let mut s = String::new();
     for (c, col) in manifest.references.iter().enumerate() {
         let _ = writeln!(s, "\n{label}: ratio to {col}, calibrated (uncalibrated)");

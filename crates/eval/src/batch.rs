@@ -163,6 +163,33 @@ pub struct Manifest {
 }
 
 impl Manifest {
+    /// `flight NAME (MANIFEST, line N)` for the flight at `index` (its
+    /// position in [`Manifest::flights`]): how errors name a flight.
+    #[must_use]
+    pub fn flight_label(&self, index: usize) -> String {
+        match self.flights.get(index) {
+            Some(f) => format!(
+                "flight {} ({}, line {})",
+                f.name,
+                self.path.display(),
+                f.line
+            ),
+            None => format!("flight {index} ({})", self.path.display()),
+        }
+    }
+
+    /// Width of the flight-name column of a table: the longest name, at
+    /// least 6.
+    #[must_use]
+    pub fn name_width(&self) -> usize {
+        self.flights
+            .iter()
+            .map(|f| f.name.len())
+            .max()
+            .unwrap_or(0)
+            .max(6)
+    }
+
     /// Reads and parses the manifest at `path` and checks that every file it
     /// names exists.
     ///
@@ -591,13 +618,7 @@ pub fn format_flights(
     summary: &[SolutionSummary],
 ) -> String {
     use std::fmt::Write as _;
-    let name_w = manifest
-        .flights
-        .iter()
-        .map(|f| f.name.len())
-        .max()
-        .unwrap_or(0)
-        .max(6);
+    let name_w = manifest.name_width();
     let titles: Vec<String> = summary.iter().map(|s| solution_title(&s.key)).collect();
     let widths: Vec<usize> = titles.iter().map(|t| t.len().max(8)).collect();
     let mut s = String::new();
