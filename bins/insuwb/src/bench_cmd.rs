@@ -26,7 +26,7 @@ use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
 use insuwb_runtime::monotonic_ns;
 
-use crate::group_cmd::{run_group, RunOptions};
+use crate::group_run::{run_group, RunOptions};
 
 /// `insuwb bench` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -37,8 +37,14 @@ pub enum BenchCmd {
     Latency(LatencyArgs),
     /// The fleet's station under N simulated robots at 10 Hz over loopback
     /// (10, 100, 500 by default): its CPU share, the delay of the poses
-    /// from publish to the station, what was dropped.
-    Fleet(crate::bench_fleet::FleetBenchArgs),
+    /// from publish to the station, what was dropped. Runs
+    /// `insuwb-station bench` (`insuwb bench fleet --help` for its options).
+    #[command(disable_help_flag = true)]
+    Fleet {
+        /// The load generator's arguments.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<std::ffi::OsString>,
+    },
 }
 
 /// Arguments of `insuwb bench latency`.
@@ -207,16 +213,12 @@ const START_ALLOWANCE: Duration = Duration::from_secs(3);
 pub fn run(cmd: &BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Latency(a) => latency(a),
-        BenchCmd::Fleet(a) => crate::bench_fleet::fleet(a),
+        BenchCmd::Fleet { args } => {
+            let mut all = vec![std::ffi::OsString::from("bench")];
+            all.extend(args.iter().cloned());
+            crate::beside::exec("insuwb-station", &all)
+        }
     }
-}
-
-fn program_beside(name: &str) -> Result<PathBuf> {
-    let exe = std::env::current_exe().context("locating the insuwb executable")?;
-    let dir = exe
-        .parent()
-        .context("the insuwb executable has no folder")?;
-    Ok(dir.join(name))
 }
 
 /// Shortest and longest share of `--duration` one round of a graph runs, s.
@@ -296,7 +298,7 @@ fn measure(
             if floor_turn {
                 // The floor: bare forwarding processes.
                 let floor = run_floor_graph(&FloorGraphOptions {
-                    program: program_beside("insuwb-bench-floor")?,
+                    program: crate::beside::program("insuwb-bench-floor")?,
                     run_dir: base.join(format!("floor{round}")),
                     prefix: format!("insuwb_bfl{id}r{round}_"),
                     duration,
@@ -443,9 +445,12 @@ fn group_round(
     std::fs::write(&cfg_path, &text)?;
     let cfg = RobotConfig::load(&cfg_path)?;
     let trace_path = run_dir.join("fused_recv.txt");
-    let probe =
-        with_ros2.then(|| PoseProbe::dds(cfg.ros2.clone(), duration + Duration::from_secs(10)));
-    let zprobe = zenoh_endpoint.map(|e| PoseProbe::zenoh(e, duration + Duration::from_secs(10)));
+    let probe = with_ros2
+        .then(|| PoseProbe::dds(&cfg_path, duration + Duration::from_secs(10)))
+        .transpose()?;
+    let zprobe = zenoh_endpoint
+        .map(|e| PoseProbe::zenoh(e, duration + Duration::from_secs(10)))
+        .transpose()?;
     let sampler = spawn_cpu_sampler(
         CPU_FROM,
         duration.saturating_sub(Duration::from_millis(200)),
@@ -584,102 +589,110 @@ fn print_table(what: &str, r: &RunLatency, cpu: &[(String, f64)]) {
     eprintln!("  cpu (one core): {}", cpu.join(", "));
 }
 
-/// A probe of a bridge's poses in this process, on its own thread:
-/// `(stamp, receive time)` of each pose, CLOCK_MONOTONIC ns. The thread ends
-/// when told to or after its bound.
+/// A probe of a bridge's poses from outside the robot: `insuwb-station
+/// probe` (which has the transports this command leaves out), its own
+/// process, printing `(stamp, receive time)` of each pose, CLOCK_MONOTONIC
+/// ns. It stops when its standard input closes or after its bound.
 struct PoseProbe {
     what: &'static str,
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-    handle: std::thread::JoinHandle<Result<Vec<(u64, u64)>>>,
+    child: std::process::Child,
+    reader: std::thread::JoinHandle<Vec<(u64, u64)>>,
 }
 
 impl PoseProbe {
-    /// Runs `body` on its own thread with the stop flag.
-    fn spawn(
-        what: &'static str,
-        body: impl FnOnce(&std::sync::atomic::AtomicBool) -> Result<Vec<(u64, u64)>> + Send + 'static,
-    ) -> Self {
-        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let flag = stop.clone();
-        let handle = std::thread::spawn(move || body(&flag));
-        Self { what, stop, handle }
-    }
-
-    /// A DDS reader of the ROS 2 bridge's odometry.
-    fn dds(ros2: insuwb_ros2::Ros2Config, bound: Duration) -> Self {
-        Self::spawn("DDS reader", move |stop| {
-            use insuwb_ros2::msgs::Odometry;
-            use insuwb_ros2::subscribe::{odometry_qos, Subscriber};
-            let mut sub = Subscriber::<Odometry>::open_with(
-                &ros2,
-                "insuwb_bench_probe",
-                &ros2.odom_topic,
-                &odometry_qos(),
-            )
-            .context("opening the DDS reader of the bridge's odometry")?;
-            let t0 = std::time::Instant::now();
-            let mut out = Vec::new();
-            while !stop.load(std::sync::atomic::Ordering::Relaxed) && t0.elapsed() < bound {
-                let mut next = sub.recv_timeout(Duration::from_millis(20));
-                while let Ok(Some(m)) = next {
-                    let rx = monotonic_ns();
-                    let s = m.header.stamp;
-                    let stamp =
-                        u64::try_from(s.sec).unwrap_or(0) * 1_000_000_000 + u64::from(s.nanosec);
-                    out.push((stamp, rx));
-                    next = sub.try_recv();
-                }
-                if let Err(e) = next {
-                    if !e.is_recoverable() {
-                        return Err(e).context("reading the bridge's odometry");
+    /// Starts `insuwb-station probe ARGS` and waits (at most 30 s) until its
+    /// reader is open.
+    fn spawn(what: &'static str, bound: Duration, args: &[String]) -> Result<Self> {
+        use std::io::{BufRead, BufReader};
+        use std::process::{Command, Stdio};
+        let exe = crate::beside::program("insuwb-station")?;
+        let mut child = Command::new(exe)
+            .arg("probe")
+            .args(args)
+            .args(["--seconds", &format!("{:.1}", bound.as_secs_f64())])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .with_context(|| format!("starting the {what} (insuwb-station probe)"))?;
+        let out = child.stdout.take().context("the probe's standard output")?;
+        let err = child.stderr.take().context("the probe's standard error")?;
+        let reader = std::thread::spawn(move || {
+            BufReader::new(out)
+                .lines()
+                .map_while(std::result::Result::ok)
+                .filter_map(|l| {
+                    let mut it = l.split_whitespace().map(str::parse::<u64>);
+                    match (it.next(), it.next()) {
+                        (Some(Ok(a)), Some(Ok(b))) => Some((a, b)),
+                        _ => None,
                     }
+                })
+                .collect()
+        });
+        // Its first line on standard error is `ready`, or why it failed.
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut first = true;
+            for line in BufReader::new(err)
+                .lines()
+                .map_while(std::result::Result::ok)
+            {
+                if first {
+                    let _ = tx.send(line.clone());
+                    first = false;
+                }
+                if line != "ready" {
+                    eprintln!("insuwb-station probe: {line}");
                 }
             }
-            Ok(out)
-        })
+        });
+        match rx.recv_timeout(Duration::from_secs(30)) {
+            Ok(l) if l == "ready" => Ok(Self {
+                what,
+                child,
+                reader,
+            }),
+            got => {
+                let _ = child.kill();
+                let _ = child.wait();
+                bail!("the {what} did not start: {got:?}")
+            }
+        }
+    }
+
+    /// A DDS reader of the ROS 2 bridge's odometry, with the `[ros2]` of
+    /// the group's config file.
+    fn dds(config: &Path, bound: Duration) -> Result<Self> {
+        Self::spawn(
+            "DDS reader",
+            bound,
+            &["ros2".to_owned(), config.display().to_string()],
+        )
     }
 
     /// A Zenoh subscriber of the Zenoh bridge's poses, listening on
     /// `endpoint` (the bridge connects to it).
-    fn zenoh(endpoint: String, bound: Duration) -> Self {
-        Self::spawn("Zenoh subscriber", move |stop| {
-            use insuwb_zenoh::config::{LinkConfig, Mode};
-            use zenoh::Wait;
-            let link = LinkConfig {
-                mode: Mode::Peer,
-                listen: vec![endpoint],
-                ..LinkConfig::default()
-            };
-            let session = insuwb_zenoh::session::open(&link)
-                .context("opening the Zenoh subscriber of the bridge's poses")?;
-            let key = insuwb_fleet::keys::Key::new(ZENOH_ROBOT, insuwb_fleet::keys::Kind::Pose)?;
-            let sub = session
-                .declare_subscriber(key.to_string())
-                .wait()
-                .map_err(|e| anyhow::anyhow!("subscribing to {key}: {e}"))?;
-            let t0 = std::time::Instant::now();
-            let mut out = Vec::new();
-            while !stop.load(std::sync::atomic::Ordering::Relaxed) && t0.elapsed() < bound {
-                let Ok(Some(sample)) = sub.recv_timeout(Duration::from_millis(20)) else {
-                    continue;
-                };
-                let rx = monotonic_ns();
-                if let Ok(r) = insuwb_zenoh::session::decode_sample(&sample) {
-                    if let insuwb_zenoh::payload::Payload::Pose(p) = r.payload {
-                        out.push((p.sample().stamp_ns, rx));
-                    }
-                }
-            }
-            Ok(out)
-        })
+    fn zenoh(endpoint: String, bound: Duration) -> Result<Self> {
+        Self::spawn(
+            "Zenoh subscriber",
+            bound,
+            &["zenoh".to_owned(), endpoint, ZENOH_ROBOT.to_owned()],
+        )
     }
 
     /// Stops the probe and returns what it received.
-    fn finish(self) -> Result<Vec<(u64, u64)>> {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        self.handle
+    fn finish(mut self) -> Result<Vec<(u64, u64)>> {
+        drop(self.child.stdin.take());
+        let status = self.child.wait()?;
+        let got = self
+            .reader
             .join()
-            .map_err(|_| anyhow::anyhow!("the {} thread panicked", self.what))?
+            .map_err(|_| anyhow::anyhow!("the {} reader thread panicked", self.what))?;
+        if !status.success() {
+            bail!("the {} failed ({status})", self.what);
+        }
+        Ok(got)
     }
 }
 

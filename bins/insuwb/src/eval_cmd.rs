@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use insuwb_eval::metrics::Metrics;
 use insuwb_eval::run::{evaluate, EvalReport};
 use insuwb_eval::scenario::{dataset as scenario_dataset, monte_carlo};
-use insuwb_group::ScenarioFile;
+use insuwb_fusion::scenario::ScenarioFile;
 use insuwb_log::{LogWriter, Metadata, Record};
 use insuwb_msg::FilterKind;
 

@@ -7,13 +7,16 @@
 
 mod batch_cmd;
 mod bench_cmd;
-mod bench_fleet;
+mod beside;
 mod calibrate_cmd;
+mod chaos_cmd;
 mod dataset;
+mod demo_cmd;
 mod emulate_cmd;
 mod eval_cmd;
-mod fleet_cmd;
-mod group_cmd;
+mod group_run;
+mod inspect_cmd;
+mod launch_cmd;
 mod log_cmd;
 mod monitor;
 
@@ -46,11 +49,11 @@ enum Cmd {
     #[command(subcommand)]
     Log(log_cmd::LogCmd),
     /// Start the process group of a robot config and keep it running.
-    Launch(group_cmd::LaunchArgs),
+    Launch(launch_cmd::LaunchArgs),
     /// Run the whole group on simulated sensors, then report accuracy, rates and latency.
-    Demo(group_cmd::DemoArgs),
+    Demo(demo_cmd::DemoArgs),
     /// Run the group on simulated sensors under random SIGKILL/SIGSTOP faults and check recovery.
-    Chaos(group_cmd::ChaosArgs),
+    Chaos(chaos_cmd::ChaosArgs),
     /// Benchmarks: the process pipeline's latency against bare iceoryx2, the fleet's station under load.
     #[command(subcommand)]
     Bench(bench_cmd::BenchCmd),
@@ -58,9 +61,14 @@ enum Cmd {
     #[command(subcommand)]
     Emulate(emulate_cmd::EmulateCmd),
     /// Live per-topic rates, last-sample ages, publishers and subscribers of a running group.
-    Inspect(group_cmd::InspectArgs),
-    /// The fleet's station over Zenoh: every robot's pose, rate, age, status (ok, degraded, stale, lost after 2 s silent) and restarts, live or as JSON snapshots; `fleet record DIR` also records each robot into its own log.
-    Fleet(fleet_cmd::FleetArgs),
+    Inspect(inspect_cmd::InspectArgs),
+    /// The fleet's station over Zenoh: every robot's pose, rate, age, status (ok, degraded, stale, lost after 2 s silent) and restarts, live or as JSON snapshots; `fleet record DIR` also records each robot into its own log. Runs insuwb-station (`insuwb fleet --help` for its options; build it with `cargo build --release -p insuwb-station`).
+    #[command(disable_help_flag = true)]
+    Fleet {
+        /// The station's arguments.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<std::ffi::OsString>,
+    },
 }
 
 #[derive(Debug, Subcommand)]
@@ -71,22 +79,7 @@ enum ImportCmd {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-                tracing_subscriber::EnvFilter::new(insuwb_runtime::DEFAULT_LOG_FILTER)
-            }),
-        )
-        .init();
-    match run(cli) {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    insuwb_runtime::command_main(|| run(cli))
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -97,12 +90,12 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::FitAr(a) => eval_cmd::fit_ar(&a),
         Cmd::Import(ImportCmd::Util(a)) => eval_cmd::import_util(&a),
         Cmd::Log(c) => log_cmd::run(&c),
-        Cmd::Launch(a) => group_cmd::launch(&a),
-        Cmd::Demo(a) => group_cmd::demo(&a),
-        Cmd::Inspect(a) => group_cmd::inspect(&a),
-        Cmd::Chaos(a) => group_cmd::chaos(&a),
+        Cmd::Launch(a) => launch_cmd::launch(&a),
+        Cmd::Demo(a) => demo_cmd::demo(&a),
+        Cmd::Inspect(a) => inspect_cmd::inspect(&a),
+        Cmd::Chaos(a) => chaos_cmd::chaos(&a),
         Cmd::Bench(c) => bench_cmd::run(&c),
         Cmd::Emulate(c) => emulate_cmd::run(&c),
-        Cmd::Fleet(a) => fleet_cmd::run(&a),
+        Cmd::Fleet { args } => beside::exec("insuwb-station", &args),
     }
 }

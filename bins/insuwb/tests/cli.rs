@@ -399,3 +399,30 @@ fn tracks_hold_the_evaluated_errors_at_fix_epochs_and_at_truth_times() {
     assert!(epochs[1] > 5.0 * epochs[0], "{epochs:?}");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+#[test]
+fn a_program_that_is_not_built_is_named_with_the_command_that_builds_it() {
+    // The `insuwb` executable alone, as `cargo build --release` of a part
+    // of the workspace may leave it: no station, no stage beside it.
+    let d = std::env::temp_dir().join(format!("insuwb-alone-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    let alone = d.join("insuwb");
+    std::fs::copy(env!("CARGO_BIN_EXE_insuwb"), &alone).unwrap();
+    for (args, program) in [
+        (
+            &["fleet", "--listen", "tcp/127.0.0.1:7447"][..],
+            "insuwb-station",
+        ),
+        (&["bench", "fleet", "--robots", "1"], "insuwb-station"),
+        (&["demo", "--duration", "1"], "insuwb-stage-"),
+    ] {
+        let out = Command::new(&alone).args(args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains(&format!("cargo build --release -p {program}")),
+            "{args:?}: {stderr}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}

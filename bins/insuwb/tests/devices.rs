@@ -173,7 +173,7 @@ fn emulated_imu_pty_carries_the_scenarios_samples_in_order_and_never_early() {
         0
     );
 
-    let sc = insuwb_group::ScenarioFile::load("nlos-long").unwrap();
+    let sc = insuwb_fusion::scenario::ScenarioFile::load("nlos-long").unwrap();
     let data = sc.simulate(1).unwrap();
     for (k, ((reading, host_ns), s)) in got.iter().zip(&data.imu).enumerate() {
         let Reading::Imu {
@@ -236,7 +236,7 @@ fn emulated_eliko_server_streams_the_scenarios_fixes_after_the_handshake() {
     assert_eq!(got.len(), 60, "{stderr}");
     assert_eq!(decoder.stats().seq_gaps, 0);
 
-    let sc = insuwb_group::ScenarioFile::load("nlos-long").unwrap();
+    let sc = insuwb_fusion::scenario::ScenarioFile::load("nlos-long").unwrap();
     let data = sc.simulate(1).unwrap();
     let fixes =
         insuwb_fusion::runner::run_fixes(&data.tdoa, &sc.fusion_for_seed(1).unwrap()).unwrap();
@@ -283,7 +283,7 @@ fn device_clock_with_100_ppm_drift_maps_within_1_ms() {
     let _ = std::fs::remove_dir_all(&dir);
     assert_eq!(got.len(), 800, "{stderr}");
 
-    let sc = insuwb_group::ScenarioFile::load("nlos-long").unwrap();
+    let sc = insuwb_fusion::scenario::ScenarioFile::load("nlos-long").unwrap();
     let data = sc.simulate(1).unwrap();
     let mut filter: Option<insuwb_devices::ClockFilter> = None;
     let mut worst_ns: u64 = 0;

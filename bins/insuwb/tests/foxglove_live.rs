@@ -325,7 +325,7 @@ fn check(got: &Value, rec: &Recording, group: &str) {
         assert!(close(&nums(&m["innovation"]), &d.innovation[..n], 1e-12));
     }
     // --- the anchors: one entity per configured anchor ---
-    let scenario = insuwb_group::ScenarioFile::load("nlos-long").unwrap();
+    let scenario = insuwb_fusion::scenario::ScenarioFile::load("nlos-long").unwrap();
     let anchors = &scenario.sim.uwb.anchors;
     assert!(!anchors.is_empty());
     let scenes = messages(got, "/insuwb/anchors");

@@ -40,7 +40,7 @@ fn configured_anchors(cfg: &RobotConfig) -> Result<Vec<Anchor>> {
     if cfg.sources.uwb != "sim" {
         return Ok(Vec::new());
     }
-    let sc = insuwb_group::ScenarioFile::load(&cfg.sources.scenario)
+    let sc = insuwb_fusion::scenario::ScenarioFile::load(&cfg.sources.scenario)
         .with_context(|| format!("reading the anchors of scenario {}", cfg.sources.scenario))?;
     Ok(sc
         .sim

@@ -17,7 +17,7 @@ use insuwb_fusion::ins_engine::InsEngine;
 use insuwb_msg::FilterKind;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let sc = insuwb_group::ScenarioFile::load("nlos-long")?;
+    let sc = insuwb_fusion::scenario::ScenarioFile::load("nlos-long")?;
     let mut cfg = sc.fusion_for_seed(1)?;
     cfg.engine.eager_lag_s = std::env::args().nth(1).and_then(|a| a.parse().ok());
     let sim = insuwb_sim::simulate(&sc.sim, 1)?;

@@ -1,7 +1,7 @@
 //! Simulated datasets from a scenario file and Monte-Carlo evaluation over
 //! seeds.
 
-use insuwb_group::{ScenarioError, ScenarioFile};
+use insuwb_fusion::scenario::{ScenarioError, ScenarioFile};
 use insuwb_msg::FilterKind;
 
 use crate::metrics::{mean_of, Metrics};

@@ -7,7 +7,7 @@
 
 use insuwb_fusion::config::{build_estimator, FusionConfig};
 use insuwb_fusion::runner::{self, merged, Runner, Ties};
-use insuwb_group::ScenarioFile;
+use insuwb_fusion::scenario::ScenarioFile;
 use insuwb_msg::{FilterKind, FusedState};
 
 /// The lockstep runner fed in real-time arrival order: at equal times the

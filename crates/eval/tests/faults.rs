@@ -5,7 +5,7 @@
 
 use insuwb_eval::metrics::TruthTrack;
 use insuwb_fusion::runner::{self, RunOutput};
-use insuwb_group::ScenarioFile;
+use insuwb_fusion::scenario::ScenarioFile;
 use insuwb_msg::{FilterDiag, FilterKind, FusedState};
 
 struct Run {

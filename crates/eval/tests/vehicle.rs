@@ -4,7 +4,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use insuwb_fusion::runner;
-use insuwb_group::ScenarioFile;
+use insuwb_fusion::scenario::ScenarioFile;
 use insuwb_msg::{FilterKind, FusedState};
 use insuwb_nav::vehicle::VehicleKind;
 

@@ -16,7 +16,7 @@
 
 use std::net::SocketAddr;
 
-use insuwb_ros2::convert::StampClock;
+use insuwb_report::clock::StampClock;
 use serde::{Deserialize, Serialize};
 
 /// The default address of the WebSocket server (loopback only).

@@ -17,7 +17,8 @@
 //!   [`HEALTH_SCHEMA`]): every number is a plottable field.
 //!
 //! ```
-//! use insuwb_foxglove::convert::{fused_pose, ClockOffset};
+//! use insuwb_foxglove::convert::fused_pose;
+//! use insuwb_report::clock::ClockOffset;
 //! use insuwb_msg::{FusedState, Header};
 //! let s = FusedState { header: Header::new(0, 5_000_000_001), pos_m: [1.0, 2.0, 3.0], quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
 //! let p = fused_pose(&s, "map", &ClockOffset::ZERO).unwrap();
@@ -34,9 +35,10 @@ use foxglove::messages::{
     Vector3,
 };
 use insuwb_msg::{name_str, FilterDiag, FilterKind, FusedState, GroundTruth, Health, UwbFix};
+use insuwb_report::clock::ClockOffset;
+use insuwb_report::health::StageCondition;
+use insuwb_report::health::StageSeen;
 use insuwb_ros2::convert::{check_finite, unit_quaternion_xyzw, ConvertError as SampleError};
-pub use insuwb_ros2::convert::{ClockOffset, StageSeen, StampClock};
-use insuwb_ros2::health::StageCondition;
 use serde::Serialize;
 
 /// A sample that cannot become a Foxglove message.

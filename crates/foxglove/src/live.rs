@@ -22,7 +22,7 @@
 //! made before the server starts, so that each client gets them all in its
 //! first advertisement. Timestamps and log times: see [`crate::convert`].
 //!
-//! The loop ([`insuwb_ros2::report_loop`], the ROS 2 bridge's) sleeps in
+//! The loop ([`insuwb_report::report_loop`], the ROS 2 bridge's) sleeps in
 //! the stage's `Waiter`: it wakes for each fused state, drains every other
 //! topic then (or [`DRAIN_PERIOD_NS`] after the last drain while no fused
 //! state comes), and beats on `health`. Logging a message never blocks the loop: the
@@ -49,11 +49,12 @@ use insuwb_runtime::{
 use serde::Serialize;
 
 use crate::config::{FoxgloveConfig, FoxgloveConfigError, TOPICS};
-use crate::convert::{self, Anchor, ClockOffset, ConvertError, HealthJson, Path, TruthTrack};
-use insuwb_ros2::health::GroupSeen;
-use insuwb_ros2::report_loop::{ReportLoop, ReportOutputs};
+use crate::convert::{self, Anchor, ConvertError, HealthJson, Path, TruthTrack};
+use insuwb_report::clock::ClockOffset;
+use insuwb_report::health::GroupSeen;
+use insuwb_report::report_loop::{ReportLoop, ReportOutputs};
 
-pub use insuwb_ros2::report_loop::DRAIN_PERIOD_NS;
+pub use insuwb_report::report_loop::DRAIN_PERIOD_NS;
 
 /// Truth samples kept for the position error (20 s at 100 Hz).
 const TRUTH_KEPT: usize = 2000;
@@ -108,7 +109,7 @@ pub enum LiveOpenError {
 
 /// The loop ended with an error (the report loop's, shared by the
 /// stages it runs).
-pub use insuwb_ros2::report_loop::ReportLoopError as LiveRunError;
+pub use insuwb_report::report_loop::ReportLoopError as LiveRunError;
 
 /// What the live view logged, for the line at its end.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -19,6 +19,9 @@
 //!   processes are (`insuwb eval`);
 //! - [`vibration`]: the vibration the IMU measures as process noise for
 //!   every filter;
+//! - [`scenario`]: the scenario file, what to simulate and how to fuse it
+//!   (`config/scenarios/`), read by `eval`, the `sim` sources and the
+//!   emulators;
 //! - [`vehicle`]: the vehicle model (free, multirotor, ground) of the INS
 //!   and the filters, and the measurements it yields.
 #![warn(missing_docs)]
@@ -29,6 +32,7 @@ pub mod estimator;
 pub mod ins_engine;
 pub mod output;
 pub mod runner;
+pub mod scenario;
 pub mod tight;
 pub mod vehicle;
 pub mod vibration;

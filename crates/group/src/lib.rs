@@ -1,9 +1,7 @@
 //! What a process group runs, shared by the stages, the launcher, `eval`
 //! and the emulators: the robot group configuration ([`robot`]:
 //! `config/robot.toml`, the one file every stage and the launcher read),
-//! the scenario file ([`scenario`]), i.e. what the `sim`
-//! sources simulate and the `[fusion]` settings that go with it, and what
-//! emulated devices play ([`recording`]: a scenario or a log as the IMU
+//! what emulated devices play ([`recording`]: a scenario or a log as the IMU
 //! samples and UWB fixes real devices would have measured), and the launch
 //! loop every group runs through ([`launch`]: supervision, watching, fault
 //! injection and the stop order).
@@ -12,6 +10,3 @@
 pub mod launch;
 pub mod recording;
 pub mod robot;
-pub mod scenario;
-
-pub use scenario::{fusion_table, ScenarioError, ScenarioFile};

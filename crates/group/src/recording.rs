@@ -54,7 +54,7 @@ pub enum LoadError {
         /// The name or file given.
         name: String,
         /// What went wrong.
-        error: crate::ScenarioError,
+        error: insuwb_fusion::scenario::ScenarioError,
     },
     /// The log could not be read.
     #[error("{path}: {message}")]
@@ -100,7 +100,7 @@ pub fn from_scenario(name: &str, seed: u64) -> Result<Recording, LoadError> {
         name: name.to_owned(),
         error: source,
     };
-    let sc = crate::ScenarioFile::load(name).map_err(scenario_err)?;
+    let sc = insuwb_fusion::scenario::ScenarioFile::load(name).map_err(scenario_err)?;
     let fusion = sc.fusion_for_seed(seed).map_err(scenario_err)?;
     let data = sc.simulate(seed).map_err(scenario_err)?;
     let fixes = fixes_from_tdoa(&data.tdoa, &fusion.fix)?;
@@ -128,7 +128,7 @@ pub fn from_log(path: &Path) -> Result<Recording, LoadError> {
     }
     let fix_cfg = match header.meta.entries.get("fusion_config") {
         Some(text) => {
-            crate::fusion_table(text, &path.display().to_string())
+            insuwb_fusion::scenario::fusion_table(text, &path.display().to_string())
                 .map_err(|e| log_err(e.to_string()))?
                 .fix
         }
@@ -192,7 +192,7 @@ mod tests {
     #[test]
     fn scenario_fixes_are_what_the_driver_computes() {
         let rec = from_scenario("nlos-long", 1).unwrap();
-        let sc = crate::ScenarioFile::load("nlos-long").unwrap();
+        let sc = insuwb_fusion::scenario::ScenarioFile::load("nlos-long").unwrap();
         let data = sc.simulate(1).unwrap();
         let cfg = sc.fusion_for_seed(1).unwrap();
         let expected = insuwb_fusion::runner::run_fixes(&data.tdoa, &cfg).unwrap();

@@ -15,7 +15,7 @@ use insuwb_msg::{FilterKind, StageRole};
 use insuwb_runtime::realtime::RealtimeConfig;
 use serde::{Deserialize, Serialize};
 
-use crate::scenario::{fusion_table, ScenarioError, ScenarioFile};
+use insuwb_fusion::scenario::{fusion_table, ScenarioError, ScenarioFile};
 
 /// Why a robot config could not be loaded, or its fusion settings read.
 #[derive(Debug, thiserror::Error)]

@@ -50,7 +50,9 @@ use insuwb_log::{
     HeaderError, LogReader, OpenError, ReadError, ReadSegmentsError, Record, TailReason, TailReport,
 };
 use insuwb_msg::{name_str, topics, StageRole};
-use insuwb_ros2::convert::{self, ClockOffset, ConvertError, Frames, StageSeen};
+use insuwb_report::clock::ClockOffset;
+use insuwb_report::health::StageSeen;
+use insuwb_ros2::convert::{self, ConvertError, Frames, RosStamp};
 use insuwb_ros2::msgs::{DiagnosticArray, Header, RosMessage, TfMessage, Time};
 
 /// MCAP topic of `fused` as `nav_msgs/msg/Odometry`.

@@ -24,7 +24,8 @@
 
 pub mod qos;
 
-use iceoryx2::prelude::ZeroCopySend;
+use iceoryx2_bb_derive_macros::ZeroCopySend;
+use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
 /// Version of every sample layout in this crate (and of the log format's records).

@@ -37,14 +37,15 @@ use ros2_client::{
 };
 
 use crate::config::{Ros2Config, Ros2ConfigError};
-use crate::convert::{self, ClockOffset, ConvertError, Frames};
-use crate::health::GroupSeen;
+use crate::convert::{self, ConvertError, Frames, RosStamp};
 use crate::msgs::{
     DiagnosticArray, Header, Imu, Odometry, RosMessage, TfMessage, TransformStamped,
 };
-use crate::report_loop::{ReportLoop, ReportOutputs};
+use insuwb_report::clock::ClockOffset;
+use insuwb_report::health::GroupSeen;
+use insuwb_report::report_loop::{ReportLoop, ReportOutputs};
 
-pub use crate::report_loop::DRAIN_PERIOD_NS;
+pub use insuwb_report::report_loop::DRAIN_PERIOD_NS;
 
 /// What the bridge needs besides `[ros2]`.
 #[derive(Debug, Clone)]
@@ -88,7 +89,7 @@ pub enum BridgeOpenError {
 
 /// The loop ended with an error (the report loop's, shared by the
 /// stages it runs).
-pub use crate::report_loop::ReportLoopError as BridgeRunError;
+pub use insuwb_report::report_loop::ReportLoopError as BridgeRunError;
 
 /// What the bridge published, for the log line at its end.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

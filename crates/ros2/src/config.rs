@@ -15,7 +15,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::convert::StampClock;
+use insuwb_report::clock::StampClock;
 
 /// `[ros2]`: the ROS 2 bridge stage (`insuwb-stage-ros2`, run when `stages`
 /// lists `ros2`).

@@ -3,9 +3,10 @@
 //!
 //! - Stamps: insuwb headers hold CLOCK_MONOTONIC ns; ROS nodes stamp with
 //!   the system clock (CLOCK_REALTIME, ROS time without simulation). A
-//!   [`ClockOffset`] maps one to the other by an offset measured at start
-//!   and again at each diagnostics period ([`StampClock::Realtime`], the
-//!   default), or keeps the monotonic value ([`StampClock::Monotonic`]).
+//!   [`ClockOffset`] (`insuwb_report::clock`) maps one to the other by an
+//!   offset measured at start and again at each diagnostics period
+//!   (`StampClock::Realtime`, the default), or keeps the monotonic value
+//!   (`StampClock::Monotonic`); [`RosStamp`] makes the ROS time of it.
 //! - Frames: the pose is in `frame_id` (ENU, `map`), the twist in
 //!   `child_frame_id` (the body, FLU `base_link`), as `nav_msgs/Odometry`
 //!   says: the ENU velocity is rotated into the body frame, with its
@@ -25,7 +26,8 @@
 //!
 //! ```
 //! use insuwb_msg::{FusedState, Header};
-//! use insuwb_ros2::convert::{fused_to_odometry, ClockOffset, Frames};
+//! use insuwb_report::clock::ClockOffset;
+//! use insuwb_ros2::convert::{fused_to_odometry, Frames, RosStamp};
 //! let mut s = FusedState { header: Header::new(0, 5_000_000_001), quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
 //! s.pos_m = [1.0, 2.0, 3.0];
 //! let odom = fused_to_odometry(&s, &Frames::default(), &ClockOffset::ZERO).unwrap();
@@ -35,14 +37,13 @@
 //! ```
 
 use insuwb_msg::{name_str, FusedState, ImuSample};
-use serde::{Deserialize, Serialize};
 
-use crate::health::StageCondition;
-pub use crate::health::StageSeen;
 use crate::msgs::{
     Cov6, DiagnosticStatus, Header, Imu, KeyValue, Odometry, Point, Pose, PoseWithCovariance,
     Quaternion, Time, Transform, TransformStamped, Twist, TwistWithCovariance, Vector3,
 };
+use insuwb_report::clock::ClockOffset;
+use insuwb_report::health::{StageCondition, StageSeen};
 
 /// Variance of the pose and twist entries `FusedState` does not estimate
 /// (attitude, angular rate): large, so that any consumer ignores them.
@@ -64,60 +65,19 @@ pub enum ConvertError {
     StampOutOfRange(i128),
 }
 
-/// The clock of the stamps (`[ros2] stamp_clock`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum StampClock {
-    /// CLOCK_REALTIME (ROS system time): header time plus the offset
-    /// between the clocks.
-    #[default]
-    Realtime,
-    /// CLOCK_MONOTONIC, as in the insuwb headers (seconds since boot).
-    Monotonic,
-}
-
-/// The offset from CLOCK_MONOTONIC to the stamp clock, ns.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ClockOffset {
-    /// Stamp minus CLOCK_MONOTONIC, ns.
-    pub offset_ns: i64,
-}
-
-impl ClockOffset {
-    /// No offset (monotonic stamps).
-    pub const ZERO: Self = Self { offset_ns: 0 };
-
-    /// The offset of `clock` now: for the real-time clock, the reading of
-    /// CLOCK_REALTIME between the two closest of 5 pairs of
-    /// CLOCK_MONOTONIC readings.
-    #[must_use]
-    pub fn measure(clock: StampClock) -> Self {
-        match clock {
-            StampClock::Monotonic => Self::ZERO,
-            StampClock::Realtime => {
-                let mut best = (u64::MAX, 0i64);
-                for _ in 0..5 {
-                    let m1 = insuwb_runtime::monotonic_ns();
-                    let r = realtime_ns();
-                    let m2 = insuwb_runtime::monotonic_ns();
-                    let width = m2.saturating_sub(m1);
-                    if width < best.0 {
-                        let mid = i128::from(m1) + i128::from(width / 2);
-                        let off = i128::from(r) - mid;
-                        best = (width, i64::try_from(off).unwrap_or(0));
-                    }
-                }
-                Self { offset_ns: best.1 }
-            }
-        }
-    }
-
+/// A CLOCK_MONOTONIC time as a ROS `builtin_interfaces/Time` on a
+/// [`ClockOffset`]'s clock.
+pub trait RosStamp {
     /// The stamp of a CLOCK_MONOTONIC time.
     ///
     /// # Errors
     /// [`ConvertError::StampOutOfRange`] when it does not fit.
-    pub fn stamp(&self, monotonic_ns: u64) -> Result<Time, ConvertError> {
-        let t = i128::from(monotonic_ns) + i128::from(self.offset_ns);
+    fn stamp(&self, monotonic_ns: u64) -> Result<Time, ConvertError>;
+}
+
+impl RosStamp for ClockOffset {
+    fn stamp(&self, monotonic_ns: u64) -> Result<Time, ConvertError> {
+        let t = self.stamp_ns(monotonic_ns);
         let sec = t.div_euclid(1_000_000_000);
         let nanosec = t.rem_euclid(1_000_000_000);
         match (i32::try_from(sec), u32::try_from(nanosec)) {
@@ -125,13 +85,6 @@ impl ClockOffset {
             _ => Err(ConvertError::StampOutOfRange(t)),
         }
     }
-}
-
-/// CLOCK_REALTIME now, ns since 1970 (0 when the clock is before 1970).
-fn realtime_ns() -> i64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
 }
 
 /// The frame ids of the messages (from `[ros2]`).
@@ -787,19 +740,6 @@ mod tests {
             offset_ns: -20_000_000_000,
         };
         assert!(before.stamp(1).is_err());
-    }
-
-    #[test]
-    fn realtime_offset_maps_now_to_now() {
-        let off = ClockOffset::measure(StampClock::Realtime);
-        let t = off.stamp(insuwb_runtime::monotonic_ns()).unwrap();
-        let real = realtime_ns();
-        let stamp = i64::from(t.sec) * 1_000_000_000 + i64::from(t.nanosec);
-        assert!((real - stamp).abs() < 50_000_000, "{real} vs {stamp}");
-        assert_eq!(
-            ClockOffset::measure(StampClock::Monotonic),
-            ClockOffset::ZERO
-        );
     }
 
     #[test]

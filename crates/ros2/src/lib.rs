@@ -8,10 +8,6 @@
 //! - [`convert`]: pure conversions from insuwb samples (stamps, frames,
 //!   covariance layout, quaternion order, diagnostics levels);
 //! - [`config`]: the `[ros2]` table of the robot config;
-//! - [`health`]: the group's health from the stages' heartbeats (shared
-//!   with the Foxglove live view);
-//! - [`report_loop`]: the loop of a stage that reports on the group (the
-//!   bridge's and the Foxglove live view's);
 //! - `bridge` (feature `dds`, on by default through `jazzy`): the stage's
 //!   loop, iceoryx2 in, DDS out through `ros2-client` (RustDDS). Feature
 //!   `humble` (without the default features) builds it for ROS 2 Humble.
@@ -20,7 +16,8 @@
 //!
 //! ```
 //! use insuwb_msg::{FusedState, Header};
-//! use insuwb_ros2::convert::{fused_to_odometry, ClockOffset, Frames};
+//! use insuwb_report::clock::ClockOffset;
+//! use insuwb_ros2::convert::{fused_to_odometry, Frames};
 //! use insuwb_ros2::msgs::{Odometry, RosMessage};
 //! let s = FusedState { header: Header::new(0, 1_000_000_000), quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
 //! let odom = fused_to_odometry(&s, &Frames::default(), &ClockOffset::ZERO).unwrap();
@@ -34,9 +31,7 @@ pub mod bridge;
 pub mod cdr;
 pub mod config;
 pub mod convert;
-pub mod health;
 pub mod msgs;
-pub mod report_loop;
 #[cfg(feature = "dds")]
 pub mod subscribe;
 

@@ -107,7 +107,7 @@ macro_rules! ros_message {
 }
 
 /// `builtin_interfaces/Time`: seconds and nanoseconds (see
-/// [`crate::convert::StampClock`] for the clock).
+/// [`insuwb_report::clock::StampClock`] for the clock).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Time {
     /// Seconds.

@@ -199,6 +199,30 @@ pub fn stage_main<E: std::fmt::Display>(
     }
 }
 
+/// The `main` of a command (`insuwb`, `insuwb-station`) once its
+/// arguments are parsed: logging on standard error with the filter of
+/// `RUST_LOG` (else [`DEFAULT_LOG_FILTER`]), then `run`; an error is
+/// written as `error: ` and its causes, and gives the exit status 1.
+pub fn command_main<E: std::fmt::Display>(
+    run: impl FnOnce() -> Result<(), E>,
+) -> std::process::ExitCode {
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER)),
+        )
+        .try_init();
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
 /// Event formatter writing `[stage] ` before the default format.
 struct StagePrefixed<F> {
     stage: String,

@@ -2,8 +2,9 @@
 //! ROS (`sources.imu = "ros2:/TOPIC"`): `sensor_msgs/Imu` in over DDS
 //! (`insuwb_ros2::subscribe`, node `<[ros2] node_name>_imu_in` in the
 //! `[ros2]` namespace and domain, best-effort QoS), [`ImuSample`] out on
-//! topic `imu`. The DDS part needs the cargo feature `ros2-source` (on in
-//! `insuwb-stage-imu` by default); without it [`run`] refuses the source
+//! topic `imu`. The DDS part needs the cargo feature `ros2-source` (on when
+//! the workspace is built with the ROS 2 bridge, or with
+//! `-p insuwb-stage-imu --features jazzy`); without it [`run`] refuses the source
 //! with [`Ros2SourceError::NotBuilt`].
 //!
 //! # Samples
@@ -49,13 +50,14 @@
 //! loop, which allocates nothing per sample).
 
 use insuwb_msg::{Health, ImuSample};
+use insuwb_report::clock::ClockOffset;
 use insuwb_ros2::config::{check_topic_name, Ros2Config, TopicNameError};
-use insuwb_ros2::convert::{ros_to_imu_sample, ClockOffset, ImuTimeSource};
+use insuwb_ros2::convert::{ros_to_imu_sample, ImuTimeSource};
 use insuwb_ros2::msgs::Imu;
 
 use crate::device::SILENT_NS;
-use crate::driver::imu_ok;
 use insuwb_group::robot::RobotConfig;
+use insuwb_msg::check::imu_values;
 
 /// The prefix of a ROS 2 source: `ros2:/TOPIC`.
 pub const SOURCE_PREFIX: &str = "ros2:";
@@ -74,7 +76,7 @@ pub const ROS2_SOURCE_EXTRA: [&str; 4] = [
 pub enum Ros2SourceError {
     /// This build has no DDS subscriber (feature `ros2-source` off).
     #[error(
-        "Ros2SourceError::NotBuilt: sources.imu = \"{spec}\": this IMU stage was built without the ROS 2 source (cargo feature `ros2-source` of insuwb-stage, on by default in insuwb-stage-imu)"
+        "Ros2SourceError::NotBuilt: sources.imu = \"{spec}\": this IMU stage was built without the ROS 2 source (cargo feature `ros2-source` of insuwb-stage): build it with `cargo build --release --workspace` (with the ROS 2 bridge) or `cargo build --release -p insuwb-stage-imu --features jazzy`"
     )]
     NotBuilt {
         /// The source as given.
@@ -177,7 +179,7 @@ impl Intake {
         if source == ImuTimeSource::Receive {
             self.counts.receive_timed += 1;
         }
-        if !imu_ok(&s) {
+        if imu_values(&s).is_err() {
             self.counts.invalid += 1;
             return None;
         }

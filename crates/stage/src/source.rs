@@ -152,7 +152,7 @@ impl Source for Recorded {
 pub fn open(spec: &str, scenario: &str, seed: u64, want: Want) -> Result<Recorded> {
     let mut items = Vec::new();
     if spec == "sim" {
-        let sc = insuwb_group::ScenarioFile::load(scenario)?;
+        let sc = insuwb_fusion::scenario::ScenarioFile::load(scenario)?;
         let out = insuwb_sim::simulate(&sc.sim, seed).context("simulating the scenario")?;
         match want {
             Want::Imu => {

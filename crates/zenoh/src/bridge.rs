@@ -9,7 +9,7 @@
 //! | `insuwb/<robot>/fix` | JSON | each UWB fix (`publish_fixes`) |
 //! | `insuwb/<robot>/diag` | JSON | each filter update (`publish_diag`) |
 //!
-//! The loop ([`insuwb_ros2::report_loop`], the ROS 2 bridge's and the
+//! The loop ([`insuwb_report::report_loop`], the ROS 2 bridge's and the
 //! Foxglove live view's) sleeps in the stage's `Waiter`: it wakes for each
 //! fused state, drains the other topics then (or [`DRAIN_PERIOD_NS`] after
 //! the last drain while no fused state comes), publishes the health on its
@@ -29,9 +29,9 @@
 
 use insuwb_fleet::keys::Kind;
 use insuwb_msg::{topics, FilterDiag, FusedState, Health, UwbFix};
-use insuwb_ros2::convert::ClockOffset;
-use insuwb_ros2::health::GroupSeen;
-use insuwb_ros2::report_loop::{ReportLoop, ReportOutputs};
+use insuwb_report::clock::ClockOffset;
+use insuwb_report::health::GroupSeen;
+use insuwb_report::report_loop::{ReportLoop, ReportOutputs};
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
 };
@@ -43,7 +43,7 @@ use crate::config::{ZenohConfig, ZenohConfigError};
 use crate::payload::{self, DiagPayload, EncodeError, FixPayload, HealthPayload, Meta};
 use crate::session::{self, SessionError};
 
-pub use insuwb_ros2::report_loop::DRAIN_PERIOD_NS;
+pub use insuwb_report::report_loop::DRAIN_PERIOD_NS;
 
 /// What the bridge needs besides `[zenoh]`.
 #[derive(Debug, Clone)]
@@ -83,7 +83,7 @@ pub enum BridgeOpenError {
 
 /// The loop ended with an error (the report loop's, shared by the
 /// stages it runs).
-pub use insuwb_ros2::report_loop::ReportLoopError as BridgeRunError;
+pub use insuwb_report::report_loop::ReportLoopError as BridgeRunError;
 
 /// What the bridge published, for the log line at its end.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

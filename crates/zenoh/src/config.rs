@@ -24,7 +24,7 @@
 use std::path::{Path, PathBuf};
 
 use insuwb_fleet::keys::{check_robot_id, Key, Kind};
-use insuwb_ros2::convert::StampClock;
+use insuwb_report::clock::StampClock;
 use serde::{Deserialize, Serialize};
 
 /// The protocols an endpoint may name (the transports the crate builds).

@@ -34,7 +34,7 @@ use insuwb_fleet::delivery::DelayHistogram;
 use insuwb_fleet::keys::{Key, Kind};
 use insuwb_fleet::station::StageState;
 use insuwb_msg::{FusedState, Header, StageRole};
-use insuwb_ros2::convert::ClockOffset;
+use insuwb_report::clock::ClockOffset;
 use insuwb_runtime::monotonic_ns;
 use serde::Serialize;
 use zenoh::pubsub::Publisher;

@@ -19,7 +19,7 @@
 //! ```
 //! use insuwb_fleet::keys::Kind;
 //! use insuwb_msg::{FusedState, Header};
-//! use insuwb_ros2::convert::ClockOffset;
+//! use insuwb_report::clock::ClockOffset;
 //! use insuwb_zenoh::payload::{self, Payload};
 //! let mut s = FusedState { header: Header::new(7, 2_000_000_000), quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
 //! s.pos_m = [1.0, 2.0, 0.5];
@@ -36,9 +36,10 @@
 use insuwb_fleet::keys::{Key, KeyError, Kind};
 use insuwb_fleet::station::{HealthSample, PoseSample, StageHealth, StageState};
 use insuwb_msg::{FilterDiag, FilterKind, FusedState, UwbFix};
+use insuwb_report::clock::ClockOffset;
+use insuwb_report::health::{GroupSeen, StageCondition};
 use insuwb_ros2::cdr;
-use insuwb_ros2::convert::{self, ClockOffset, ConvertError, Frames};
-use insuwb_ros2::health::{GroupSeen, StageCondition};
+use insuwb_ros2::convert::{self, ConvertError, Frames, RosStamp};
 use insuwb_ros2::msgs::{Odometry, RosMessage, Time};
 use serde::{Deserialize, Serialize};
 
@@ -310,7 +311,7 @@ impl StagePayload {
     #[must_use]
     pub fn of(
         name: &str,
-        seen: Option<&insuwb_ros2::health::StageSeen>,
+        seen: Option<&insuwb_report::health::StageSeen>,
         coasting: bool,
         now_ns: u64,
         stale_after_ns: u64,

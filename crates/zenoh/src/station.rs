@@ -49,7 +49,7 @@ use insuwb_fleet::station::StageState;
 use insuwb_fleet::station::{Event, Station, StationConfig, StationConfigError};
 use insuwb_fleet::view::Snapshot;
 use insuwb_msg::{fixed_name, FusedState, Header, Health};
-use insuwb_ros2::convert::{ClockOffset, StampClock};
+use insuwb_report::clock::{ClockOffset, StampClock};
 use insuwb_runtime::monotonic_ns;
 use serde::{Deserialize, Serialize};
 use zenoh::pubsub::Subscriber;

@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use insuwb_fleet::keys::Kind;
 use insuwb_msg::{FusedState, Header};
-use insuwb_ros2::convert::ClockOffset;
+use insuwb_report::clock::ClockOffset;
 use insuwb_zenoh::config::{LinkConfig, Mode, TlsConfig};
 use insuwb_zenoh::payload::{self, Meta, Payload};
 use insuwb_zenoh::session;

@@ -2,8 +2,8 @@
 //! robots at 10 Hz over loopback, for each N asked (10, 100, 500 by
 //! default).
 //!
-//! For each N: a station (`insuwb fleet --listen tcp/127.0.0.1:PORT --json
-//! --stamp-clock monotonic`, this executable, its own process) on a free
+//! For each N: a station (`insuwb-station --listen tcp/127.0.0.1:PORT
+//! --json --stamp-clock monotonic`, this executable, its own process) on a free
 //! port; the load generator (`insuwb_zenoh::loadgen`: a Zenoh session per
 //! robot, connected to the station, each robot's poses spread over the
 //! period, a health report a second) in this process, which first waits
@@ -99,11 +99,11 @@ struct StationProc {
 
 impl StationProc {
     fn start(endpoint: &str, log: PathBuf) -> Result<Self> {
-        let exe = std::env::current_exe().context("locating the insuwb executable")?;
+        let exe = std::env::current_exe().context("locating the insuwb-station executable")?;
         let err = std::fs::File::create(&log)
             .with_context(|| format!("{}: cannot create", log.display()))?;
         let mut child = Command::new(exe)
-            .args(["fleet", "--listen", endpoint, "--json", "--period", "1"])
+            .args(["--listen", endpoint, "--json", "--period", "1"])
             .args(["--stamp-clock", "monotonic", "--name", "bench"])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())

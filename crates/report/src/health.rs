@@ -6,7 +6,7 @@
 //!
 //! ```
 //! use insuwb_msg::{fixed_name, Header, Health};
-//! use insuwb_ros2::health::{GroupSeen, StageCondition};
+//! use insuwb_report::health::{GroupSeen, StageCondition};
 //! let mut group = GroupSeen::new(&["imu".to_owned(), "fusion".to_owned()]);
 //! let h = Health { header: Header::new(0, 1_000), stage: fixed_name("imu"), ..Health::default() };
 //! group.note_heartbeat(h, 2_000);

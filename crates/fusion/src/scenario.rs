@@ -1,7 +1,7 @@
 //! Scenario files: the simulator's `[sim]` table and the `[fusion]` settings
 //! of the run, built in by name (`config/scenarios/`) or read from a file.
 
-use insuwb_fusion::config::FusionConfig;
+use crate::config::FusionConfig;
 use insuwb_sim::Scenario;
 use serde::{Deserialize, Serialize};
 

@@ -17,7 +17,7 @@ use insuwb_runtime::{
     WaitError, Wake,
 };
 
-use crate::convert::{ClockOffset, StampClock};
+use crate::clock::{ClockOffset, StampClock};
 use crate::health::GroupSeen;
 
 /// Longest time the other inputs wait undrained while no fused state wakes

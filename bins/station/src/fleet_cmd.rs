@@ -13,7 +13,7 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use insuwb_fleet::record::{FleetRecorder, RecordSettings};
 use insuwb_fleet::view::{render_table, Snapshot};
-use insuwb_ros2::convert::StampClock;
+use insuwb_report::clock::StampClock;
 use insuwb_zenoh::config::Mode;
 use insuwb_zenoh::station::{FleetStation, RunOptions, StationSettings};
 
@@ -32,6 +32,10 @@ pub struct FleetArgs {
 /// `insuwb fleet` subcommands.
 #[derive(Debug, clap::Subcommand)]
 pub enum FleetCmd {
+    /// The station under the load of N simulated robots at 10 Hz over loopback (`insuwb bench fleet`).
+    Bench(crate::bench_fleet::FleetBenchArgs),
+    /// Listen to a bridge's poses from outside the robot and print `stamp_ns rx_ns` per pose until standard input closes (the pose probe of `insuwb bench latency --with ros2|zenoh`).
+    Probe(crate::probe::ProbeArgs),
     /// Run the station and write each robot's stream (fused states from its poses, a heartbeat per stage from its health) into its own insuwb log, DIR/<robot>/seg-*.iulog, which `insuwb log info`, `log export` and `eval` read.
     Record(RecordArgs),
 }
@@ -90,6 +94,8 @@ pub fn run(a: &FleetArgs) -> Result<()> {
     match &a.cmd {
         None => station(&a.station, None),
         Some(FleetCmd::Record(r)) => station(&r.station, Some(&r.dir)),
+        Some(FleetCmd::Bench(b)) => crate::bench_fleet::fleet(b),
+        Some(FleetCmd::Probe(p)) => crate::probe::run(p),
     }
 }
 

@@ -1,0 +1,377 @@
+//! The process group run that `launch`, `demo`, `chaos` and the latency
+//! bench share: start the stages, supervise them, and report what the
+//! group measured.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use insuwb_group::launch::{shutdown_order, supervise, FaultInjector, LoopEnd, LoopOptions, Watch};
+use insuwb_group::robot::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
+use insuwb_launch::{StageSpec, Supervisor};
+use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, StageRole, UwbFix};
+use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
+
+use crate::monitor::Monitor;
+
+/// The stage binaries ([`StageRole::program`]) live next to this executable.
+fn stage_program(stage: StageRole) -> Result<PathBuf> {
+    crate::beside::program(stage.program())
+}
+
+/// What a group run measured.
+#[derive(Debug, Default, serde::Serialize)]
+pub struct GroupReport {
+    /// Horizontal RMS error of the valid fused states against ground truth, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rmse_horizontal: Option<f64>,
+    /// Valid fused states that ground truth was found for (the RMSE's count).
+    pub rmse_states: u64,
+    /// Rate of fused states from UWB updates, Hz.
+    pub fused_rate_hz: f64,
+    /// Rate of IMU samples, Hz.
+    pub imu_rate_hz: f64,
+    /// Rate of UWB fixes, Hz.
+    pub uwb_fix_rate_hz: f64,
+    /// Stage restarts.
+    pub restarts: u32,
+    /// UWB fix publish to fused publish, p50, us.
+    pub latency_p50_us: f64,
+    /// p99, us.
+    pub latency_p99_us: f64,
+    /// Samples dropped in the group (invalid, out of order, version, logger overflow).
+    pub dropped: u64,
+    /// Outliers flagged by the filter.
+    pub outliers: u64,
+    /// Fused states published while coasting (no UWB).
+    pub degraded: u64,
+    /// Largest gap between valid fused states from UWB updates, ms.
+    pub max_gap_ms: f64,
+    /// Seconds run.
+    pub duration_s: f64,
+    /// Faults injected.
+    pub faults: u32,
+    /// Stretches of more than 5 s without a valid fused state after the first one.
+    pub deadlocks: u32,
+    /// Optional stages the launcher gave up after they exhausted their
+    /// restart budget (the rest kept running).
+    pub gave_up: Vec<String>,
+    /// Each stage's last heartbeat figures, by stage name.
+    pub stages: std::collections::BTreeMap<String, StageFigures>,
+}
+
+/// A stage's counters from its last heartbeat (`Health`). Drivers: `extra`
+/// of `uwb` is `[fixes, skipped too few pairs, skipped geometry, skipped
+/// solver]` (see `insuwb_stage::driver`); of `fusion` `[_, outliers, ..]`; of
+/// `logger` `[records sent, records dropped, ..]`.
+#[derive(Debug, Default, serde::Serialize)]
+pub struct StageFigures {
+    /// Samples published.
+    pub published: u64,
+    /// Samples received.
+    pub received: u64,
+    /// Dropped for a NaN, infinite or out-of-range value.
+    pub dropped_invalid: u64,
+    /// Dropped for a timestamp going backwards or repeated.
+    pub dropped_time: u64,
+    /// Dropped for another layout version.
+    pub dropped_version: u64,
+    /// Samples missing on inputs.
+    pub seq_gaps: u64,
+    /// Stage-specific counters.
+    pub extra: [u64; 4],
+    /// Last state reported: ok, degraded, disconnected or stopping.
+    pub state: &'static str,
+    /// Device drivers: the device clock's offset to CLOCK_MONOTONIC, ns
+    /// (`extra[2]`, decoded; absent while unknown).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clock_offset_ns: Option<i64>,
+    /// Device drivers: the device clock's drift, parts per billion (`extra[3]`, decoded).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clock_drift_ppb: Option<i64>,
+}
+
+/// Options of a group run.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Stop after this long (None: until SIGINT/SIGTERM).
+    pub duration: Option<Duration>,
+    /// Print a live line each second on standard error.
+    pub live: bool,
+    /// Faults to inject: signal a stage at a time after start.
+    pub faults: Vec<Fault>,
+    /// Chaos: every 1-5 s a random stage gets SIGKILL, or SIGSTOP for 2 s
+    /// then SIGCONT, drawn from this seed.
+    pub chaos_seed: Option<u64>,
+    /// Extra environment variables of every stage process (e.g. the logger's
+    /// fused receive trace for `insuwb bench latency`).
+    pub env: Vec<(String, String)>,
+}
+
+pub use insuwb_group::launch::Fault;
+
+/// What a group run may be given besides its [`RunOptions`] (the device
+/// demo, whose emulators are paced to the epoch and whose drivers publish
+/// no ground truth).
+#[derive(Debug, Default)]
+pub struct GroupExtras {
+    /// The start epoch (CLOCK_MONOTONIC ns) instead of one chosen at start.
+    pub start_epoch_ns: Option<u64>,
+    /// Ground truth known beforehand, CLOCK_MONOTONIC times, taken with the
+    /// truth topic's for the accuracy figures.
+    pub truth: Vec<GroundTruth>,
+}
+
+/// Starts the group of `cfg` (from the file `cfg_path`), supervises it and
+/// returns what it measured once it stops.
+pub fn run_group(cfg_path: &Path, cfg: &RobotConfig, opts: &RunOptions) -> Result<GroupReport> {
+    run_group_with(cfg_path, cfg, opts, GroupExtras::default())
+}
+
+/// [`run_group`] with [`GroupExtras`].
+pub fn run_group_with(
+    cfg_path: &Path,
+    cfg: &RobotConfig,
+    opts: &RunOptions,
+    extras: GroupExtras,
+) -> Result<GroupReport> {
+    // Owner-only files (0600/0700) for the launcher and, inherited, every stage.
+    insuwb_runtime::perm::restrict_umask();
+    // One group per prefix and run directory: a second launch refuses here,
+    // before it cleans, removes or creates anything (insuwb_stage::lock).
+    let _group_lock = insuwb_stage::lock::GroupLock::acquire(&cfg.group)?;
+    if insuwb_runtime::perm::is_shared(&cfg.group.run_dir) {
+        tracing::warn!(
+            "the run directory {} has group or other permission bits",
+            cfg.group.run_dir.display()
+        );
+    }
+    std::fs::create_dir_all(&cfg.group.run_dir).with_context(|| {
+        format!(
+            "{}: cannot create the run directory",
+            cfg.group.run_dir.display()
+        )
+    })?;
+    let rt = cfg.runtime("launcher");
+    // Resources left by a previous run of this group that died.
+    let _ = cleanup::cleanup_dead_nodes(&rt);
+    let epoch = extras
+        .start_epoch_ns
+        .unwrap_or_else(|| choose_start_epoch(monotonic_ns() + 500_000_000));
+    let cfg_arg = cfg_path.display().to_string();
+    let mut specs = Vec::new();
+    for s in &cfg.stages {
+        let mut spec = StageSpec::new(s.name(), stage_program(*s)?, &["--config", &cfg_arg]);
+        spec.env
+            .push((START_EPOCH_ENV.to_owned(), epoch.to_string()));
+        spec.env.extend(opts.env.iter().cloned());
+        specs.push(spec);
+    }
+    let monitor_stage = Stage::new(rt.clone())?;
+    let waiter = monitor_stage.waiter()?;
+    let tick = waiter.attach_interval(Duration::from_millis(50))?;
+    let mut watch = GroupWatch {
+        fused: monitor_stage.subscriber::<FusedState>(topics::FUSED)?,
+        truth: monitor_stage.subscriber::<GroundTruth>(topics::TRUTH)?,
+        imu: monitor_stage.subscriber::<ImuSample>(topics::IMU)?,
+        fix: monitor_stage.subscriber::<UwbFix>(topics::UWB_FIX)?,
+        health: monitor_stage.subscriber::<Health>(topics::HEALTH)?,
+        waiter: &waiter,
+        mon: Monitor::new(extras.truth),
+        live: opts.live.then(|| LiveLine {
+            last: Instant::now(),
+            counts: (0, 0, 0),
+        }),
+    };
+
+    let mut sup = Supervisor::new(cfg.launch.clone(), specs)?;
+    let hook_rt = rt.clone();
+    sup.set_before_restart(Box::new(
+        move |stage: &str| match cleanup::cleanup_dead_nodes(&hook_rt) {
+            Ok(n) if n > 0 => tracing::info!("cleaned {n} dead node(s) before restarting {stage}"),
+            Ok(_) => {}
+            Err(e) => tracing::warn!("cleaning dead nodes before restarting {stage}: {e}"),
+        },
+    ));
+    let mut faults = FaultInjector::new(
+        opts.faults.clone(),
+        opts.chaos_seed,
+        cfg.stages.iter().map(|s| s.name().to_owned()).collect(),
+        opts.duration,
+    );
+    let loop_opts = LoopOptions {
+        duration: opts.duration,
+        max_wait: Duration::from_millis(100),
+        // Sources first, the bridges after fusion, the logger last.
+        shutdown_order: shutdown_order(&cfg.stages),
+    };
+    let t0 = Instant::now();
+    let end = supervise(&mut sup, t0, &loop_opts, &mut watch, Some(&mut faults))?;
+    let elapsed = t0.elapsed().as_secs_f64();
+    let failed = match end {
+        LoopEnd::NotStarted(e) => return Err(e.into()),
+        LoopEnd::Failed(stage) => Some(stage),
+        LoopEnd::Duration | LoopEnd::Shutdown => None,
+    };
+    let GroupWatch {
+        fused,
+        truth,
+        imu,
+        fix,
+        health,
+        mut mon,
+        ..
+    } = watch;
+    let restarts = sup.total_restarts();
+    let mut report = summarise(&mut mon, restarts, elapsed);
+    for (stage, src) in [
+        (StageRole::Imu.name(), &cfg.sources.imu),
+        (StageRole::Uwb.name(), &cfg.sources.uwb),
+    ] {
+        if src == "device" {
+            if let Some(f) = report.stages.get_mut(stage) {
+                (f.clock_offset_ns, f.clock_drift_ppb) =
+                    insuwb_stage::device::clock_from_extra(&f.extra);
+            }
+        }
+    }
+    report.faults = faults.injected();
+    report.gave_up = sup.given_up();
+    drop(tick);
+    drop(waiter);
+    drop((fused, truth, imu, fix, health));
+    drop(monitor_stage);
+    let removed = cleanup::remove_prefix_files(&cfg.group.prefix, Some(&cfg.iox_root()));
+    if let Err(e) = removed {
+        tracing::warn!("removing the group's shared-memory files: {e}");
+    }
+    if let Some(stage) = failed {
+        bail!("stage {stage} exhausted its restart budget");
+    }
+    Ok(report)
+}
+
+/// The launcher's view of its group in the launch loop: the topics it
+/// measures, the heartbeats it forwards to the supervisor, and the live
+/// line (`--live`).
+struct GroupWatch<'w> {
+    fused: insuwb_runtime::Sub<FusedState>,
+    truth: insuwb_runtime::Sub<GroundTruth>,
+    imu: insuwb_runtime::Sub<ImuSample>,
+    fix: insuwb_runtime::Sub<UwbFix>,
+    health: insuwb_runtime::Sub<Health>,
+    waiter: &'w insuwb_runtime::Waiter,
+    mon: Monitor,
+    live: Option<LiveLine>,
+}
+
+/// The last live line's time and counts (IMU samples, fixes, updates).
+struct LiveLine {
+    last: Instant,
+    counts: (u64, u64, u64),
+}
+
+impl Watch for GroupWatch<'_> {
+    type Error = anyhow::Error;
+
+    fn wait(&mut self, max: Duration) -> Result<bool> {
+        Ok(matches!(self.waiter.wait_timeout(max)?, Wake::Shutdown))
+    }
+
+    fn on_wake(&mut self, sup: &mut Supervisor, now: Instant, elapsed: Duration) -> Result<()> {
+        let mon = &mut self.mon;
+        self.fused.drain(|f| mon.fused(&f))?;
+        self.truth.drain(|t| mon.truth(t))?;
+        mon.settle();
+        self.imu.drain(|s| mon.imu.count(s.header.meas_time_ns))?;
+        self.fix.drain(|s| mon.fixes.count(s.header.meas_time_ns))?;
+        self.health.drain(|h| {
+            let name = insuwb_msg::name_str(&h.stage);
+            sup.note_heartbeat_from(&name, h.pid, now);
+            mon.health.insert(name, h);
+        })?;
+        if let Some(live) = self.live.as_mut() {
+            if now.duration_since(live.last) >= Duration::from_secs(1) {
+                let dt = now.duration_since(live.last).as_secs_f64();
+                live.last = now;
+                let (upd, p) = mon.live();
+                let c = (mon.imu.n(), mon.fixes.n(), upd);
+                let outliers: u64 = mon
+                    .health
+                    .get(StageRole::Fusion.name())
+                    .map_or(0, |h| h.extra[1]);
+                eprintln!(
+                    "[{:5.1} s] imu {:6.1} Hz  uwb {:5.1} Hz  fused {:5.1} Hz  pos ({:6.2}, {:6.2})  outliers {outliers}  restarts {}",
+                    elapsed.as_secs_f64(),
+                    (c.0 - live.counts.0) as f64 / dt,
+                    (c.1 - live.counts.1) as f64 / dt,
+                    (c.2 - live.counts.2) as f64 / dt,
+                    p[0],
+                    p[1],
+                    sup.total_restarts()
+                );
+                live.counts = c;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
+    let fig = mon.finish();
+    let dropped: u64 = mon
+        .health
+        .values()
+        .map(|h| h.dropped_invalid + h.dropped_time + h.dropped_version)
+        .sum::<u64>()
+        + mon
+            .health
+            .get(StageRole::Logger.name())
+            .map_or(0, |h| h.extra[1]);
+    GroupReport {
+        rmse_horizontal: fig.rmse_horizontal,
+        rmse_states: fig.compared,
+        fused_rate_hz: fig.fused_rate_hz,
+        imu_rate_hz: mon.imu.rate(),
+        uwb_fix_rate_hz: mon.fixes.rate(),
+        restarts,
+        latency_p50_us: fig.latency_p50_us,
+        latency_p99_us: fig.latency_p99_us,
+        dropped,
+        outliers: mon
+            .health
+            .get(StageRole::Fusion.name())
+            .map_or(0, |h| h.extra[1]),
+        degraded: fig.degraded,
+        max_gap_ms: fig.max_gap_ms,
+        duration_s: elapsed,
+        faults: 0,
+        deadlocks: fig.deadlocks,
+        gave_up: Vec::new(),
+        stages: mon
+            .health
+            .iter()
+            .map(|(name, h)| {
+                let f = StageFigures {
+                    published: h.published,
+                    received: h.received,
+                    dropped_invalid: h.dropped_invalid,
+                    dropped_time: h.dropped_time,
+                    dropped_version: h.dropped_version,
+                    seq_gaps: h.seq_gaps,
+                    extra: h.extra,
+                    state: match h.state {
+                        Health::STATE_OK => "ok",
+                        Health::STATE_DEGRADED => "degraded",
+                        Health::STATE_DISCONNECTED => "disconnected",
+                        Health::STATE_STOPPING => "stopping",
+                        _ => "unknown",
+                    },
+                    clock_offset_ns: None,
+                    clock_drift_ppb: None,
+                };
+                (name.clone(), f)
+            })
+            .collect(),
+    }
+}
