@@ -58,5 +58,7 @@ fn main() -> ExitCode {
         fifo_priority: a.fifo_priority,
         ..FloorConfig::default()
     };
-    insuwb_runtime::stage_main(&name, || run_role(a.role, &cfg))
+    insuwb_runtime::stage_main(&name, || {
+        run_role(a.role, &cfg).map_err(Box::<dyn std::error::Error + Send + Sync>::from)
+    })
 }

@@ -11,10 +11,9 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::Parser;
 use insuwb_foxglove::convert::Anchor;
-use insuwb_foxglove::live::{LiveOpenError, LiveSetup, LiveView};
+use insuwb_foxglove::live::{LiveSetup, LiveView};
 use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
-use insuwb_runtime::StageError;
 use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 
 /// Arguments.
@@ -68,12 +67,8 @@ fn run(args: &Args) -> Result<()> {
         // The IMU driver publishes truth for simulated and replayed sources.
         truth: cfg.sources.imu == "sim" || cfg.sources.imu.starts_with("replay:"),
     };
-    let view = match LiveView::open(setup) {
-        Ok(v) => v,
-        // SIGTERM while starting: a clean stop.
-        Err(LiveOpenError::Stage(StageError::ShutdownRequested(_))) => return Ok(()),
-        Err(e) => return Err(e).context("opening the Foxglove live view"),
-    };
+    // SIGTERM while starting ends in a clean stop (`stage_main`).
+    let view = LiveView::open(setup).context("opening the Foxglove live view")?;
     let stats = view.run().context("the Foxglove live view")?;
     tracing::info!(
         "foxglove: logged {} poses, {} fixes, {} truth, {} errors, {} diagnostics, {} health; {} invalid samples, {} too old",

@@ -11,8 +11,7 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
-use insuwb_ros2::bridge::{Bridge, BridgeOpenError, BridgeSetup};
-use insuwb_runtime::StageError;
+use insuwb_ros2::bridge::{Bridge, BridgeSetup};
 use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 
 /// Arguments.
@@ -53,12 +52,8 @@ fn run(args: &Args) -> Result<()> {
         hardware_id: cfg.group.name.clone(),
         antenna_lever_arm_m: lever_arm,
     };
-    let bridge = match Bridge::open(setup) {
-        Ok(b) => b,
-        // SIGTERM while starting: a clean stop.
-        Err(BridgeOpenError::Stage(StageError::ShutdownRequested(_))) => return Ok(()),
-        Err(e) => return Err(e).context("opening the ROS 2 bridge"),
-    };
+    // SIGTERM while starting ends in a clean stop (`stage_main`).
+    let bridge = Bridge::open(setup).context("opening the ROS 2 bridge")?;
     let stats = bridge.run().context("the ROS 2 bridge")?;
     tracing::info!(
         "ros2: published {} odometry, {} tf, {} imu, {} diagnostics; {} invalid samples, {} too old, {} failed writes",

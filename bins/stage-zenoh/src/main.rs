@@ -12,9 +12,8 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use insuwb_group::robot::RobotConfig;
 use insuwb_msg::StageRole;
-use insuwb_runtime::StageError;
 use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
-use insuwb_zenoh::bridge::{Bridge, BridgeOpenError, BridgeSetup};
+use insuwb_zenoh::bridge::{Bridge, BridgeSetup};
 
 /// Arguments.
 #[derive(Debug, Parser)]
@@ -43,12 +42,8 @@ fn run(args: &Args) -> Result<()> {
         zenoh: cfg.zenoh.clone(),
         stages: cfg.stages.iter().map(|s| s.name().to_owned()).collect(),
     };
-    let bridge = match Bridge::open(setup) {
-        Ok(b) => b,
-        // SIGTERM while starting: a clean stop.
-        Err(BridgeOpenError::Stage(StageError::ShutdownRequested(_))) => return Ok(()),
-        Err(e) => return Err(e).context("opening the Zenoh bridge"),
-    };
+    // SIGTERM while starting ends in a clean stop (`stage_main`).
+    let bridge = Bridge::open(setup).context("opening the Zenoh bridge")?;
     let stats = bridge.run().context("the Zenoh bridge")?;
     tracing::info!(
         "zenoh: put {} poses, {} health, {} fixes, {} diagnostics; {} invalid samples, {} too old, {} put failures",

@@ -173,21 +173,31 @@ pub fn init_tracing(stage_name: &str) -> Result<(), TracingInitError> {
 }
 
 /// The `main` of a stage process once its arguments are parsed: logging
-/// with [`init_tracing`] for `stage_name`, then `run`. An error is logged
-/// as the process's last line, with its causes where its alternate form
-/// (`{:#}`, as anyhow's) shows them, and gives the exit status 1. Where
-/// logging cannot start (an invalid `RUST_LOG`), that is said on standard
-/// error and the stage runs on, its error then written there too.
-pub fn stage_main<E: std::fmt::Display>(
+/// with [`init_tracing`] for `stage_name`, then `run`. The exit policy of
+/// every stage: a run that ends in [`StageError::ShutdownRequested`] (SIGINT
+/// or SIGTERM while it was starting; anywhere in the error's causes) is a
+/// clean stop and exits 0. Any other error is logged as the process's last
+/// line, with its causes where its alternate form (`{:#}`, as anyhow's)
+/// shows them, and gives the exit status 1. Where logging cannot start (an
+/// invalid `RUST_LOG`), that is said on standard error and the stage runs
+/// on, its error then written there too.
+pub fn stage_main<E>(
     stage_name: &str,
     run: impl FnOnce() -> Result<(), E>,
-) -> std::process::ExitCode {
+) -> std::process::ExitCode
+where
+    E: std::fmt::Display + AsRef<dyn std::error::Error + Send + Sync + 'static>,
+{
     let logging = init_tracing(stage_name);
     if let Err(e) = &logging {
         eprintln!("[{stage_name}] logging: {e}");
     }
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if shutdown_requested(e.as_ref()) => {
+            tracing::info!("stopped while starting: {e:#}");
+            std::process::ExitCode::SUCCESS
+        }
         Err(e) => {
             if logging.is_ok() {
                 tracing::error!("{e:#}");
@@ -197,6 +207,21 @@ pub fn stage_main<E: std::fmt::Display>(
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// Whether `e` or one of its causes is [`StageError::ShutdownRequested`].
+fn shutdown_requested(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut next = Some(e);
+    while let Some(c) = next {
+        if matches!(
+            c.downcast_ref::<StageError>(),
+            Some(StageError::ShutdownRequested(_))
+        ) {
+            return true;
+        }
+        next = c.source();
+    }
+    false
 }
 
 /// The `main` of a command (`insuwb`, `insuwb-station`) once its

@@ -107,15 +107,8 @@ fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
             "the zenoh stage is its own binary insuwb-stage-zenoh"
         )),
     };
-    match result {
-        Err(e)
-            if e.downcast_ref::<insuwb_runtime::StageError>()
-                .is_some_and(|s| matches!(s, insuwb_runtime::StageError::ShutdownRequested(_))) =>
-        {
-            Ok(())
-        }
-        r => r,
-    }
+    // SIGTERM while starting: `stage_main` makes it a clean stop.
+    result
 }
 
 #[cfg(test)]

@@ -93,36 +93,23 @@ fn resume(engine: &mut FusionEngine, path: &Path, generation: u32) {
     }
 }
 
-/// The checkpoint writer thread and the stage's end of its channel: the
-/// stage hands over fixed-size messages (no file I/O, no allocation on its
-/// loop), the thread serialises and writes them.
+/// The stage's end of the checkpoint writer ([`crate::checkpoint::Writer`]):
+/// the engine's covariance copied into a fixed-size message (no allocation
+/// on the loop), a [`Checkpoint`] made of it on the writer thread.
 struct CheckpointWriter {
-    tx: crossbeam_channel::Sender<CkptMsg>,
-    thread: std::thread::JoinHandle<()>,
+    writer: crate::checkpoint::Writer<CkptMsg>,
     cov_buf: Vec<f64>,
 }
 
 impl CheckpointWriter {
     fn spawn(path: PathBuf) -> Result<Self> {
-        let (tx, rx) = crossbeam_channel::bounded::<CkptMsg>(1);
-        let thread = std::thread::Builder::new()
-            .name("checkpoint".into())
-            .spawn(move || {
-                for m in rx {
-                    let c = Checkpoint {
-                        correction_id: m.correction_id,
-                        written_ns: m.written_ns,
-                        cov: m.cov.get(..m.len).unwrap_or_default().to_vec(),
-                    };
-                    if let Err(e) = crate::checkpoint::write(&path, &c) {
-                        tracing::warn!("checkpoint: {e:#}");
-                    }
-                }
-            })
-            .context("starting the checkpoint writer thread")?;
+        let writer = crate::checkpoint::Writer::spawn(path, |m: CkptMsg| Checkpoint {
+            correction_id: m.correction_id,
+            written_ns: m.written_ns,
+            cov: m.cov.get(..m.len).unwrap_or_default().to_vec(),
+        })?;
         Ok(Self {
-            tx,
-            thread,
+            writer,
             cov_buf: Vec::with_capacity(MAX_COV),
         })
     }
@@ -140,16 +127,12 @@ impl CheckpointWriter {
         for (d, s) in msg.cov.iter_mut().zip(&self.cov_buf) {
             *d = *s;
         }
-        // Full: the previous checkpoint is still being written; skip this one.
-        let _ = self.tx.try_send(msg);
+        self.writer.offer(msg);
     }
 
-    /// Closes the channel and waits for the last checkpoint to be written.
+    /// Waits for the last checkpoint to be written.
     fn finish(self) {
-        drop(self.tx);
-        if self.thread.join().is_err() {
-            tracing::warn!("the checkpoint writer thread panicked");
-        }
+        self.writer.finish();
     }
 }
 

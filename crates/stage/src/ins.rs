@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use insuwb_fusion::ins_engine::{InsBiases, InsEngine};
 use insuwb_msg::{topics, FusedState, Health, ImuSample, InsCorrection, NavState, StageRole};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
@@ -88,21 +88,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         }
     }
     let mut counters = HealthCounters::default();
-    // The writer thread serialises and writes: no file I/O on this loop.
-    let (ckpt_tx, ckpt_rx) = crossbeam_channel::bounded::<InsBiases>(1);
-    let writer = {
-        let path = ckpt_path.clone();
-        std::thread::Builder::new()
-            .name("checkpoint".into())
-            .spawn(move || {
-                for b in ckpt_rx {
-                    if let Err(e) = crate::checkpoint::write(&path, &b) {
-                        tracing::warn!("checkpoint: {e:#}");
-                    }
-                }
-            })
-            .context("starting the checkpoint writer thread")?
-    };
+    let writer = crate::checkpoint::Writer::spawn(ckpt_path.clone(), |b: InsBiases| b)?;
     let mut last_ckpt = 0u64;
     loop {
         match waiter.wait_timeout(Duration::from_millis(500))? {
@@ -138,7 +124,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                 if now.saturating_sub(last_ckpt) >= CHECKPOINT_PERIOD_NS {
                     if let Some(b) = ins.biases() {
                         // Full: the previous one is still being written; skip.
-                        let _ = ckpt_tx.try_send(b);
+                        writer.offer(b);
                         last_ckpt = now;
                     }
                 }
@@ -162,8 +148,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             }
         }
     }
-    drop(ckpt_tx);
-    let _ = writer.join();
+    writer.finish();
     health.report(&counters, Health::STATE_STOPPING)?;
     Ok(())
 }
