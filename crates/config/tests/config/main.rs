@@ -1,0 +1,9 @@
+//! The integration tests of insuwb-config, linked into one binary: each
+//! module is one topic (`corpus`, `fuzz`), documented at its
+//! top.
+
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod corpus;
+mod fuzz;
