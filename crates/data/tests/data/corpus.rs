@@ -12,7 +12,7 @@
 //! case is saved, shrunk, in `proptest-regressions/corpus.txt` (commit it:
 //! it runs first from then on). Longer campaigns: docs/RELIABILITY.md.
 //! The corpus is made by
-//! `cargo test -p insuwb-data --test corpus -- --ignored` (needs the UTIL
+//! `cargo test -p insuwb-data --test data -- corpus:: --ignored` (needs the UTIL
 //! data in ../shared/data/util).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 

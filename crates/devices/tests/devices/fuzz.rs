@@ -9,7 +9,7 @@
 //! 4096 cases per target by default; `PROPTEST_CASES=1000000` for a long
 //! run.
 //! The seed streams are `tests/corpus/*`, written by
-//! `cargo test -p insuwb-devices --test fuzz -- --ignored write_corpus`
+//! `cargo test -p insuwb-devices --test devices -- fuzz:: --ignored write_corpus`
 //! and checked against the generator by `corpus_matches_the_generator`.
 
 use std::path::PathBuf;

@@ -11,7 +11,7 @@
 //! case is saved, shrunk, in `proptest-regressions/corpus.txt` (commit it:
 //! it runs first from then on). Longer campaigns: docs/RELIABILITY.md.
 //! The corpus is made by
-//! `cargo test -p insuwb-log --test corpus -- --ignored`.
+//! `cargo test -p insuwb-log --test log -- corpus:: --ignored`.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use crate::common;

@@ -5,7 +5,7 @@
 //! and error ranges over 20 seeds are printed and must stay in bands around
 //! the paper's values (Table 1 for section 3.4, section 4.3 and 4.4 text).
 //!
-//! Run: `cargo test -p insuwb-sim --release --test calibration -- --nocapture`
+//! Run: `cargo test -p insuwb-sim --release --test sim -- calibration:: --nocapture`
 
 // Test helpers outside #[test] functions unwrap too; axis loops index arrays.
 #![allow(
