@@ -191,8 +191,8 @@ fn nlos_long_uwb_only_summary() {
 }
 
 /// Prints the UWB-only figures of any scenario file, for calibrating new ones:
-/// `SIM_CAL_FILE=/abs/path.toml cargo test -p insuwb-sim --release --test calibration
-/// calibrate_file -- --ignored --nocapture`
+/// `SIM_CAL_FILE=/abs/path.toml cargo test -p insuwb-sim --release --test sim
+/// -- calibration::calibrate_file --ignored --nocapture`
 #[test]
 #[ignore = "tool: needs SIM_CAL_FILE"]
 fn calibrate_file() {
