@@ -140,7 +140,8 @@ pub struct InsCounters {
     pub integrated: u64,
     /// Samples dropped: wrong layout version.
     pub dropped_version: u64,
-    /// Samples dropped: NaN, infinity or out of range.
+    /// Samples dropped: NaN, infinity or out of range
+    /// ([`insuwb_msg::check::imu_values`]).
     pub dropped_invalid: u64,
     /// Samples dropped: timestamp not after the previous one.
     pub dropped_time: u64,
@@ -162,10 +163,6 @@ struct RingEntry {
     ins_after: Ins,
     nav: NavState,
 }
-
-/// Accelerations above this (m/s^2) or rates above this (rad/s) are refused as out of range.
-const MAX_ACCEL_MPS2: f64 = 400.0;
-const MAX_RATE_RPS: f64 = 70.0;
 
 /// The INS engine.
 #[derive(Debug, Clone)]
@@ -333,14 +330,9 @@ impl InsEngine {
             self.counters.dropped_version += 1;
             return None;
         }
-        let finite = s
-            .accel_mps2
-            .iter()
-            .chain(&s.gyro_rps)
-            .all(|v| v.is_finite());
-        let in_range = s.accel_mps2.iter().all(|v| v.abs() < MAX_ACCEL_MPS2)
-            && s.gyro_rps.iter().all(|v| v.abs() < MAX_RATE_RPS);
-        if !finite || !in_range {
+        // The drivers' value check (their gate refuses such a sample
+        // before it is published): a defensive check of other callers.
+        if insuwb_msg::check::imu_values(s).is_err() {
             self.counters.dropped_invalid += 1;
             return None;
         }

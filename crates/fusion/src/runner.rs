@@ -3,7 +3,10 @@
 //! driver, the INS engine of the INS stage and the fusion engine of the
 //! fusion stage, each correction handed to the INS at once and the states it
 //! re-propagates handed back to fusion. `insuwb eval` runs it ([`run_with`]),
-//! so eval and a replay through the pipeline give the same result.
+//! so eval and a replay through the pipeline give the same result. Every
+//! input first passes the gate of its stream that the drivers hold
+//! ([`insuwb_msg::check`]): a sample a driver would refuse is refused here,
+//! counted by reason ([`RunOutput::refusals`]) and goes no further.
 //!
 //! [`Runner`] takes one input at a time ([`Input`], in the order [`merged`]
 //! gives); [`run`] and [`run_with`] feed it the recording in time order,
@@ -13,9 +16,11 @@
 //! recording's clock, ticking on every input; unset, it publishes the
 //! updates' fused states only.
 
+use insuwb_msg::check::{ImuGate, Refusals, TdoaGate};
 use insuwb_msg::{
     FilterDiag, FilterKind, FusedState, ImuSample, InsCorrection, NavState, UwbFix, UwbTdoa,
 };
+use insuwb_uwb::fix::{FixBuilder, FixStats};
 
 use crate::config::{build_estimator, ConfigError, FusionConfig};
 use crate::engine::{FusionCounters, FusionEngine, Measurement, Outputs};
@@ -39,6 +44,13 @@ pub struct RunOutput {
     pub ins: InsCounters,
     /// Fusion counters.
     pub fusion: FusionCounters,
+    /// Inputs refused by the drivers' gates, by reason: what the drivers'
+    /// heartbeats count in `dropped_invalid` and `dropped_time`.
+    pub refusals: Refusals,
+    /// The fix builder's counters, the measurements it refused after the
+    /// gate among them (by reason; those still reach a tight filter, as the
+    /// UWB driver still publishes them).
+    pub fix_stats: FixStats,
 }
 
 /// One input sample.
@@ -106,8 +118,10 @@ pub fn merged<'a>(
 /// The chain in lockstep, fed one input at a time.
 #[derive(Debug)]
 pub struct Runner {
+    imu_gate: ImuGate,
+    tdoa_gate: TdoaGate,
     ins: InsEngine,
-    fixb: insuwb_uwb::fix::FixBuilder,
+    fixb: FixBuilder,
     fusion: FusionEngine,
     tight: bool,
     /// The output policy's settings until the first input starts it.
@@ -134,9 +148,10 @@ impl Runner {
             p.validate()?;
         }
         Ok(Self {
+            imu_gate: ImuGate::new(),
+            tdoa_gate: TdoaGate::new(),
             ins: InsEngine::new(cfg.ins_engine_config())?,
-            fixb: insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?
-                .with_calibration(cfg.calibration.clone()),
+            fixb: FixBuilder::new(cfg.fix.clone())?.with_calibration(cfg.calibration.clone()),
             tight: est.is_tight(),
             fusion: FusionEngine::new(cfg.engine.clone(), est),
             policy_cfg: cfg.output.clone(),
@@ -155,11 +170,21 @@ impl Runner {
         &mut self.fusion
     }
 
-    /// Handles one input: through the INS, or the fix builder (the UWB
-    /// driver publishes the fixes a measurement completes before the
-    /// measurement itself), then fusion, until no correction is in flight;
-    /// then the output policy's tick, if one is configured.
+    /// Handles one input: through its stream's gate (a refused input is
+    /// counted and goes no further: the driver would not publish it, so no
+    /// stage sees it, nor the output policy's clock), then the INS, or the
+    /// fix builder (the UWB driver publishes the fixes a measurement
+    /// completes before the measurement itself), then fusion, until no
+    /// correction is in flight; then the output policy's tick, if one is
+    /// configured.
     pub fn push(&mut self, input: Input<'_>) {
+        let passed = match input {
+            Input::Imu(s) => self.imu_gate.check(s).is_ok(),
+            Input::Tdoa(m) => self.tdoa_gate.check(m).is_ok(),
+        };
+        if !passed {
+            return;
+        }
         self.now_ns = input.time();
         if let Some(cfg) = self.policy_cfg.take() {
             // Validated in `new`: cannot fail here.
@@ -177,6 +202,9 @@ impl Runner {
                 // driver publishes it: the fix builder and the tight filter
                 // use the same difference.
                 let m = self.fixb.calibrate(m);
+                // A refusal is counted by reason in the builder's stats
+                // (`RunOutput::fix_stats`); the tight filter still gets the
+                // measurement, as the driver still publishes it.
                 if let Ok(Some(f)) = self.fixb.push(&m) {
                     self.on_fix(f);
                 }
@@ -205,6 +233,11 @@ impl Runner {
         }
         self.out.ins = self.ins.counters();
         self.out.fusion = self.fusion.counters();
+        self.out.refusals = Refusals {
+            imu: *self.imu_gate.refusals(),
+            tdoa: *self.tdoa_gate.refusals(),
+        };
+        self.out.fix_stats = *self.fixb.stats();
         self.out
     }
 
@@ -274,26 +307,37 @@ pub fn run_with(
     Ok(r.finish())
 }
 
-/// INS-only: integrates the IMU from the configured initial state with no correction.
+/// INS-only: integrates the IMU samples the IMU driver's gate passes from
+/// the configured initial state with no correction.
 ///
 /// # Errors
 /// An INS configuration that does not validate.
 pub fn run_ins_only(imu: &[ImuSample], cfg: &FusionConfig) -> Result<Vec<NavState>, ConfigError> {
     let mut ins = InsEngine::new(cfg.ins_engine_config())?;
-    Ok(imu.iter().filter_map(|s| ins.on_imu(s)).collect())
+    let mut gate = ImuGate::new();
+    Ok(imu
+        .iter()
+        .filter(|s| gate.check(s).is_ok())
+        .filter_map(|s| ins.on_imu(s))
+        .collect())
 }
 
-/// The UWB fixes alone (UWB-only solution).
+/// The UWB fixes alone (UWB-only solution): the fixes the UWB driver
+/// publishes, from the measurements its gate passes.
 ///
 /// # Errors
 /// A fix-builder configuration that does not validate.
 pub fn run_fixes(tdoa: &[UwbTdoa], cfg: &FusionConfig) -> Result<Vec<UwbFix>, ConfigError> {
-    let mut fixb = insuwb_uwb::fix::FixBuilder::new(cfg.fix.clone())?
-        .with_calibration(cfg.calibration.clone());
+    let mut fixb = FixBuilder::new(cfg.fix.clone())?.with_calibration(cfg.calibration.clone());
+    let mut gate = TdoaGate::new();
     let mut out = Vec::new();
     for m in tdoa {
-        if let Ok(f) = fixb.push(m) {
-            out.extend(f.iter().copied());
+        if gate.check(m).is_err() {
+            continue;
+        }
+        // A refusal is counted in the builder's stats, as in `Runner::push`.
+        if let Ok(Some(f)) = fixb.push(m) {
+            out.push(f);
         }
     }
     out.extend(fixb.flush());
@@ -342,11 +386,82 @@ mod tests {
         }
     }
 
+    /// A measurement the gate passes (one pair: it completes no fix).
     fn tdoa(k: u64) -> UwbTdoa {
         UwbTdoa {
             header: Header::new(k, k * 10_000_000),
+            anchor_b: 1,
+            anchor_b_pos_m: [10.0, 0.0, 0.0],
             ..UwbTdoa::default()
         }
+    }
+
+    /// What the drivers' gates refuse goes nowhere (not even to the output
+    /// policy's clock) and is counted by reason.
+    #[test]
+    fn the_runner_refuses_and_counts_what_the_drivers_refuse() {
+        use insuwb_msg::check::{ImuRefusals, TdoaRefusals};
+        let clean_imu: Vec<ImuSample> = (0..100).map(imu).collect();
+        let clean_tdoa: Vec<UwbTdoa> = (0..100).step_by(2).map(tdoa).collect();
+        let later = |mut s: ImuSample, edit: fn(&mut ImuSample)| {
+            s.header.meas_time_ns += 1_000_000;
+            edit(&mut s);
+            s
+        };
+        let mut seeded_imu = Vec::new();
+        for (k, s) in clean_imu.iter().enumerate() {
+            seeded_imu.push(*s);
+            match k {
+                50 => seeded_imu.push(later(*s, |s| s.gyro_rps[0] = f64::NAN)),
+                60 => seeded_imu.push(*s),
+                70 => seeded_imu.push(imu(65)),
+                80 => seeded_imu.push(later(*s, |s| s.accel_mps2[1] = 500.0)),
+                _ => {}
+            }
+        }
+        let mut seeded_tdoa = Vec::new();
+        for (k, m) in clean_tdoa.iter().enumerate() {
+            seeded_tdoa.push(*m);
+            let mut bad = *m;
+            match k {
+                10 => bad.anchor_b = 0,
+                12 => bad.diff_m = 10.5,
+                14 => {}
+                16 => bad = tdoa(20),
+                18 => bad.anchor_a_pos_m[0] = f64::NAN,
+                _ => continue,
+            }
+            seeded_tdoa.push(bad);
+        }
+        let cfg = FusionConfig {
+            output: Some(OutputPolicyConfig::default()),
+            ..FusionConfig::default()
+        };
+        let clean = run(&clean_imu, &clean_tdoa, &cfg, FilterKind::Kf).unwrap();
+        let out = run(&seeded_imu, &seeded_tdoa, &cfg, FilterKind::Kf).unwrap();
+        assert_eq!(clean.refusals, Refusals::default());
+        assert_eq!(
+            out.refusals,
+            Refusals {
+                imu: ImuRefusals {
+                    non_finite: 1,
+                    out_of_range: 1,
+                    time_backwards: 1,
+                    time_repeated: 1,
+                },
+                tdoa: TdoaRefusals {
+                    non_finite: 1,
+                    same_anchor: 1,
+                    impossible: 1,
+                    time_backwards: 1,
+                    pair_repeated: 1,
+                },
+            }
+        );
+        assert_eq!(out.ins, clean.ins);
+        assert_eq!(out.fix_stats, clean.fix_stats);
+        assert!(!out.fused.is_empty());
+        assert_eq!(out.fused, clean.fused);
     }
 
     #[test]

@@ -22,6 +22,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod check;
 pub mod qos;
 
 use iceoryx2_bb_derive_macros::ZeroCopySend;

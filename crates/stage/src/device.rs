@@ -75,9 +75,9 @@ use insuwb_msg::{topics, Header, Health, ImuSample, UwbFix};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 use insuwb_uwb::velocity::{VelocityConfig, VelocityConfigError, VelocityEstimator};
 
-use crate::driver::imu_ok;
 use crate::source::Want;
 use insuwb_group::robot::{DeviceConfig, RobotConfig};
+use insuwb_msg::check::imu_values;
 
 /// Meaning of a device driver's `Health::extra` counters, in order.
 pub const DEVICE_EXTRA: [&str; 4] = [
@@ -392,7 +392,7 @@ impl Converter {
                     accel_mps2: rotate(self.rotation.as_ref(), *accel_mps2),
                     gyro_rps: rotate(self.rotation.as_ref(), *gyro_rps),
                 };
-                if !imu_ok(&s) {
+                if imu_values(&s).is_err() {
                     self.drops.invalid += 1;
                     return Out::Dropped;
                 }

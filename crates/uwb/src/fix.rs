@@ -64,8 +64,13 @@
 //! longer than the distance between its anchors (impossible), a time before
 //! the previous accepted measurement, or no room left in the epoch's pair
 //! table are dropped, counted, and reported as a [`PushError`]; the builder
-//! stays usable after any error. With [`FixConfig::average_pairs`] an epoch
-//! is solved from each pair's mean, weighted by its count.
+//! stays usable after any error. The value checks are the ones every reader
+//! of a measurement shares ([`insuwb_msg::check::tdoa_values`]), applied
+//! after the site calibration; the drivers and `insuwb eval` pass every
+//! measurement through [`insuwb_msg::check::TdoaGate`] before the builder,
+//! so there only the calibration's correction or a full pair table makes it
+//! refuse one. With [`FixConfig::average_pairs`] an epoch is solved from
+//! each pair's mean, weighted by its count.
 //!
 //! # Site calibration
 //!
@@ -78,6 +83,7 @@
 //! callers that forward the measurement too (to the tight filter, onto a
 //! topic) forward that one, then push it.
 
+use insuwb_msg::check::{self, InvalidTdoa};
 use insuwb_msg::{Header, UwbFix, UwbTdoa};
 use serde::{Deserialize, Serialize};
 
@@ -333,6 +339,26 @@ pub enum PushError {
     },
 }
 
+impl From<InvalidTdoa> for PushError {
+    fn from(e: InvalidTdoa) -> Self {
+        match e {
+            InvalidTdoa::NonFinite { field, value } => Self::NonFinite { field, value },
+            InvalidTdoa::SameAnchor { id } => Self::SameAnchor { id },
+            InvalidTdoa::Impossible {
+                diff_m,
+                baseline_m,
+                a,
+                b,
+            } => Self::Impossible {
+                diff_m,
+                baseline_m,
+                a,
+                b,
+            },
+        }
+    }
+}
+
 /// Turns a [`UwbTdoa`] stream into [`UwbFix`]es (see the module doc).
 /// Allocates its tables once, in [`FixBuilder::new`].
 #[derive(Debug, Clone)]
@@ -539,39 +565,10 @@ impl FixBuilder {
         self.close()
     }
 
+    /// The shared value check, then the builder's own: time order against
+    /// the last accepted measurement, room in the epoch's pair table.
     fn check(&self, m: &UwbTdoa) -> Result<(), PushError> {
-        if !m.diff_m.is_finite() {
-            return Err(PushError::NonFinite {
-                field: "diff_m",
-                value: m.diff_m,
-            });
-        }
-        for (field, p) in [
-            ("anchor_a_pos_m", &m.anchor_a_pos_m),
-            ("anchor_b_pos_m", &m.anchor_b_pos_m),
-        ] {
-            if let Some(&value) = p.iter().find(|v| !v.is_finite()) {
-                return Err(PushError::NonFinite { field, value });
-            }
-        }
-        if m.anchor_a == m.anchor_b {
-            return Err(PushError::SameAnchor { id: m.anchor_a });
-        }
-        let baseline_m = m
-            .anchor_a_pos_m
-            .iter()
-            .zip(&m.anchor_b_pos_m)
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum::<f64>()
-            .sqrt();
-        if m.diff_m.abs() > baseline_m {
-            return Err(PushError::Impossible {
-                diff_m: m.diff_m,
-                baseline_m,
-                a: m.anchor_a,
-                b: m.anchor_b,
-            });
-        }
+        check::tdoa_values(m)?;
         let t = m.header.meas_time_ns;
         if let Some(last_ns) = self.last_time_ns.filter(|last| t < *last) {
             return Err(PushError::TimeBackwards {

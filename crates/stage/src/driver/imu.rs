@@ -2,6 +2,7 @@
 //! `truth` (simulation and replay only).
 
 use anyhow::Result;
+use insuwb_msg::check::ImuGate;
 use insuwb_msg::{topics, GroundTruth, ImuSample};
 use insuwb_runtime::{HealthCounters, Pub, Stage};
 
@@ -9,24 +10,9 @@ use super::pacing::{self, Paced, Progress};
 use crate::source::{self, Item, Want};
 use insuwb_group::robot::RobotConfig;
 
-/// Largest plausible accelerometer (m/s^2) and gyro (rad/s) magnitudes.
-const MAX_ACCEL_MPS2: f64 = 400.0;
-const MAX_RATE_RPS: f64 = 70.0;
-
 /// In lockstep the IMU stays this far ahead of fusion, ns: enough to cover
 /// the next fixes, little to re-propagate after a correction.
 const LEAD_NS: u64 = 250_000_000;
-
-/// Whether an IMU sample's values are finite and plausible.
-#[must_use]
-pub fn imu_ok(s: &ImuSample) -> bool {
-    s.accel_mps2
-        .iter()
-        .all(|v| v.is_finite() && v.abs() < MAX_ACCEL_MPS2)
-        && s.gyro_rps
-            .iter()
-            .all(|v| v.is_finite() && v.abs() < MAX_RATE_RPS)
-}
 
 /// The IMU driver's part of the pacing loop.
 struct ImuDriver {
@@ -34,7 +20,8 @@ struct ImuDriver {
     truth: Pub<GroundTruth>,
     generation: u32,
     source_id: u16,
-    last_t: Option<u64>,
+    /// Values and time order ([`insuwb_msg::check`]), as `insuwb eval`.
+    gate: ImuGate,
     counters: HealthCounters,
 }
 
@@ -57,18 +44,13 @@ impl Paced for ImuDriver {
                 self.truth.publish_raw(s)?;
             }
             Item::Imu(mut s) => {
-                if !imu_ok(&s) {
-                    self.counters.dropped_invalid += 1;
-                    return Ok(());
-                }
-                if self.last_t.is_some_and(|l| t_ns <= l) {
-                    self.counters.dropped_time += 1;
-                    return Ok(());
-                }
-                self.last_t = Some(t_ns);
                 s.header.meas_time_ns = t_ns;
                 s.header.generation = self.generation;
                 s.header.source_id = self.source_id;
+                // Refused and counted by the gate (the heartbeat reports it).
+                if self.gate.check(&s).is_err() {
+                    return Ok(());
+                }
                 self.imu.publish_raw(s)?;
                 self.counters.published += 1;
             }
@@ -78,6 +60,9 @@ impl Paced for ImuDriver {
     }
 
     fn heartbeat(&mut self) -> Result<HealthCounters> {
+        let refused = self.gate.refusals();
+        self.counters.dropped_invalid = refused.invalid();
+        self.counters.dropped_time = refused.time();
         // Late subscribers get history only when the publisher acts.
         self.imu.update_connections()?;
         Ok(self.counters)
@@ -108,7 +93,7 @@ pub fn run(cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> R
         truth: stage.publisher(topics::TRUTH)?,
         generation: stage.generation(),
         source_id: stage.source_id(),
-        last_t: None,
+        gate: ImuGate::new(),
         counters: HealthCounters::default(),
     };
     pacing::run(&stage, name, src, speed, epoch_ns, &mut driver)

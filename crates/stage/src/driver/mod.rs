@@ -19,13 +19,18 @@
 //!
 //! # What the heartbeat reports
 //!
-//! Both drivers drop and count (`Health::dropped_invalid`) samples with a
-//! NaN, infinite or out-of-range value (accelerometer >= 400 m/s^2, gyro >=
-//! 70 rad/s, TDOA |difference| >= 1000 m, equal anchor ids) and
-//! (`Health::dropped_time`) samples whose time goes backwards; an IMU sample
-//! at the time of the previous one, or a TDOA of the same anchor pair at the
-//! time of an earlier one, is a duplicate and counted there too (several
-//! pairs of one epoch share a time). The UWB driver's `Health::extra` holds
+//! Both drivers pass each sample through the gate of its stream
+//! ([`insuwb_msg::check`], the gates `insuwb eval` uses too) and count what
+//! it refuses: a NaN, infinite or out-of-range value (accelerometer >= 400
+//! m/s^2, gyro >= 70 rad/s, equal anchor ids, a TDOA difference longer than
+//! its anchors' distance) in `Health::dropped_invalid`; a time going
+//! backwards, an IMU sample at the time of the previous one, or a TDOA of
+//! the same anchor pair at the time of an earlier one (several pairs of one
+//! epoch share a time) in `Health::dropped_time`. A measurement the fix
+//! builder still refuses after the site calibration (too long once
+//! corrected, the epoch's pair table full) is published all the same,
+//! counted in its `FixStats` and logged, at most every
+//! [`SKIP_LOG_PERIOD_NS`]. The UWB driver's `Health::extra` holds
 //! the fix builder's figures ([`UWB_EXTRA`]): `[0]` fixes published, `[1]`
 //! epochs skipped for too few pairs, `[2]` epochs skipped for their
 //! geometry (too few distinct anchors or independent pairs, collinear or
@@ -42,7 +47,6 @@ use anyhow::Result;
 use crate::source::Want;
 use insuwb_group::robot::RobotConfig;
 
-pub use imu::imu_ok;
 pub use uwb::{SKIP_LOG_PERIOD_NS, UWB_EXTRA};
 
 /// Runs a driver stage until SIGINT/SIGTERM. Source `device`: the live

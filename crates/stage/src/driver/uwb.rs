@@ -7,9 +7,10 @@
 //! log records.
 
 use anyhow::Result;
+use insuwb_msg::check::TdoaGate;
 use insuwb_msg::{topics, UwbFix, UwbTdoa};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Pub, Stage};
-use insuwb_uwb::fix::{FixBuilder, FixStats};
+use insuwb_uwb::fix::{FixBuilder, FixStats, PushError};
 
 use super::pacing::{self, Paced, Progress};
 use crate::source::{self, Item, Want};
@@ -23,12 +24,9 @@ pub const UWB_EXTRA: [&str; 4] = [
     "skipped_solver",
 ];
 
-/// Shortest interval between two log lines about skipped epochs, ns.
+/// Shortest interval between two log lines about skipped epochs (and
+/// between two about measurements the fix builder refused), ns.
 pub const SKIP_LOG_PERIOD_NS: u64 = 5_000_000_000;
-
-/// Anchor pairs seen at the time of the latest TDOA (duplicate detection);
-/// beyond this many, further pairs of that time are not checked.
-const MAX_PAIRS_PER_TIME: usize = 64;
 
 /// The UWB driver's `Health::extra` (see [`UWB_EXTRA`]).
 fn uwb_extra(s: &FixStats) -> [u64; 4] {
@@ -40,14 +38,15 @@ fn uwb_extra(s: &FixStats) -> [u64; 4] {
     ]
 }
 
-fn tdoa_ok(s: &UwbTdoa) -> bool {
-    s.diff_m.is_finite()
-        && s.diff_m.abs() < 1000.0
-        && s.anchor_a_pos_m
-            .iter()
-            .chain(&s.anchor_b_pos_m)
-            .all(|v| v.is_finite())
-        && s.anchor_a != s.anchor_b
+/// Measurements the fix builder refused after the gate passed them (a
+/// difference too long once calibrated, a full pair table), by reason:
+/// `(impossible, pair table full, other)`.
+fn builder_refusals(s: &FixStats) -> (u64, u64, u64) {
+    (
+        s.dropped_impossible,
+        s.dropped_capacity,
+        s.dropped_non_finite + s.dropped_same_anchor + s.dropped_time_backwards,
+    )
 }
 
 /// The UWB driver's part of the pacing loop.
@@ -60,11 +59,17 @@ struct UwbDriver {
     fixes_published: u64,
     generation: u32,
     source_id: u16,
-    last_t: Option<u64>,
-    pairs_at_last_t: Vec<(u32, u32)>,
+    /// Values, time order and repeated pairs ([`insuwb_msg::check`]), as
+    /// `insuwb eval`.
+    gate: TdoaGate,
     counters: HealthCounters,
     skips_logged: u64,
     skip_logged_at: u64,
+    /// The latest measurement the fix builder refused, and the refusals
+    /// logged so far and when.
+    last_builder_refusal: Option<PushError>,
+    builder_refusals_logged: u64,
+    builder_refusal_logged_at: u64,
     /// A measurement the calibration could not correct was warned about.
     calibration_warned: bool,
 }
@@ -81,28 +86,13 @@ impl Paced for UwbDriver {
         let Item::Tdoa(mut s) = item else {
             return Ok(());
         };
-        if !tdoa_ok(&s) {
-            self.counters.dropped_invalid += 1;
-            return Ok(());
-        }
-        if self.last_t.is_some_and(|l| t_ns < l) {
-            self.counters.dropped_time += 1;
-            return Ok(());
-        }
-        let pair = (s.anchor_a.min(s.anchor_b), s.anchor_a.max(s.anchor_b));
-        if self.last_t != Some(t_ns) {
-            self.pairs_at_last_t.clear();
-        } else if self.pairs_at_last_t.contains(&pair) {
-            self.counters.dropped_time += 1;
-            return Ok(());
-        }
-        if self.pairs_at_last_t.len() < MAX_PAIRS_PER_TIME {
-            self.pairs_at_last_t.push(pair);
-        }
-        self.last_t = Some(t_ns);
         s.header.meas_time_ns = t_ns;
         s.header.generation = self.generation;
         s.header.source_id = self.source_id;
+        // Refused and counted by the gate (the heartbeat reports it).
+        if self.gate.check(&s).is_err() {
+            return Ok(());
+        }
         // Corrected by the site calibration (if any), then used and
         // published so: the fix and the tight filter use the same value.
         let s = self.fixes.calibrate(&s);
@@ -117,10 +107,17 @@ impl Paced for UwbDriver {
                 s.anchor_b
             );
         }
-        // The fixes this measurement completes go out before it.
-        if let Ok(Some(f)) = self.fixes.push(&s) {
-            self.fix.publish(f)?;
-            self.fixes_published += 1;
+        // The fixes this measurement completes go out before it. A
+        // measurement the builder refuses is counted in its stats (logged
+        // by the heartbeat) and published all the same, as `insuwb eval`
+        // hands it to the tight filter.
+        match self.fixes.push(&s) {
+            Ok(Some(f)) => {
+                self.fix.publish(f)?;
+                self.fixes_published += 1;
+            }
+            Ok(None) => {}
+            Err(e) => self.last_builder_refusal = Some(e),
         }
         self.tdoa.publish_raw(s)?;
         self.counters.published += 1;
@@ -145,6 +142,23 @@ impl Paced for UwbDriver {
             self.skips_logged = skips;
             self.skip_logged_at = t;
         }
+        let (impossible, capacity, other) = builder_refusals(self.fixes.stats());
+        let refused = impossible + capacity + other;
+        if refused > self.builder_refusals_logged
+            && t >= self.builder_refusal_logged_at + SKIP_LOG_PERIOD_NS
+        {
+            tracing::warn!(
+                "uwb driver: {} measurements refused by the fix builder, published all the same (longer than the anchors' distance once calibrated {impossible}, pair table full {capacity}, other {other}); last: {}",
+                refused - self.builder_refusals_logged,
+                self.last_builder_refusal
+                    .map_or_else(|| "-".to_owned(), |e| e.to_string())
+            );
+            self.builder_refusals_logged = refused;
+            self.builder_refusal_logged_at = t;
+        }
+        let gate = self.gate.refusals();
+        self.counters.dropped_invalid = gate.invalid();
+        self.counters.dropped_time = gate.time();
         self.counters.extra = extra;
         // Late subscribers get history only when the publisher acts.
         self.tdoa.update_connections()?;
@@ -185,11 +199,13 @@ pub fn run(cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> R
         fixes_published: 0,
         generation: stage.generation(),
         source_id: stage.source_id(),
-        last_t: None,
-        pairs_at_last_t: Vec::with_capacity(MAX_PAIRS_PER_TIME),
+        gate: TdoaGate::new(),
         counters: HealthCounters::default(),
         skips_logged: 0,
         skip_logged_at: 0,
+        last_builder_refusal: None,
+        builder_refusals_logged: 0,
+        builder_refusal_logged_at: 0,
         calibration_warned: false,
     };
     pacing::run(&stage, name, src, speed, epoch_ns, &mut driver)

@@ -1,0 +1,738 @@
+//! The checks of a sensor sample before anything uses it: one path for a
+//! measurement, whoever reads it.
+//!
+//! A sample from a source (simulation, replay, a device) passes a gate
+//! before it is published or used: [`ImuGate`] for the IMU stream,
+//! [`TdoaGate`] for the UWB TDOA stream. A gate refuses a sample whose
+//! values cannot be a measurement ([`imu_values`], [`tdoa_values`]) or whose
+//! time does not follow the stream's, counts every refusal by reason
+//! ([`ImuRefusals`], [`TdoaRefusals`]) and says why ([`ImuRefusal`],
+//! [`TdoaRefusal`]). The IMU and UWB drivers and the lockstep runner of
+//! `insuwb eval` (`insuwb_fusion::runner`) hold the same gates, so eval
+//! refuses exactly the samples a replay through the stages refuses. The
+//! live IMU sources (a device, `ros2:/TOPIC`) call [`imu_values`] and keep
+//! the time order of their host stamps themselves; the INS engine and the
+//! fix builder call the value checks again on what reaches them from other
+//! callers, with the same limits. The checks are pure and allocate nothing.
+//!
+//! ```
+//! use insuwb_msg::check::{ImuGate, ImuRefusal};
+//! use insuwb_msg::{Header, ImuSample};
+//! let mut gate = ImuGate::new();
+//! let at = |t_ns| ImuSample {
+//!     header: Header::new(0, t_ns),
+//!     accel_mps2: [0.0, 0.0, 9.81],
+//!     gyro_rps: [0.0; 3],
+//! };
+//! assert_eq!(gate.check(&at(10)), Ok(()));
+//! assert_eq!(gate.check(&at(10)), Err(ImuRefusal::TimeRepeated { time_ns: 10 }));
+//! let mut nan = at(20);
+//! nan.gyro_rps[2] = f64::NAN;
+//! assert!(gate.check(&nan).is_err());
+//! assert_eq!(gate.check(&at(20)), Ok(()));
+//! assert_eq!((gate.refusals().invalid(), gate.refusals().time()), (1, 1));
+//! ```
+//!
+//! # What is refused
+//!
+//! - IMU: a NaN or infinite value; an accelerometer axis at or above
+//!   [`MAX_ACCEL_MPS2`] or a gyro axis at or above [`MAX_RATE_RPS`] in
+//!   magnitude; a time before the previous accepted sample's, or equal to
+//!   it (a repeat).
+//! - TDOA: a NaN or infinite difference or anchor coordinate; anchor A and
+//!   B with one id; a difference longer than the distance between its two
+//!   anchors (the triangle inequality allows at most that: a corrupted or
+//!   multipath-wrapped measurement); a time before the previous accepted
+//!   measurement's; the same unordered anchor pair again at the time of an
+//!   accepted measurement (several pairs of one epoch share a time, one
+//!   pair does not), checked for the first [`MAX_PAIRS_PER_TIME`] pairs of
+//!   a time.
+//!
+//! The value refusals (`Invalid`) are what a driver's heartbeat counts in
+//! `Health::dropped_invalid`, the time refusals in `Health::dropped_time`.
+//! A refused sample changes nothing in its gate but the counts. A new
+//! sample type gets its value check, its gate, its refusal enum and its
+//! counts the same way.
+
+use crate::{ImuSample, UwbTdoa};
+use serde::{Deserialize, Serialize};
+
+/// Largest plausible accelerometer magnitude per axis, m/s^2 (excluded).
+pub const MAX_ACCEL_MPS2: f64 = 400.0;
+/// Largest plausible gyro magnitude per axis, rad/s (excluded).
+pub const MAX_RATE_RPS: f64 = 70.0;
+/// Anchor pairs a [`TdoaGate`] remembers at one time to find repeats;
+/// further pairs of that time are not checked.
+pub const MAX_PAIRS_PER_TIME: usize = 64;
+
+/// Why an IMU sample's values cannot be a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum InvalidImu {
+    /// A value is NaN or infinite.
+    #[error("imu {field}[{axis}] is not finite ({value})")]
+    NonFinite {
+        /// `accel_mps2` or `gyro_rps`.
+        field: &'static str,
+        /// The axis, 0 to 2.
+        axis: usize,
+        /// The offending value.
+        value: f64,
+    },
+    /// A value's magnitude is not below its limit.
+    #[error("imu {field}[{axis}] = {value} is out of range (|value| < {limit})")]
+    OutOfRange {
+        /// `accel_mps2` or `gyro_rps`.
+        field: &'static str,
+        /// The axis, 0 to 2.
+        axis: usize,
+        /// The offending value.
+        value: f64,
+        /// [`MAX_ACCEL_MPS2`] or [`MAX_RATE_RPS`].
+        limit: f64,
+    },
+}
+
+/// Why an [`ImuGate`] refused an IMU sample.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ImuRefusal {
+    /// Its values cannot be a measurement.
+    #[error(transparent)]
+    Invalid(#[from] InvalidImu),
+    /// Its time is before the previous accepted sample's.
+    #[error("imu time {time_ns} ns is before the previous sample's {last_ns} ns")]
+    TimeBackwards {
+        /// Time of the refused sample, ns.
+        time_ns: u64,
+        /// Time of the previous accepted sample, ns.
+        last_ns: u64,
+    },
+    /// Its time is the previous accepted sample's.
+    #[error("imu time {time_ns} ns repeats the previous sample's")]
+    TimeRepeated {
+        /// Time of both samples, ns.
+        time_ns: u64,
+    },
+}
+
+impl ImuRefusal {
+    /// Whether the sample was refused for its time (`Health::dropped_time`),
+    /// not its values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn is_time(&self) -> bool {
+        !matches!(self, Self::Invalid(_))
+    }
+}
+
+/// Why a TDOA measurement's values cannot be a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum InvalidTdoa {
+    /// A value is NaN or infinite.
+    #[error("tdoa {field} is not finite ({value})")]
+    NonFinite {
+        /// `diff_m`, `anchor_a_pos_m` or `anchor_b_pos_m`.
+        field: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// Anchor A and anchor B have the same id.
+    #[error("tdoa pairs anchor {id} with itself")]
+    SameAnchor {
+        /// The anchor id.
+        id: u32,
+    },
+    /// The range difference is longer than the distance between its anchors.
+    #[error(
+        "tdoa range difference {diff_m} m is longer than the {baseline_m} m between anchors {a} and {b}"
+    )]
+    Impossible {
+        /// The measured difference, m.
+        diff_m: f64,
+        /// Distance between the two anchors, m.
+        baseline_m: f64,
+        /// Anchor A id.
+        a: u32,
+        /// Anchor B id.
+        b: u32,
+    },
+}
+
+/// Why a [`TdoaGate`] refused a TDOA measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum TdoaRefusal {
+    /// Its values cannot be a measurement.
+    #[error(transparent)]
+    Invalid(#[from] InvalidTdoa),
+    /// Its time is before the previous accepted measurement's.
+    #[error("tdoa time {time_ns} ns is before the previous measurement's {last_ns} ns")]
+    TimeBackwards {
+        /// Time of the refused measurement, ns.
+        time_ns: u64,
+        /// Time of the previous accepted measurement, ns.
+        last_ns: u64,
+    },
+    /// Its anchor pair was measured already at this time.
+    #[error("tdoa pair ({a}, {b}) repeated at {time_ns} ns")]
+    PairRepeated {
+        /// The lower anchor id.
+        a: u32,
+        /// The higher anchor id.
+        b: u32,
+        /// The time of both measurements, ns.
+        time_ns: u64,
+    },
+}
+
+impl TdoaRefusal {
+    /// Whether the measurement was refused for its time or as a repeat
+    /// (`Health::dropped_time`), not its values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn is_time(&self) -> bool {
+        !matches!(self, Self::Invalid(_))
+    }
+}
+
+/// IMU samples refused, by reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct ImuRefusals {
+    /// A NaN or infinite value ([`InvalidImu::NonFinite`]).
+    pub non_finite: u64,
+    /// A value out of range ([`InvalidImu::OutOfRange`]).
+    pub out_of_range: u64,
+    /// A time before the previous sample's ([`ImuRefusal::TimeBackwards`]).
+    pub time_backwards: u64,
+    /// The previous sample's time again ([`ImuRefusal::TimeRepeated`]).
+    pub time_repeated: u64,
+}
+
+impl ImuRefusals {
+    /// Counts `r` under its reason.
+    pub fn count(&mut self, r: &ImuRefusal) {
+        let n = match r {
+            ImuRefusal::Invalid(InvalidImu::NonFinite { .. }) => &mut self.non_finite,
+            ImuRefusal::Invalid(InvalidImu::OutOfRange { .. }) => &mut self.out_of_range,
+            ImuRefusal::TimeBackwards { .. } => &mut self.time_backwards,
+            ImuRefusal::TimeRepeated { .. } => &mut self.time_repeated,
+        };
+        *n += 1;
+    }
+
+    /// Refused for their values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn invalid(&self) -> u64 {
+        self.non_finite + self.out_of_range
+    }
+
+    /// Refused for their time (`Health::dropped_time`).
+    #[must_use]
+    pub fn time(&self) -> u64 {
+        self.time_backwards + self.time_repeated
+    }
+
+    /// Refused in all.
+    #[must_use]
+    pub fn total(&self) -> u64 {
+        self.invalid() + self.time()
+    }
+}
+
+/// TDOA measurements refused, by reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct TdoaRefusals {
+    /// A NaN or infinite value ([`InvalidTdoa::NonFinite`]).
+    pub non_finite: u64,
+    /// One anchor id twice ([`InvalidTdoa::SameAnchor`]).
+    pub same_anchor: u64,
+    /// A difference longer than the anchors' distance ([`InvalidTdoa::Impossible`]).
+    pub impossible: u64,
+    /// A time before the previous measurement's ([`TdoaRefusal::TimeBackwards`]).
+    pub time_backwards: u64,
+    /// A pair again at one time ([`TdoaRefusal::PairRepeated`]).
+    pub pair_repeated: u64,
+}
+
+impl TdoaRefusals {
+    /// Counts `r` under its reason.
+    pub fn count(&mut self, r: &TdoaRefusal) {
+        let n = match r {
+            TdoaRefusal::Invalid(InvalidTdoa::NonFinite { .. }) => &mut self.non_finite,
+            TdoaRefusal::Invalid(InvalidTdoa::SameAnchor { .. }) => &mut self.same_anchor,
+            TdoaRefusal::Invalid(InvalidTdoa::Impossible { .. }) => &mut self.impossible,
+            TdoaRefusal::TimeBackwards { .. } => &mut self.time_backwards,
+            TdoaRefusal::PairRepeated { .. } => &mut self.pair_repeated,
+        };
+        *n += 1;
+    }
+
+    /// Refused for their values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn invalid(&self) -> u64 {
+        self.non_finite + self.same_anchor + self.impossible
+    }
+
+    /// Refused for their time or as repeats (`Health::dropped_time`).
+    #[must_use]
+    pub fn time(&self) -> u64 {
+        self.time_backwards + self.pair_repeated
+    }
+
+    /// Refused in all.
+    #[must_use]
+    pub fn total(&self) -> u64 {
+        self.invalid() + self.time()
+    }
+}
+
+/// Samples refused, by sample type and reason (what `insuwb eval` reports).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Refusals {
+    /// IMU samples.
+    pub imu: ImuRefusals,
+    /// TDOA measurements.
+    pub tdoa: TdoaRefusals,
+}
+
+/// Checks an IMU sample's values: finite, and each axis below
+/// [`MAX_ACCEL_MPS2`] (accelerometer) or [`MAX_RATE_RPS`] (gyro).
+///
+/// # Errors
+/// The first offending value, accelerometer axes first.
+pub fn imu_values(s: &ImuSample) -> Result<(), InvalidImu> {
+    for (field, values, limit) in [
+        ("accel_mps2", &s.accel_mps2, MAX_ACCEL_MPS2),
+        ("gyro_rps", &s.gyro_rps, MAX_RATE_RPS),
+    ] {
+        for (axis, &value) in values.iter().enumerate() {
+            if !value.is_finite() {
+                return Err(InvalidImu::NonFinite { field, axis, value });
+            }
+            if value.abs() >= limit {
+                return Err(InvalidImu::OutOfRange {
+                    field,
+                    axis,
+                    value,
+                    limit,
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks a TDOA measurement's values: finite, two distinct anchors, a
+/// difference no longer than the distance between them.
+///
+/// # Errors
+/// The first failed check, in that order.
+pub fn tdoa_values(m: &UwbTdoa) -> Result<(), InvalidTdoa> {
+    if !m.diff_m.is_finite() {
+        return Err(InvalidTdoa::NonFinite {
+            field: "diff_m",
+            value: m.diff_m,
+        });
+    }
+    for (field, p) in [
+        ("anchor_a_pos_m", &m.anchor_a_pos_m),
+        ("anchor_b_pos_m", &m.anchor_b_pos_m),
+    ] {
+        if let Some(&value) = p.iter().find(|v| !v.is_finite()) {
+            return Err(InvalidTdoa::NonFinite { field, value });
+        }
+    }
+    if m.anchor_a == m.anchor_b {
+        return Err(InvalidTdoa::SameAnchor { id: m.anchor_a });
+    }
+    let baseline_m = m
+        .anchor_a_pos_m
+        .iter()
+        .zip(&m.anchor_b_pos_m)
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum::<f64>()
+        .sqrt();
+    if m.diff_m.abs() > baseline_m {
+        return Err(InvalidTdoa::Impossible {
+            diff_m: m.diff_m,
+            baseline_m,
+            a: m.anchor_a,
+            b: m.anchor_b,
+        });
+    }
+    Ok(())
+}
+
+/// The gate of an IMU stream: values ([`imu_values`]), then a time strictly
+/// after the previous accepted sample's (see the module doc).
+#[derive(Debug, Clone, Default)]
+pub struct ImuGate {
+    last_ns: Option<u64>,
+    refusals: ImuRefusals,
+}
+
+impl ImuGate {
+    /// A gate that has seen nothing.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Checks `s` (its time is `header.meas_time_ns`); an accepted sample's
+    /// time becomes the one the next must follow.
+    ///
+    /// # Errors
+    /// Why `s` is refused (also counted in [`ImuGate::refusals`]).
+    pub fn check(&mut self, s: &ImuSample) -> Result<(), ImuRefusal> {
+        let r = self.verdict(s);
+        match &r {
+            Ok(()) => self.last_ns = Some(s.header.meas_time_ns),
+            Err(e) => self.refusals.count(e),
+        }
+        r
+    }
+
+    fn verdict(&self, s: &ImuSample) -> Result<(), ImuRefusal> {
+        imu_values(s)?;
+        let time_ns = s.header.meas_time_ns;
+        match self.last_ns {
+            Some(last_ns) if time_ns < last_ns => {
+                Err(ImuRefusal::TimeBackwards { time_ns, last_ns })
+            }
+            Some(last_ns) if time_ns == last_ns => Err(ImuRefusal::TimeRepeated { time_ns }),
+            _ => Ok(()),
+        }
+    }
+
+    /// The samples refused so far, by reason.
+    #[must_use]
+    pub fn refusals(&self) -> &ImuRefusals {
+        &self.refusals
+    }
+}
+
+/// The gate of a TDOA stream: values ([`tdoa_values`]), then a time not
+/// before the previous accepted measurement's and no pair twice at one
+/// time (see the module doc). Holds its pair table inline: no allocation.
+#[derive(Debug, Clone)]
+pub struct TdoaGate {
+    last_ns: Option<u64>,
+    /// Unordered pairs `(min id, max id)` accepted at `last_ns`.
+    pairs: [(u32, u32); MAX_PAIRS_PER_TIME],
+    n_pairs: usize,
+    refusals: TdoaRefusals,
+}
+
+impl Default for TdoaGate {
+    fn default() -> Self {
+        Self {
+            last_ns: None,
+            pairs: [(0, 0); MAX_PAIRS_PER_TIME],
+            n_pairs: 0,
+            refusals: TdoaRefusals::default(),
+        }
+    }
+}
+
+impl TdoaGate {
+    /// A gate that has seen nothing.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Checks `m` (its time is `header.meas_time_ns`); an accepted
+    /// measurement's time and pair are what the next is compared with.
+    ///
+    /// # Errors
+    /// Why `m` is refused (also counted in [`TdoaGate::refusals`]).
+    pub fn check(&mut self, m: &UwbTdoa) -> Result<(), TdoaRefusal> {
+        let pair = (m.anchor_a.min(m.anchor_b), m.anchor_a.max(m.anchor_b));
+        let r = self.verdict(m, pair);
+        match &r {
+            Ok(()) => {
+                let t = m.header.meas_time_ns;
+                if self.last_ns != Some(t) {
+                    self.last_ns = Some(t);
+                    self.n_pairs = 0;
+                }
+                if let Some(slot) = self.pairs.get_mut(self.n_pairs) {
+                    *slot = pair;
+                    self.n_pairs += 1;
+                }
+            }
+            Err(e) => self.refusals.count(e),
+        }
+        r
+    }
+
+    fn verdict(&self, m: &UwbTdoa, (a, b): (u32, u32)) -> Result<(), TdoaRefusal> {
+        tdoa_values(m)?;
+        let time_ns = m.header.meas_time_ns;
+        match self.last_ns {
+            Some(last_ns) if time_ns < last_ns => {
+                Err(TdoaRefusal::TimeBackwards { time_ns, last_ns })
+            }
+            Some(last_ns)
+                if time_ns == last_ns
+                    && self
+                        .pairs
+                        .get(..self.n_pairs)
+                        .is_some_and(|p| p.contains(&(a, b))) =>
+            {
+                Err(TdoaRefusal::PairRepeated { a, b, time_ns })
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The measurements refused so far, by reason.
+    #[must_use]
+    pub fn refusals(&self) -> &TdoaRefusals {
+        &self.refusals
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Header;
+
+    fn imu(t_ns: u64) -> ImuSample {
+        ImuSample {
+            header: Header::new(0, t_ns),
+            accel_mps2: [0.1, -0.2, 9.81],
+            gyro_rps: [0.01, 0.0, -0.02],
+        }
+    }
+
+    /// Anchors 0 at the origin, 1 at 10 m east, 2 at 10 m north.
+    fn tdoa(t_ns: u64, a: u32, b: u32, diff_m: f64) -> UwbTdoa {
+        let pos = |id: u32| match id {
+            1 => [10.0, 0.0, 0.0],
+            2 => [0.0, 10.0, 0.0],
+            _ => [0.0; 3],
+        };
+        UwbTdoa {
+            header: Header::new(0, t_ns),
+            anchor_a: a,
+            anchor_b: b,
+            diff_m,
+            anchor_a_pos_m: pos(a),
+            anchor_b_pos_m: pos(b),
+        }
+    }
+
+    #[test]
+    fn imu_values_refuse_each_bad_value_by_field_and_axis() {
+        assert_eq!(imu_values(&imu(0)), Ok(()));
+        let mut s = imu(0);
+        s.accel_mps2[1] = f64::INFINITY;
+        assert_eq!(
+            imu_values(&s),
+            Err(InvalidImu::NonFinite {
+                field: "accel_mps2",
+                axis: 1,
+                value: f64::INFINITY
+            })
+        );
+        let mut s = imu(0);
+        s.gyro_rps[2] = f64::NAN;
+        assert!(matches!(
+            imu_values(&s),
+            Err(InvalidImu::NonFinite { field: "gyro_rps", axis: 2, value }) if value.is_nan()
+        ));
+        let mut s = imu(0);
+        s.accel_mps2[0] = -MAX_ACCEL_MPS2;
+        assert_eq!(
+            imu_values(&s),
+            Err(InvalidImu::OutOfRange {
+                field: "accel_mps2",
+                axis: 0,
+                value: -MAX_ACCEL_MPS2,
+                limit: MAX_ACCEL_MPS2
+            })
+        );
+        s.accel_mps2[0] = 399.9;
+        assert_eq!(imu_values(&s), Ok(()));
+        s.gyro_rps[1] = MAX_RATE_RPS;
+        assert_eq!(
+            imu_values(&s),
+            Err(InvalidImu::OutOfRange {
+                field: "gyro_rps",
+                axis: 1,
+                value: MAX_RATE_RPS,
+                limit: MAX_RATE_RPS
+            })
+        );
+    }
+
+    #[test]
+    fn the_imu_gate_refuses_and_counts_each_reason() {
+        let mut g = ImuGate::new();
+        assert_eq!(g.check(&imu(100)), Ok(()));
+        assert_eq!(
+            g.check(&imu(100)),
+            Err(ImuRefusal::TimeRepeated { time_ns: 100 })
+        );
+        assert_eq!(
+            g.check(&imu(50)),
+            Err(ImuRefusal::TimeBackwards {
+                time_ns: 50,
+                last_ns: 100
+            })
+        );
+        let mut bad = imu(200);
+        bad.gyro_rps[0] = 100.0;
+        let r = g.check(&bad);
+        assert!(matches!(
+            r,
+            Err(ImuRefusal::Invalid(InvalidImu::OutOfRange { .. }))
+        ));
+        assert!(!r.is_err_and(|e| e.is_time()));
+        bad = imu(200);
+        bad.accel_mps2[2] = f64::NAN;
+        assert!(g.check(&bad).is_err());
+        // A refused sample moved nothing: 200 is still after 100.
+        assert_eq!(g.check(&imu(200)), Ok(()));
+        // A bad value at a bad time is refused for its value.
+        let mut both = imu(10);
+        both.accel_mps2[0] = f64::NEG_INFINITY;
+        assert!(matches!(g.check(&both), Err(ImuRefusal::Invalid(_))));
+        assert_eq!(
+            *g.refusals(),
+            ImuRefusals {
+                non_finite: 2,
+                out_of_range: 1,
+                time_backwards: 1,
+                time_repeated: 1,
+            }
+        );
+        assert_eq!(
+            (
+                g.refusals().invalid(),
+                g.refusals().time(),
+                g.refusals().total()
+            ),
+            (3, 2, 5)
+        );
+    }
+
+    #[test]
+    fn tdoa_values_refuse_each_bad_value() {
+        assert_eq!(tdoa_values(&tdoa(0, 0, 1, 9.0)), Ok(()));
+        // At the baseline exactly: a tag on the line beyond an anchor.
+        assert_eq!(tdoa_values(&tdoa(0, 0, 1, -10.0)), Ok(()));
+        assert!(matches!(
+            tdoa_values(&tdoa(0, 0, 1, f64::NAN)),
+            Err(InvalidTdoa::NonFinite {
+                field: "diff_m",
+                ..
+            })
+        ));
+        let mut m = tdoa(0, 0, 1, 1.0);
+        m.anchor_b_pos_m[2] = f64::INFINITY;
+        assert_eq!(
+            tdoa_values(&m),
+            Err(InvalidTdoa::NonFinite {
+                field: "anchor_b_pos_m",
+                value: f64::INFINITY
+            })
+        );
+        assert_eq!(
+            tdoa_values(&tdoa(0, 2, 2, 0.0)),
+            Err(InvalidTdoa::SameAnchor { id: 2 })
+        );
+        assert_eq!(
+            tdoa_values(&tdoa(0, 0, 1, 10.5)),
+            Err(InvalidTdoa::Impossible {
+                diff_m: 10.5,
+                baseline_m: 10.0,
+                a: 0,
+                b: 1
+            })
+        );
+    }
+
+    #[test]
+    fn the_tdoa_gate_refuses_and_counts_each_reason() {
+        let mut g = TdoaGate::new();
+        assert_eq!(g.check(&tdoa(100, 0, 1, 1.0)), Ok(()));
+        // Another pair at the same time: an epoch of several pairs.
+        assert_eq!(g.check(&tdoa(100, 0, 2, 1.0)), Ok(()));
+        // The same unordered pair again at that time.
+        assert_eq!(
+            g.check(&tdoa(100, 1, 0, -1.0)),
+            Err(TdoaRefusal::PairRepeated {
+                a: 0,
+                b: 1,
+                time_ns: 100
+            })
+        );
+        assert_eq!(
+            g.check(&tdoa(90, 1, 2, 0.0)),
+            Err(TdoaRefusal::TimeBackwards {
+                time_ns: 90,
+                last_ns: 100
+            })
+        );
+        assert!(g.check(&tdoa(110, 1, 1, 0.0)).is_err());
+        assert!(g.check(&tdoa(110, 0, 1, 11.0)).is_err());
+        assert!(g.check(&tdoa(110, 0, 1, f64::INFINITY)).is_err());
+        // The refusals moved nothing; a new time forgets the pairs.
+        assert_eq!(g.check(&tdoa(100, 1, 2, 0.0)), Ok(()));
+        assert_eq!(g.check(&tdoa(120, 0, 1, 1.0)), Ok(()));
+        assert_eq!(
+            *g.refusals(),
+            TdoaRefusals {
+                non_finite: 1,
+                same_anchor: 1,
+                impossible: 1,
+                time_backwards: 1,
+                pair_repeated: 1,
+            }
+        );
+        assert_eq!((g.refusals().invalid(), g.refusals().time()), (3, 2));
+        assert!(TdoaRefusal::PairRepeated {
+            a: 0,
+            b: 1,
+            time_ns: 0
+        }
+        .is_time());
+    }
+
+    /// Beyond [`MAX_PAIRS_PER_TIME`] pairs at one time, further pairs are
+    /// accepted unchecked (the table is bounded); the first ones are still
+    /// caught.
+    #[test]
+    fn the_tdoa_gate_checks_the_first_pairs_of_a_crowded_time() {
+        let mut g = TdoaGate::new();
+        let at = |a: u32, b: u32| tdoa(5, a, b, 0.0);
+        let pairs: Vec<(u32, u32)> = (3..40)
+            .flat_map(|a| (a + 1..a + 3).map(move |b| (a, b)))
+            .take(MAX_PAIRS_PER_TIME + 2)
+            .collect();
+        for &(a, b) in &pairs {
+            assert_eq!(g.check(&at(a, b)), Ok(()));
+        }
+        let (a, b) = pairs[0];
+        assert!(g.check(&at(b, a)).is_err());
+        let (a, b) = pairs[MAX_PAIRS_PER_TIME + 1];
+        assert_eq!(g.check(&at(a, b)), Ok(()));
+    }
+
+    #[test]
+    fn refusals_say_what_and_why() {
+        let r = TdoaRefusal::from(InvalidTdoa::Impossible {
+            diff_m: 12.5,
+            baseline_m: 10.0,
+            a: 3,
+            b: 4,
+        });
+        assert_eq!(
+            r.to_string(),
+            "tdoa range difference 12.5 m is longer than the 10 m between anchors 3 and 4"
+        );
+        assert!(std::error::Error::source(&r).is_none());
+        assert_eq!(
+            ImuRefusal::TimeRepeated { time_ns: 7 }.to_string(),
+            "imu time 7 ns repeats the previous sample's"
+        );
+    }
+}
