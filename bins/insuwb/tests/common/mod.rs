@@ -183,6 +183,26 @@ pub fn undegraded_fused(log_dir: &Path) -> Vec<insuwb_msg::FusedState> {
         .collect()
 }
 
+/// The pipeline's fused states against eval's, paired by the UWB sample
+/// they fused: asserts that all but two of eval's found their pair and that
+/// no pair is more than 1 mm apart horizontally.
+pub fn assert_same_fused(piped: &[insuwb_msg::FusedState], eval: &[insuwb_msg::FusedState]) {
+    let (mut matched, mut worst) = (0usize, 0.0f64);
+    for p in piped {
+        if let Some(o) = eval.iter().find(|o| o.uwb_seq == p.uwb_seq) {
+            let d = ((p.pos_m[0] - o.pos_m[0]).powi(2) + (p.pos_m[1] - o.pos_m[1]).powi(2)).sqrt();
+            worst = worst.max(d);
+            matched += 1;
+        }
+    }
+    assert!(
+        matched + 2 >= eval.len(),
+        "matched {matched} of {}",
+        eval.len()
+    );
+    assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
+}
+
 /// A project log through `insuwb eval`'s in-process code path, with the
 /// fusion settings the log carries and filter `kind`.
 pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::runner::RunOutput {

@@ -31,7 +31,7 @@ use insuwb_log::Record;
 use insuwb_msg::{FusedState, GroundTruth, Health, ImuSample};
 use insuwb_runtime::monotonic_ns;
 
-mod common;
+use crate::common;
 use common::{f, one_at_a_time as lock, records, Group};
 
 const SEED: u64 = 3;

@@ -18,7 +18,7 @@ use std::process::Command;
 
 use insuwb_log::Record;
 
-mod common;
+use crate::common;
 use common::{f, insuwb, offline_run, one_at_a_time as lock, records, undegraded_fused, Group};
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 3";
@@ -194,21 +194,7 @@ fn replay_at_10x_through_the_processes_equals_eval() {
         piped.len(),
         out.fused.len()
     );
-    let mut matched = 0;
-    let mut worst: f64 = 0.0;
-    for p in &piped {
-        if let Some(o) = out.fused.iter().find(|o| o.uwb_seq == p.uwb_seq) {
-            let d = ((p.pos_m[0] - o.pos_m[0]).powi(2) + (p.pos_m[1] - o.pos_m[1]).powi(2)).sqrt();
-            worst = worst.max(d);
-            matched += 1;
-        }
-    }
-    assert!(
-        matched >= out.fused.len() - 2,
-        "matched {matched} of {}",
-        out.fused.len()
-    );
-    assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
+    common::assert_same_fused(&piped, &out.fused);
     let _ = std::fs::remove_dir_all(&tmp);
 }
 

@@ -23,7 +23,7 @@ use insuwb_devices::link::{Link, Read, ReconnectPolicy};
 use insuwb_devices::{eliko, Protocol};
 use insuwb_runtime::monotonic_ns;
 
-mod common;
+use crate::common;
 use common::{f, insuwb, one_at_a_time as lock};
 
 /// Runs `insuwb demo` with `extra` arguments; returns the JSON report.

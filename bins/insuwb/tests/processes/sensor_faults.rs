@@ -10,7 +10,7 @@ use insuwb_eval::metrics::TruthTrack;
 use insuwb_log::Record;
 use insuwb_msg::{FusedState, GroundTruth};
 
-mod common;
+use crate::common;
 use common::{f, one_at_a_time as lock, records, Group};
 
 /// Fused states and ground truth of a recording, time-sorted, and the

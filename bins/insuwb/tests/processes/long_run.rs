@@ -2,7 +2,7 @@
 //! memory stays flat (nothing is kept per sample for the whole run).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::process::{Command, Stdio};

@@ -19,7 +19,7 @@ use insuwb_log::{LogWriter, Record};
 use insuwb_msg::check::{ImuGate, ImuRefusals, TdoaGate, TdoaRefusals};
 use insuwb_msg::{FilterKind, ImuSample, UwbTdoa};
 
-mod common;
+use crate::common;
 use common::{f, offline_run, one_at_a_time, records, run, succeeded, undegraded_fused, Group};
 
 /// `s` at `dt_ns` after its own time, with `edit` applied.
@@ -296,19 +296,6 @@ fn eval_and_the_drivers_refuse_the_same_samples() {
     }
     // ... and the same fused states.
     let piped = undegraded_fused(&g.log_dir());
-    let (mut matched, mut worst) = (0usize, 0.0f64);
-    for p in &piped {
-        if let Some(o) = out.fused.iter().find(|o| o.uwb_seq == p.uwb_seq) {
-            let d = ((p.pos_m[0] - o.pos_m[0]).powi(2) + (p.pos_m[1] - o.pos_m[1]).powi(2)).sqrt();
-            worst = worst.max(d);
-            matched += 1;
-        }
-    }
-    assert!(
-        matched + 2 >= out.fused.len(),
-        "matched {matched} of {}",
-        out.fused.len()
-    );
-    assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
+    common::assert_same_fused(&piped, &out.fused);
     let _ = std::fs::remove_dir_all(&tmp);
 }

@@ -8,17 +8,14 @@
 //! too late is dropped, by design). The figures and their targets belong to
 //! `insuwb bench latency` and BENCHMARKS.md ("Latency of the 10 Hz loop").
 //!
-//! Both tests start process groups, so they run one at a time (a lock).
-//! They need the workspace's binaries next to `insuwb`
-//! (`cargo build --release`, or `cargo test --workspace`).
+//! Both tests start process groups, so they run one at a time (the lock
+//! of every process test). They need the workspace's binaries next to
+//! `insuwb` (`cargo build --release --workspace`).
 
 use std::path::PathBuf;
 use std::process::Command;
-use std::sync::Mutex;
 
 use insuwb_bench::analysis::{analyse, AnalysisConfig};
-
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 /// The latency figures of `insuwb bench latency --json`, us.
 const BENCH_FIGURES: [&str; 7] = [
@@ -57,9 +54,7 @@ fn assert_ordered(what: &str, p: &insuwb_bench::analysis::Percentiles) {
 
 #[test]
 fn fixes_become_fused_states_that_follow_their_inputs() {
-    let _lock = ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _lock = crate::common::one_at_a_time();
     let id = std::process::id();
     let dir = std::env::temp_dir().join(format!("insuwb-test-latency-{id}"));
     let _ = std::fs::remove_dir_all(&dir);
@@ -126,9 +121,7 @@ fn fixes_become_fused_states_that_follow_their_inputs() {
 
 #[test]
 fn bench_latency_prints_one_json_object_with_the_issues_keys() {
-    let _lock = ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _lock = crate::common::one_at_a_time();
     let samples = std::env::temp_dir().join(format!("insuwb-bench-samples-{}", std::process::id()));
     let out = Command::new(insuwb())
         .args([

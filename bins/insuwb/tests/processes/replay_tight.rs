@@ -10,7 +10,7 @@
 //! passes, unless the environment variable `CI` is set, where it fails.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-mod common;
+use crate::common;
 
 use common::{
     f, offline_run, one_at_a_time, run, succeeded, undegraded_fused, util_data_dir, Group,
