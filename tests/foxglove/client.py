@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A Foxglove WebSocket client, written from the protocol's specification
 (github.com/foxglove/ws-protocol, docs/spec.md) with the PyPI `websockets`
-package, for the insuwb live-view test (bins/insuwb/tests/foxglove_live.rs).
+package, for the insuwb live-view test (bins/insuwb/tests/processes/foxglove_live.rs).
 
 It connects with subprotocol `foxglove.sdk.v1`, reads `serverInfo` and the
 `advertise` messages, subscribes to every advertised channel, and decodes
