@@ -80,7 +80,9 @@ pub struct StageFigures {
     pub seq_gaps: u64,
     /// Stage-specific counters.
     pub extra: [u64; 4],
-    /// Last state reported: ok, degraded, disconnected or stopping.
+    /// Last state reported, in the words of every report
+    /// (`insuwb_report::health::StageCondition::name`): ok, degraded,
+    /// disconnected, stopping or unknown.
     pub state: &'static str,
     /// Device drivers: the device clock's offset to CLOCK_MONOTONIC, ns
     /// (`extra[2]`, decoded; absent while unknown).
@@ -360,13 +362,7 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
                     dropped_version: h.dropped_version,
                     seq_gaps: h.seq_gaps,
                     extra: h.extra,
-                    state: match h.state {
-                        Health::STATE_OK => "ok",
-                        Health::STATE_DEGRADED => "degraded",
-                        Health::STATE_DISCONNECTED => "disconnected",
-                        Health::STATE_STOPPING => "stopping",
-                        _ => "unknown",
-                    },
+                    state: insuwb_report::health::StageCondition::of_state(h.state).name(),
                     clock_offset_ns: None,
                     clock_drift_ppb: None,
                 };

@@ -675,15 +675,8 @@ pub fn stage_health(
     now_ns: u64,
     stale_after_ns: u64,
 ) -> StageHealth {
-    let (status, level) = match StageCondition::of(seen, coasting, now_ns, stale_after_ns) {
-        StageCondition::Down => ("down", 2),
-        StageCondition::Stale => ("stale", 2),
-        StageCondition::Stopping => ("stopping", 2),
-        StageCondition::Disconnected => ("disconnected", 2),
-        StageCondition::Degraded => ("degraded", 1),
-        StageCondition::Coasting => ("coasting", 1),
-        StageCondition::Ok | StageCondition::Unknown(_) => ("ok", 0),
-    };
+    let condition = StageCondition::of(seen, coasting, now_ns, stale_after_ns);
+    let (status, level) = (condition.name(), condition.severity().level());
     let Some(s) = seen else {
         return StageHealth {
             name: name.to_owned(),

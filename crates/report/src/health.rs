@@ -105,13 +105,77 @@ impl StageCondition {
         if s.age_ns(now_ns) > stale_after_ns {
             return Self::Stale;
         }
-        match s.last.state {
-            Health::STATE_STOPPING => Self::Stopping,
-            Health::STATE_DISCONNECTED => Self::Disconnected,
-            Health::STATE_DEGRADED => Self::Degraded,
-            _ if coasting => Self::Coasting,
+        match Self::of_state(s.last.state) {
+            Self::Ok if coasting => Self::Coasting,
+            Self::Unknown(_) if coasting => Self::Coasting,
+            c => c,
+        }
+    }
+
+    /// The condition a heartbeat's state code says by itself (no age, no
+    /// coasting): `Ok`, `Degraded`, `Disconnected`, `Stopping` or `Unknown`.
+    #[must_use]
+    pub fn of_state(state: u32) -> Self {
+        match state {
             Health::STATE_OK => Self::Ok,
+            Health::STATE_DEGRADED => Self::Degraded,
+            Health::STATE_DISCONNECTED => Self::Disconnected,
+            Health::STATE_STOPPING => Self::Stopping,
             other => Self::Unknown(other),
+        }
+    }
+
+    /// The condition's word, the same in every report (the launcher's,
+    /// ROS 2 `/diagnostics`, the Foxglove live view, the Zenoh bridge's
+    /// health): `down`, `stale`, `stopping`, `disconnected`, `degraded`,
+    /// `coasting`, `ok`, `unknown`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Down => "down",
+            Self::Stale => "stale",
+            Self::Stopping => "stopping",
+            Self::Disconnected => "disconnected",
+            Self::Degraded => "degraded",
+            Self::Coasting => "coasting",
+            Self::Ok => "ok",
+            Self::Unknown(_) => "unknown",
+        }
+    }
+
+    /// How bad the condition is, the same in every report: the stage is
+    /// not doing its work (`Error`), does it with less (`Warn`, an unknown
+    /// state code included), or is fine (`Ok`).
+    #[must_use]
+    pub fn severity(self) -> Severity {
+        match self {
+            Self::Down | Self::Stale | Self::Stopping | Self::Disconnected => Severity::Error,
+            Self::Degraded | Self::Coasting | Self::Unknown(_) => Severity::Warn,
+            Self::Ok => Severity::Ok,
+        }
+    }
+}
+
+/// How bad a stage's condition is ([`StageCondition::severity`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Severity {
+    /// Working normally.
+    Ok,
+    /// Working with less (degraded input, coasting, an unknown state).
+    Warn,
+    /// Not working (no heartbeat, a stale one, stopping, input lost).
+    Error,
+}
+
+impl Severity {
+    /// 0, 1 or 2: the level of ROS 2's `diagnostic_msgs/DiagnosticStatus`
+    /// (OK, WARN, ERROR) and of the Foxglove live view's health.
+    #[must_use]
+    pub fn level(self) -> u8 {
+        match self {
+            Self::Ok => 0,
+            Self::Warn => 1,
+            Self::Error => 2,
         }
     }
 }
@@ -190,6 +254,30 @@ mod tests {
         };
         h.header.pub_time_ns = pub_ns;
         h
+    }
+
+    #[test]
+    fn one_word_and_severity_per_condition_an_unknown_state_a_warning() {
+        use StageCondition as C;
+        let table = [
+            (C::Down, "down", Severity::Error),
+            (C::Stale, "stale", Severity::Error),
+            (C::Stopping, "stopping", Severity::Error),
+            (C::Disconnected, "disconnected", Severity::Error),
+            (C::Degraded, "degraded", Severity::Warn),
+            (C::Coasting, "coasting", Severity::Warn),
+            (C::Ok, "ok", Severity::Ok),
+            (C::Unknown(9), "unknown", Severity::Warn),
+        ];
+        for (c, name, severity) in table {
+            assert_eq!((c.name(), c.severity()), (name, severity), "{c:?}");
+        }
+        assert_eq!(
+            [Severity::Ok, Severity::Warn, Severity::Error].map(Severity::level),
+            [0, 1, 2]
+        );
+        assert_eq!(C::of_state(Health::STATE_STOPPING), C::Stopping);
+        assert_eq!(C::of_state(77), C::Unknown(77));
     }
 
     #[test]

@@ -428,26 +428,20 @@ pub fn stage_status(
     stale_after_ns: u64,
 ) -> DiagnosticStatus {
     let age_ns = seen.map_or(0, |s| s.age_ns(now_ns));
-    let (level, message) = match StageCondition::of(seen, coasting, now_ns, stale_after_ns) {
-        StageCondition::Down => (
-            DiagnosticStatus::ERROR,
-            "down: no heartbeat received".to_owned(),
-        ),
-        StageCondition::Stale => (
-            DiagnosticStatus::ERROR,
-            format!("stale: last heartbeat {:.1} s ago", age_ns as f64 * 1e-9),
-        ),
-        StageCondition::Stopping => (DiagnosticStatus::ERROR, "down: stopping".to_owned()),
-        StageCondition::Disconnected => (DiagnosticStatus::ERROR, "input disconnected".to_owned()),
-        StageCondition::Degraded => (DiagnosticStatus::WARN, "degraded".to_owned()),
-        StageCondition::Coasting => (
-            DiagnosticStatus::WARN,
-            "coasting: no UWB update, INS only".to_owned(),
-        ),
-        StageCondition::Ok => (DiagnosticStatus::OK, "ok".to_owned()),
-        StageCondition::Unknown(other) => {
-            (DiagnosticStatus::WARN, format!("unknown state {other}"))
+    let condition = StageCondition::of(seen, coasting, now_ns, stale_after_ns);
+    // The word and the level are the one table's (`StageCondition::name`,
+    // `severity`); the message adds what explains it.
+    let level = condition.severity().level();
+    let word = condition.name();
+    let message = match condition {
+        StageCondition::Down => format!("{word}: no heartbeat received"),
+        StageCondition::Stale => {
+            format!("{word}: last heartbeat {:.1} s ago", age_ns as f64 * 1e-9)
         }
+        StageCondition::Disconnected => format!("{word}: input lost"),
+        StageCondition::Coasting => format!("{word}: no UWB update, INS only"),
+        StageCondition::Unknown(code) => format!("{word}: state code {code}"),
+        StageCondition::Stopping | StageCondition::Degraded | StageCondition::Ok => word.to_owned(),
     };
     DiagnosticStatus {
         level,

@@ -316,16 +316,18 @@ impl StagePayload {
         now_ns: u64,
         stale_after_ns: u64,
     ) -> Self {
-        let (state, condition) = match StageCondition::of(seen, coasting, now_ns, stale_after_ns) {
-            StageCondition::Down => (StageState::Down, "down"),
-            StageCondition::Stale => (StageState::Down, "stale"),
-            StageCondition::Stopping => (StageState::Stopping, "stopping"),
-            StageCondition::Disconnected => (StageState::Disconnected, "disconnected"),
-            StageCondition::Degraded => (StageState::Degraded, "degraded"),
-            StageCondition::Coasting => (StageState::Degraded, "coasting"),
-            StageCondition::Ok => (StageState::Ok, "ok"),
-            StageCondition::Unknown(_) => (StageState::Degraded, "unknown"),
+        let c = StageCondition::of(seen, coasting, now_ns, stale_after_ns);
+        // The payload's coarse state; the condition word is the one table's.
+        let state = match c {
+            StageCondition::Down | StageCondition::Stale => StageState::Down,
+            StageCondition::Stopping => StageState::Stopping,
+            StageCondition::Disconnected => StageState::Disconnected,
+            StageCondition::Degraded | StageCondition::Coasting | StageCondition::Unknown(_) => {
+                StageState::Degraded
+            }
+            StageCondition::Ok => StageState::Ok,
         };
+        let condition = c.name();
         Self {
             stage: name.to_owned(),
             state,

@@ -28,7 +28,10 @@ fn corpus_path(protocol: Protocol) -> PathBuf {
 }
 
 const CORPUS: [(Protocol, &[u8]); 4] = [
-    (Protocol::WitMotion, include_bytes!("../corpus/witmotion.bin")),
+    (
+        Protocol::WitMotion,
+        include_bytes!("../corpus/witmotion.bin"),
+    ),
     (Protocol::Mavlink, include_bytes!("../corpus/mavlink.bin")),
     (Protocol::Nlink, include_bytes!("../corpus/nlink.bin")),
     (Protocol::Eliko, include_bytes!("../corpus/eliko.bin")),
