@@ -76,7 +76,12 @@ pub fn run(a: &ProbeArgs) -> Result<()> {
 
 type Emit<'a> = dyn FnMut(u64, u64) -> Result<()> + 'a;
 
-fn ros2(config: &PathBuf, stop: &AtomicBool, bound: Duration, emit: &mut Emit<'_>) -> Result<()> {
+fn ros2(
+    config: &std::path::Path,
+    stop: &AtomicBool,
+    bound: Duration,
+    emit: &mut Emit<'_>,
+) -> Result<()> {
     use insuwb_ros2::msgs::Odometry;
     use insuwb_ros2::subscribe::{odometry_qos, Subscriber};
     let cfg = insuwb_group::robot::RobotConfig::load(config)?;
