@@ -33,8 +33,10 @@ use insuwb_msg::{Health, ImuSample};
 
 /// Set in the re-executed test process, inside the network namespace.
 const INNER: &str = "INSUWB_ROS2_IMU_SOURCE_INNER";
-/// This test's name (the re-executed process runs it alone).
-const TEST: &str = "imu_samples_from_a_cyclonedds_publisher_are_driven_like_any_source";
+/// This test's name in the binary, module and function (the re-executed
+/// process runs it alone, `--exact`).
+const TEST: &str =
+    "ros2_imu_source::imu_samples_from_a_cyclonedds_publisher_are_driven_like_any_source";
 const DOMAIN: u16 = 43;
 const TOPIC: &str = "/test_imu";
 /// Samples published, and how many of them are invalid (see the script).

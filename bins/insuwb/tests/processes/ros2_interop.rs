@@ -32,8 +32,9 @@ use insuwb_msg::{FusedState, ImuSample};
 
 /// Set in the re-executed test process, inside the network namespace.
 const INNER: &str = "INSUWB_ROS2_INTEROP_INNER";
-/// This test's name (the re-executed process runs it alone).
-const TEST: &str = "ros2_topics_reach_a_cyclonedds_subscriber";
+/// This test's name in the binary, module and function (the re-executed
+/// process runs it alone, `--exact`).
+const TEST: &str = "ros2_interop::ros2_topics_reach_a_cyclonedds_subscriber";
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1";
 const DOMAIN: u16 = 42;
 const LEVER_ARM: [f64; 3] = [0.1, -0.2, 0.3];
