@@ -23,7 +23,8 @@ struct Args {
     #[arg(long)]
     root_path: Option<PathBuf>,
     /// Start epoch shared by the drivers (CLOCK_MONOTONIC ns); 0: the next
-    /// whole second plus 2.5 ms at least 0.5 s ahead (as the pipeline's).
+    /// start epoch at least 0.5 s ahead (`insuwb_runtime::epoch`), as the
+    /// pipeline's.
     #[arg(long, default_value_t = 0)]
     start_epoch_ns: u64,
     /// IMU rate, Hz.

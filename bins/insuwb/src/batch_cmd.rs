@@ -1,13 +1,14 @@
 //! `insuwb eval --flights MANIFEST.csv`: every flight of a manifest,
 //! evaluated in parallel as `insuwb eval FILE --anchors A` evaluates one,
 //! then one row per flight and a summary per solution against the
-//! manifest's reference columns.
+//! manifest's reference columns. The progress bar on a terminal is
+//! `indicatif`'s.
 
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
 
 use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
 use insuwb_eval::batch::{self, FlightMetrics, Manifest, ManifestFlight};
 
 use crate::eval_cmd::{evaluate_file, print_result, write_plots, EvalArgs};
@@ -30,16 +31,22 @@ pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
         .iter()
         .map(|f| std::fs::metadata(&f.file).map_or(0, |m| m.len()))
         .collect();
-    let bar = std::io::stderr()
-        .is_terminal()
-        .then(|| Progress::new(manifest.flights.len()));
-    // With a progress bar, the flights' info messages would break it: keep
-    // warnings only on the worker threads.
-    let quiet = bar.as_ref().map(|_| {
+    // Hidden by indicatif when standard error is not a terminal.
+    let bar = progress_bar(manifest.flights.len());
+    // Written between the bar's redraws, the flights' log lines would break
+    // it: on the worker threads they go through the bar, which clears
+    // itself, writes them and redraws below them.
+    let above_bar = (!bar.is_hidden()).then(|| {
+        let bar = bar.clone();
         tracing::Dispatch::new(
             tracing_subscriber::fmt()
-                .with_writer(std::io::stderr)
-                .with_max_level(tracing::Level::WARN)
+                .with_writer(move || AboveBar(bar.clone()))
+                .with_ansi(true)
+                .with_env_filter(
+                    tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+                        tracing_subscriber::EnvFilter::new(insuwb_runtime::DEFAULT_LOG_FILTER)
+                    }),
+                )
                 .finish(),
         )
     });
@@ -49,22 +56,16 @@ pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
         jobs,
         |i| {
             let f = &manifest.flights[i];
-            match &quiet {
+            match &above_bar {
                 Some(d) => tracing::dispatcher::with_default(d, || {
                     evaluate_flight(a, f, calibration.as_ref())
                 }),
                 None => evaluate_flight(a, f, calibration.as_ref()),
             }
         },
-        |done, _| {
-            if let Some(b) = &bar {
-                b.show(done);
-            }
-        },
+        |done, _| bar.set_position(done as u64),
     );
-    if let Some(b) = &bar {
-        b.finish();
-    }
+    bar.finish();
     let results = results.map_err(|e| e.error.context(manifest.flight_label(e.index)))?;
     tracing::info!(
         "evaluated {} flights in {:.2} s on {} thread(s)",
@@ -129,42 +130,30 @@ fn figure_folder(name: &str) -> PathBuf {
     })
 }
 
-/// A one-line progress bar on standard error: `[#####     ] 7/23`.
-#[derive(Debug)]
-struct Progress {
-    total: usize,
-    lock: Mutex<()>,
+/// The flights' progress on standard error, `[#####     ] 7/23`
+/// (`indicatif`; hidden where standard error is not a terminal).
+fn progress_bar(flights: usize) -> ProgressBar {
+    let bar = ProgressBar::new(flights as u64);
+    if let Ok(style) = ProgressStyle::with_template("[{bar:30}] {pos}/{len}") {
+        bar.set_style(style.progress_chars("## "));
+    }
+    bar
 }
 
-impl Progress {
-    const WIDTH: usize = 30;
+/// A log line's writer that writes it above the progress bar
+/// (`ProgressBar::suspend`: the bar is cleared, the line written to
+/// standard error, the bar redrawn).
+struct AboveBar(ProgressBar);
 
-    fn new(total: usize) -> Self {
-        let p = Self {
-            total,
-            lock: Mutex::new(()),
-        };
-        p.show(0);
-        p
+impl Write for AboveBar {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0
+            .suspend(|| std::io::stderr().lock().write_all(buf))
+            .map(|()| buf.len())
     }
 
-    fn show(&self, done: usize) {
-        let _guard = self.lock.lock();
-        let filled = (Self::WIDTH * done).checked_div(self.total).unwrap_or(0);
-        let mut err = std::io::stderr().lock();
-        let _ = write!(
-            err,
-            "\r[{}{}] {done}/{}",
-            "#".repeat(filled),
-            " ".repeat(Self::WIDTH - filled.min(Self::WIDTH)),
-            self.total
-        );
-        let _ = err.flush();
-    }
-
-    fn finish(&self) {
-        let _guard = self.lock.lock();
-        let _ = writeln!(std::io::stderr());
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::stderr().flush()
     }
 }
 

@@ -61,7 +61,7 @@ pub struct EmulateArgs {
     /// Play speed (1: the recorded rate).
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
-    /// CLOCK_MONOTONIC time (ns) of the recording's start (default: the next whole second plus 2.5 ms at least 0.5 s ahead).
+    /// CLOCK_MONOTONIC time (ns) of the recording's start (default: the next start epoch at least 0.5 s ahead, `insuwb_runtime::epoch`).
     #[arg(long)]
     pub start_epoch_ns: Option<u64>,
     /// Device clock at the epoch, s (default: 10 s since boot for MAVLink and NLink, Unix time 1700000000 for Eliko).

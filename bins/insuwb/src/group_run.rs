@@ -9,7 +9,9 @@ use anyhow::{bail, Context, Result};
 use insuwb_group::launch::{shutdown_order, supervise, FaultInjector, LoopEnd, LoopOptions, Watch};
 use insuwb_group::robot::{choose_start_epoch, RobotConfig, START_EPOCH_ENV};
 use insuwb_launch::{StageSpec, Supervisor};
-use insuwb_msg::{topics, FusedState, GroundTruth, Health, ImuSample, StageRole, UwbFix};
+use insuwb_msg::{
+    topics, FusedState, GroundTruth, Health, ImuSample, StageCounters, StageRole, UwbFix,
+};
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
 
 use crate::monitor::Monitor;
@@ -60,10 +62,11 @@ pub struct GroupReport {
     pub stages: std::collections::BTreeMap<String, StageFigures>,
 }
 
-/// A stage's counters from its last heartbeat (`Health`). Drivers: `extra`
-/// of `uwb` is `[fixes, skipped too few pairs, skipped geometry, skipped
-/// solver]` (see `insuwb_stage::driver`); of `fusion` `[_, outliers, ..]`; of
-/// `logger` `[records sent, records dropped, ..]`.
+/// A stage's counters from its last heartbeat (`Health`): those every stage
+/// keeps, and those of its kind by name (`counters`, see
+/// `insuwb_msg::StageCounters`: e.g. `fixes` of the UWB driver, `outliers`
+/// of fusion, `dropped` of the logger, `clock_offset_ns` of a device
+/// driver).
 #[derive(Debug, Default, serde::Serialize)]
 pub struct StageFigures {
     /// Samples published.
@@ -78,19 +81,13 @@ pub struct StageFigures {
     pub dropped_version: u64,
     /// Samples missing on inputs.
     pub seq_gaps: u64,
-    /// Stage-specific counters.
-    pub extra: [u64; 4],
+    /// The counters of the stage's kind, by name (empty for a kind this
+    /// version does not know).
+    pub counters: StageCounters,
     /// Last state reported, in the words of every report
     /// (`insuwb_report::health::StageCondition::name`): ok, degraded,
     /// disconnected, stopping or unknown.
     pub state: &'static str,
-    /// Device drivers: the device clock's offset to CLOCK_MONOTONIC, ns
-    /// (`extra[2]`, decoded; absent while unknown).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub clock_offset_ns: Option<i64>,
-    /// Device drivers: the device clock's drift, parts per billion (`extra[3]`, decoded).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub clock_drift_ppb: Option<i64>,
 }
 
 /// Options of a group run.
@@ -226,17 +223,6 @@ pub fn run_group_with(
     } = watch;
     let restarts = sup.total_restarts();
     let mut report = summarise(&mut mon, restarts, elapsed);
-    for (stage, src) in [
-        (StageRole::Imu.name(), &cfg.sources.imu),
-        (StageRole::Uwb.name(), &cfg.sources.uwb),
-    ] {
-        if src == "device" {
-            if let Some(f) = report.stages.get_mut(stage) {
-                (f.clock_offset_ns, f.clock_drift_ppb) =
-                    insuwb_stage::device::clock_from_extra(&f.extra);
-            }
-        }
-    }
     report.faults = faults.injected();
     report.gave_up = sup.given_up();
     drop(tick);
@@ -298,10 +284,7 @@ impl Watch for GroupWatch<'_> {
                 live.last = now;
                 let (upd, p) = mon.live();
                 let c = (mon.imu.n(), mon.fixes.n(), upd);
-                let outliers: u64 = mon
-                    .health
-                    .get(StageRole::Fusion.name())
-                    .map_or(0, |h| h.extra[1]);
+                let outliers = fusion_outliers(&mon.health);
                 eprintln!(
                     "[{:5.1} s] imu {:6.1} Hz  uwb {:5.1} Hz  fused {:5.1} Hz  pos ({:6.2}, {:6.2})  outliers {outliers}  restarts {}",
                     elapsed.as_secs_f64(),
@@ -319,6 +302,23 @@ impl Watch for GroupWatch<'_> {
     }
 }
 
+/// Measurement components the fusion stage weighted as outliers, from its
+/// last heartbeat (0 without one).
+fn fusion_outliers(health: &std::collections::BTreeMap<String, Health>) -> u64 {
+    match health.get(StageRole::Fusion.name()).map(Health::counters) {
+        Some(Ok(StageCounters::Fusion(c))) => c.outliers,
+        _ => 0,
+    }
+}
+
+/// Records the logger dropped, from its last heartbeat (0 without one).
+fn logger_dropped(health: &std::collections::BTreeMap<String, Health>) -> u64 {
+    match health.get(StageRole::Logger.name()).map(Health::counters) {
+        Some(Ok(StageCounters::Logger(c))) => c.dropped,
+        _ => 0,
+    }
+}
+
 fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
     let fig = mon.finish();
     let dropped: u64 = mon
@@ -326,10 +326,7 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         .values()
         .map(|h| h.dropped_invalid + h.dropped_time + h.dropped_version)
         .sum::<u64>()
-        + mon
-            .health
-            .get(StageRole::Logger.name())
-            .map_or(0, |h| h.extra[1]);
+        + logger_dropped(&mon.health);
     GroupReport {
         rmse_horizontal: fig.rmse_horizontal,
         rmse_states: fig.compared,
@@ -340,10 +337,7 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         latency_p50_us: fig.latency_p50_us,
         latency_p99_us: fig.latency_p99_us,
         dropped,
-        outliers: mon
-            .health
-            .get(StageRole::Fusion.name())
-            .map_or(0, |h| h.extra[1]),
+        outliers: fusion_outliers(&mon.health),
         degraded: fig.degraded,
         max_gap_ms: fig.max_gap_ms,
         duration_s: elapsed,
@@ -361,10 +355,8 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
                     dropped_time: h.dropped_time,
                     dropped_version: h.dropped_version,
                     seq_gaps: h.seq_gaps,
-                    extra: h.extra,
+                    counters: h.counters().unwrap_or_default(),
                     state: insuwb_report::health::StageCondition::of_state(h.state).name(),
-                    clock_offset_ns: None,
-                    clock_drift_ppb: None,
                 };
                 (name.clone(), f)
             })

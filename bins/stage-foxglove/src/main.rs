@@ -13,6 +13,7 @@ use clap::Parser;
 use insuwb_foxglove::convert::Anchor;
 use insuwb_foxglove::live::{LiveSetup, LiveView};
 use insuwb_group::robot::RobotConfig;
+use insuwb_group::sources::Source;
 use insuwb_msg::StageRole;
 use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 
@@ -36,7 +37,7 @@ fn main() -> ExitCode {
 /// The anchors the config knows: the simulated scenario's (other sources
 /// name theirs in their TDOA samples).
 fn configured_anchors(cfg: &RobotConfig) -> Result<Vec<Anchor>> {
-    if cfg.sources.uwb != "sim" {
+    if cfg.sources.uwb != Source::Sim {
         return Ok(Vec::new());
     }
     let sc = insuwb_fusion::scenario::ScenarioFile::load(&cfg.sources.scenario)
@@ -65,7 +66,7 @@ fn run(args: &Args) -> Result<()> {
         server_name: format!("insuwb {}", cfg.group.name),
         anchors: configured_anchors(&cfg)?,
         // The IMU driver publishes truth for simulated and replayed sources.
-        truth: cfg.sources.imu == "sim" || cfg.sources.imu.starts_with("replay:"),
+        truth: cfg.sources.imu.is_recorded(),
     };
     // SIGTERM while starting ends in a clean stop (`stage_main`).
     let view = LiveView::open(setup).context("opening the Foxglove live view")?;

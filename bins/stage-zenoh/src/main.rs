@@ -25,6 +25,10 @@ struct Args {
     /// The robot group configuration (config/robot.toml) with its `[zenoh]` table.
     #[arg(long)]
     config: PathBuf,
+    /// Refuse a plain tcp/ endpoint off the loopback instead of warning
+    /// about it (also `[zenoh] require_tls`).
+    #[arg(long)]
+    require_tls: bool,
 }
 
 fn main() -> ExitCode {
@@ -39,7 +43,10 @@ fn run(args: &Args) -> Result<()> {
     let _lock = StageLock::acquire(&cfg.group, role, STAGE_LOCK_WAIT)?;
     let setup = BridgeSetup {
         runtime: cfg.runtime(role),
-        zenoh: cfg.zenoh.clone(),
+        zenoh: insuwb_zenoh::config::ZenohConfig {
+            require_tls: cfg.zenoh.require_tls || args.require_tls,
+            ..cfg.zenoh.clone()
+        },
         stages: cfg.stages.iter().map(|s| s.name().to_owned()).collect(),
     };
     // SIGTERM while starting ends in a clean stop (`stage_main`).

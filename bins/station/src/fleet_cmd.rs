@@ -62,7 +62,11 @@ pub struct StationArgs {
     /// The session's role: router (the default when listening), peer (the default otherwise) or client.
     #[arg(long, value_parser = ["peer", "client", "router"])]
     pub mode: Option<String>,
-    /// A station config file: a [station] table with name, mode, listen, connect, stamp_clock, lost_after_s, stale_after_s, rate_window_s, and [station.tls] (root_ca_certificate, certificate, private_key, mutual, verify_name; paths relative to the file). The options here override its keys.
+    /// Refuse a plain tcp/ endpoint off the loopback instead of warning
+    /// about it (also `[station] require_tls` in the --config file).
+    #[arg(long)]
+    pub require_tls: bool,
+    /// A station config file: a [station] table with name, mode, listen, connect, require_tls, stamp_clock, lost_after_s, stale_after_s, rate_window_s, and [station.tls] (root_ca_certificate, certificate, private_key, mutual, verify_name; paths relative to the file). The options here override its keys.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Print one JSON snapshot per period on standard output, one object a line: t_s, now_ns, robots (id, status, rate_hz, age_s, restarts, lost_count, pose, poses, health, gaps, runs, delay_ms), events (new, lost, back), delivery.
@@ -142,6 +146,7 @@ fn settings(a: &StationArgs) -> Result<StationSettings> {
     if let Some(n) = &a.name {
         s.name.clone_from(n);
     }
+    s.require_tls |= a.require_tls;
     if let Err(e) = s.validate() {
         // The option that set the key, else the file, else the key alone.
         let option = match e.key.as_str() {

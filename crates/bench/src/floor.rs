@@ -32,8 +32,8 @@ use std::path::PathBuf;
 
 use insuwb_log::{LogWriter, Metadata, Record};
 use insuwb_msg::{
-    topics, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample, InsCorrection,
-    NavState, UwbFix, UwbTdoa,
+    topics, FilterDiag, FusedState, GroundTruth, Header, Health, HealthState, ImuSample,
+    InsCorrection, LoggerCounters, NavState, StageCounters, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::drain::DrainClock;
@@ -63,9 +63,9 @@ pub struct FloorConfig {
     /// iceoryx2 root folder (absolute); `None`: iceoryx2's default.
     pub root_path: Option<PathBuf>,
     /// Start epoch shared by the two drivers, CLOCK_MONOTONIC ns: sample `k`
-    /// is due at `start_epoch_ns + k / rate`. 0 (default): the first epoch
-    /// at least 0.5 s ahead (a whole second plus 2.5 ms), as the pipeline's
-    /// drivers choose ([`insuwb_runtime::epoch`]).
+    /// is due at `start_epoch_ns + k / rate`. 0 (default): the first start
+    /// epoch at least 0.5 s ahead ([`insuwb_runtime::epoch`]), as the
+    /// pipeline's drivers choose.
     pub start_epoch_ns: u64,
     /// IMU rate, Hz. Default 100 (the paper's IMU, as the pipeline's scenarios).
     pub imu_rate_hz: f64,
@@ -284,13 +284,13 @@ fn run_imu(cfg: &FloorConfig) -> Result<(), FloorError> {
         match waiter.wait_deadline(wait_for(epoch + k * period))? {
             Wake::Shutdown => break,
             Wake::Fired(f) if f.contains(&hb) => {
-                health.report(&counters, Health::STATE_OK)?;
+                health.report(&counters, HealthState::Ok)?;
                 imu_pub.update_connections()?;
             }
             _ => {}
         }
     }
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     Ok(())
 }
 
@@ -343,13 +343,13 @@ fn run_uwb(cfg: &FloorConfig) -> Result<(), FloorError> {
         match waiter.wait_deadline(wait_for(epoch + k * period))? {
             Wake::Shutdown => break,
             Wake::Fired(f) if f.contains(&hb) => {
-                health.report(&counters, Health::STATE_OK)?;
+                health.report(&counters, HealthState::Ok)?;
                 tdoa_pub.update_connections()?;
             }
             _ => {}
         }
     }
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     Ok(())
 }
 
@@ -394,14 +394,14 @@ fn run_ins(cfg: &FloorConfig) -> Result<(), FloorError> {
                 if f.contains(&hb) {
                     counters.add_sub(&imu_sub.stats());
                     counters.published = nav_pub.published();
-                    health.report(&counters, Health::STATE_OK)?;
+                    health.report(&counters, HealthState::Ok)?;
                     counters = HealthCounters::default();
                     nav_pub.update_connections()?;
                 }
             }
         }
     }
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     Ok(())
 }
 
@@ -578,13 +578,13 @@ fn run_fusion(cfg: &FloorConfig) -> Result<(), FloorError> {
             counters.add_sub(&nav_sub.stats());
             counters.add_sub(&fix_sub.stats());
             counters.published = fused_pub.published();
-            health.report(&counters, Health::STATE_OK)?;
+            health.report(&counters, HealthState::Ok)?;
             counters = HealthCounters::default();
             fused_pub.update_connections()?;
         }
         next_fix.take_due(monotonic_ns());
     }
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     Ok(())
 }
 
@@ -663,11 +663,14 @@ fn run_logger(cfg: &FloorConfig) -> Result<(), FloorError> {
             for st in [imu.stats(), tdoa.stats(), fused.stats(), nav.stats()] {
                 counters.add_sub(&st);
             }
-            counters.extra = [keep.records.len() as u64, keep.dropped, 0, 0];
-            health.report(&counters, Health::STATE_OK)?;
+            counters.stage = StageCounters::Logger(LoggerCounters {
+                sent: keep.records.len() as u64,
+                dropped: keep.dropped,
+            });
+            health.report(&counters, HealthState::Ok)?;
         }
     }
-    let _ = health.report(&counters, Health::STATE_STOPPING);
+    let _ = health.report(&counters, HealthState::Stopping);
     if keep.dropped > 0 {
         tracing::warn!(
             "floor logger: {} records beyond max_records = {} were not kept",

@@ -140,8 +140,8 @@ pub fn run_floor_graph(opts: &FloorGraphOptions) -> Result<FloorRun, GraphError>
             error: source,
         })?;
     }
-    // As the pipeline's launcher: an epoch (a whole second plus 2.5 ms, off
-    // the kernel's tick) at least 1 s ahead.
+    // As the pipeline's launcher: a start epoch (`insuwb_runtime::epoch`)
+    // at least 1 s ahead.
     let epoch = insuwb_runtime::epoch::epoch_at_or_after(monotonic_ns() + 1_000_000_000);
     let (root_s, trace_s, epoch_s) = (
         root.display().to_string(),

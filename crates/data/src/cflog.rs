@@ -1320,21 +1320,16 @@ mod tests {
 
     #[test]
     fn random_corruption_never_panics() {
-        // Deterministic xorshift; flips bytes of a valid log and parses.
+        // Seeded (xoshiro256**); flips bytes of a valid log and parses.
+        use rand::{RngExt as _, SeedableRng as _};
         let full = sample(2);
-        let mut state = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = rand_xoshiro::Xoshiro256StarStar::seed_from_u64(0x5EED);
         for _ in 0..20_000 {
             let mut b = full.clone();
-            let flips = 1 + next() % 4;
+            let flips = rng.random_range(1..=4);
             for _ in 0..flips {
-                let i = (next() % b.len() as u64) as usize;
-                b[i] = next() as u8;
+                let i = rng.random_range(0..b.len());
+                b[i] = rng.random::<u8>();
             }
             let _ = CfLog::parse(&b, &ParseOptions { ignore_crc: true });
             let _ = is_cflog(&b);

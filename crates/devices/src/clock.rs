@@ -436,23 +436,19 @@ impl ClockFilter {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{RngExt as _, SeedableRng as _};
+    use rand_distr::Exp1;
+    use rand_xoshiro::Xoshiro256StarStar;
 
-    /// xorshift64*: a deterministic source of uniform numbers in (0, 1].
-    struct Rng(u64);
+    /// Seeded delays (xoshiro256** of `rand_xoshiro`, `rand_distr`'s
+    /// exponential law).
+    struct Rng(Xoshiro256StarStar);
 
     impl Rng {
-        fn uniform(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            let x = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
-            ((x >> 11) as f64 + 1.0) / (1u64 << 53) as f64
-        }
-
         /// Exponential delay, mean 0.5 ms, plus a 5 ms spike one time in 20.
         fn delay_ns(&mut self) -> u64 {
-            let exp = -500_000.0 * self.uniform().ln();
-            let spike = if self.uniform() < 0.05 {
+            let exp = 500_000.0 * self.0.sample::<f64, _>(Exp1);
+            let spike = if self.0.random_bool(0.05) {
                 5_000_000.0
             } else {
                 0.0
@@ -467,7 +463,7 @@ mod tests {
     /// and the ticks of the first and last samples.
     fn ten_seconds(tick_ns: u64, wrap: Option<u64>, start: u64, seed: u64) -> (u64, f64, u64, u64) {
         let mut clock = ClockFilter::new(tick_ns, wrap, ClockConfig::default()).unwrap();
-        let mut rng = Rng(seed);
+        let mut rng = Rng(Xoshiro256StarStar::seed_from_u64(seed));
         let t0: u64 = 5_000_000_000;
         let (mut worst, mut first, mut last) = (0u64, None, 0u64);
         for i in 0..1000u64 {

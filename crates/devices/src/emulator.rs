@@ -22,6 +22,10 @@
 //! A device does not wait for its reader: bytes written while nobody has
 //! the port open, while the port is unplugged, or while the reader lets the
 //! kernel buffer fill, are lost and counted, as a UART would lose them.
+//!
+//! The faults are drawn from `rand_xoshiro`'s xoshiro256** generator seeded
+//! with [`Faults::seed`] (`SeedableRng::seed_from_u64`), with `rand`'s
+//! uniform distributions.
 
 use std::io::{self, Read as _, Write as _};
 use std::net::{Ipv4Addr, Shutdown, TcpListener, TcpStream};
@@ -32,6 +36,8 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use rand::{RngExt as _, SeedableRng as _};
+use rand_xoshiro::Xoshiro256StarStar;
 use serialport::{SerialPort, TTYPort};
 
 /// Why a pseudo-terminal emulator could not be opened or plugged back.
@@ -788,38 +794,26 @@ pub struct PlayReport {
     pub stopped: bool,
 }
 
-/// Splitmix64: the seeded PRNG of the fault injection.
-#[derive(Debug, Clone)]
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+/// A garbage burst before a chunk, drawn from `rng`: pushes its bytes to
+/// `out` and returns how many (0 when no burst is drawn).
+fn draw_garbage(rng: &mut Xoshiro256StarStar, faults: &Faults, out: &mut Vec<u8>) -> usize {
+    if faults.garbage_prob <= 0.0 || rng.random::<f64>() >= faults.garbage_prob {
+        return 0;
     }
+    let n = rng.random_range(1..=faults.garbage_max_len.max(1));
+    out.extend((0..n).map(|_| rng.random::<u8>()));
+    n
+}
 
-    /// Uniform in [0, 1).
-    #[allow(clippy::cast_precision_loss)]
-    fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1_u64 << 53) as f64
+/// A run of bytes lost from a chunk of `len` bytes, drawn from `rng`: its
+/// start and length (`None` when no loss is drawn).
+fn draw_drop(rng: &mut Xoshiro256StarStar, faults: &Faults, len: usize) -> Option<(usize, usize)> {
+    if faults.drop_prob <= 0.0 || len == 0 || rng.random::<f64>() >= faults.drop_prob {
+        return None;
     }
-
-    /// Uniform in 1..=max (1 when max is 0 or 1).
-    fn one_to(&mut self, max: usize) -> usize {
-        let max = max.max(1) as u64;
-        usize::try_from(self.next_u64() % max).unwrap_or(0) + 1
-    }
-
-    /// Uniform in 0..n (0 when n is 0).
-    fn below(&mut self, n: usize) -> usize {
-        if n == 0 {
-            return 0;
-        }
-        usize::try_from(self.next_u64() % n as u64).unwrap_or(0)
-    }
+    let n = rng.random_range(1..=faults.drop_max_len.min(len).max(1));
+    let at = rng.random_range(0..=len - n);
+    Some((at, n))
 }
 
 /// Plays timed byte chunks to a [`DeviceSink`] on a thread.
@@ -918,7 +912,7 @@ fn play<S: DeviceSink>(
     faults: &Faults,
     stop: &AtomicBool,
 ) -> (S, PlayReport) {
-    let mut rng = SplitMix64(faults.seed);
+    let mut rng = Xoshiro256StarStar::seed_from_u64(faults.seed);
     let mut report = PlayReport::default();
     let mut scratch: Vec<u8> = Vec::new();
     let mut plugged = true;
@@ -961,19 +955,14 @@ fn play<S: DeviceSink>(
             continue;
         }
         scratch.clear();
-        if faults.garbage_prob > 0.0 && rng.unit() < faults.garbage_prob {
-            let n = rng.one_to(faults.garbage_max_len);
-            for _ in 0..n {
-                scratch.push(rng.next_u64().to_le_bytes()[0]);
-            }
+        let n = draw_garbage(&mut rng, faults, &mut scratch);
+        if n > 0 {
             report.garbage_bursts = report.garbage_bursts.saturating_add(1);
             report.garbage_bytes = report.garbage_bytes.saturating_add(n as u64);
         }
         let mut body: &[u8] = bytes;
         let mut tail: &[u8] = &[];
-        if faults.drop_prob > 0.0 && !bytes.is_empty() && rng.unit() < faults.drop_prob {
-            let n = rng.one_to(faults.drop_max_len.min(bytes.len()));
-            let at = rng.below(bytes.len().saturating_sub(n).saturating_add(1));
+        if let Some((at, n)) = draw_drop(&mut rng, faults, bytes.len()) {
             body = bytes.get(..at).unwrap_or_default();
             tail = bytes.get(at.saturating_add(n)..).unwrap_or_default();
             report.drop_events = report.drop_events.saturating_add(1);
@@ -1003,23 +992,44 @@ mod tests {
     use super::*;
 
     #[test]
-    fn splitmix_is_deterministic_and_spread() {
-        let mut a = SplitMix64(42);
-        let mut b = SplitMix64(42);
-        let xs: Vec<u64> = (0..100).map(|_| a.next_u64()).collect();
-        let ys: Vec<u64> = (0..100).map(|_| b.next_u64()).collect();
-        assert_eq!(xs, ys);
-        let mut r = SplitMix64(7);
-        let n = 100_000;
-        let below_half = (0..n).filter(|_| r.unit() < 0.5).count();
-        assert!((45_000..55_000).contains(&below_half), "{below_half}");
-        for _ in 0..1000 {
-            let k = r.one_to(5);
-            assert!((1..=5).contains(&k));
-            assert!(r.below(3) < 3);
+    fn fault_draws_are_seeded_and_in_range() {
+        let faults = Faults {
+            seed: 7,
+            garbage_prob: 0.5,
+            garbage_max_len: 5,
+            drop_prob: 0.5,
+            drop_max_len: 4,
+            outage: None,
+        };
+        let draws = |seed| {
+            let mut rng = Xoshiro256StarStar::seed_from_u64(seed);
+            let mut bytes = Vec::new();
+            let (mut bursts, mut drops) = (Vec::new(), Vec::new());
+            for len in (0..10_000).map(|k| k % 7) {
+                bursts.push(draw_garbage(&mut rng, &faults, &mut bytes));
+                drops.push(draw_drop(&mut rng, &faults, len).map(|d| (len, d)));
+            }
+            (bytes, bursts, drops)
+        };
+        let (bytes, bursts, drops) = draws(7);
+        assert_eq!(draws(7), (bytes.clone(), bursts.clone(), drops.clone()));
+        assert_ne!(draws(8).1, bursts);
+        assert_eq!(bytes.len(), bursts.iter().sum::<usize>());
+        assert!(bursts.iter().all(|&n| n <= 5));
+        let some = bursts.iter().filter(|&&n| n > 0).count();
+        assert!((4_500..5_500).contains(&some), "{some}");
+        for (len, (at, n)) in drops.iter().flatten() {
+            assert!(
+                (1..=4).contains(n) && n <= len && at + n <= *len,
+                "{len} {at} {n}"
+            );
         }
-        assert_eq!(r.below(0), 0);
-        assert_eq!(r.one_to(0), 1);
+        let none = Faults::none();
+        let mut rng = Xoshiro256StarStar::seed_from_u64(1);
+        let before = rng.clone();
+        assert_eq!(draw_garbage(&mut rng, &none, &mut Vec::new()), 0);
+        assert_eq!(draw_drop(&mut rng, &none, 10), None);
+        assert_eq!(rng, before, "no faults: nothing drawn");
     }
 
     #[test]

@@ -1,39 +1,24 @@
-//! Seeded random numbers for tests (splitmix64 + Box-Muller).
+//! Seeded random numbers for tests: `rand_xoshiro`'s xoshiro256**, `rand`'s
+//! uniform and `rand_distr`'s standard normal laws.
 
-pub struct Rng {
-    state: u64,
-    spare: Option<f64>,
-}
+use rand::{RngExt as _, SeedableRng as _};
+use rand_distr::StandardNormal;
+use rand_xoshiro::Xoshiro256StarStar;
+
+pub struct Rng(Xoshiro256StarStar);
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
-        Self {
-            state: seed,
-            spare: None,
-        }
+        Self(Xoshiro256StarStar::seed_from_u64(seed))
     }
 
-    fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in (0, 1).
+    /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
-        ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        self.0.random()
     }
 
     /// Standard normal.
     pub fn normal(&mut self) -> f64 {
-        if let Some(s) = self.spare.take() {
-            return s;
-        }
-        let r = (-2.0 * self.uniform().ln()).sqrt();
-        let a = 2.0 * std::f64::consts::PI * self.uniform();
-        self.spare = Some(r * a.sin());
-        r * a.cos()
+        self.0.sample(StandardNormal)
     }
 }

@@ -34,7 +34,9 @@ use foxglove::messages::{
     PosesInFrame, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
     Vector3,
 };
-use insuwb_msg::{name_str, FilterDiag, FilterKind, FusedState, GroundTruth, Health, UwbFix};
+use insuwb_msg::{
+    name_str, FilterDiag, FilterKind, FusedState, GroundTruth, Health, StageCounters, UwbFix,
+};
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::StageCondition;
 use insuwb_report::health::StageSeen;
@@ -619,6 +621,10 @@ pub struct StageHealth {
     pub dropped_time: u64,
     /// Samples missing on the inputs.
     pub seq_gaps: u64,
+    /// The counters of the stage's kind, by name (a JSON object; `null`
+    /// for a signed value not known yet; empty without a heartbeat or for
+    /// a kind this version does not know).
+    pub counters: StageCounters,
 }
 
 /// The health of every stage of the group (topic `health`; schema
@@ -656,7 +662,8 @@ pub const HEALTH_SCHEMA: &str = r#"{
           "dropped_version": {"type": "integer"},
           "dropped_invalid": {"type": "integer"},
           "dropped_time": {"type": "integer"},
-          "seq_gaps": {"type": "integer"}
+          "seq_gaps": {"type": "integer"},
+          "counters": {"type": "object", "description": "the stage kind's own counters by name (e.g. outliers, fixes)", "additionalProperties": {"type": ["integer", "null"]}}
         }
       }
     }
@@ -693,6 +700,7 @@ pub fn stage_health(
             dropped_invalid: 0,
             dropped_time: 0,
             seq_gaps: 0,
+            counters: StageCounters::Common,
         };
     };
     let h = &s.last;
@@ -711,6 +719,7 @@ pub fn stage_health(
         dropped_invalid: h.dropped_invalid,
         dropped_time: h.dropped_time,
         seq_gaps: h.seq_gaps,
+        counters: h.counters().unwrap_or_default(),
     }
 }
 
@@ -723,7 +732,7 @@ pub fn heartbeat_stage(h: &Health) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use insuwb_msg::{fixed_name, Header};
+    use insuwb_msg::{fixed_name, FusionCounters, Header, HealthState};
 
     fn yaw(a: f64) -> [f64; 4] {
         [(a / 2.0).cos(), 0.0, 0.0, (a / 2.0).sin()]
@@ -1014,11 +1023,16 @@ mod tests {
             (down.status, down.level, down.heartbeat_age_s),
             ("down", 2, -1.0)
         );
-        h2.state = Health::STATE_DEGRADED;
+        h2.set_state(HealthState::Degraded);
+        h2.set_counters(StageCounters::Fusion(FusionCounters {
+            outliers: 4,
+            ..FusionCounters::default()
+        }));
         seen.note(h2, 2_000_000_000);
-        assert_eq!(
-            stage_health("fusion", Some(&seen), false, 2_000_000_000, 1).status,
-            "degraded"
-        );
+        let degraded = stage_health("fusion", Some(&seen), false, 2_000_000_000, 1);
+        assert_eq!(degraded.status, "degraded");
+        let json = serde_json::to_value(&degraded).unwrap();
+        assert_eq!(json["counters"]["outliers"], 4);
+        assert_eq!(json["counters"]["updates"], 0);
     }
 }

@@ -34,7 +34,8 @@
 //! shown. Heartbeat counters: `received` what the subscribers got,
 //! `published` the messages logged, `dropped_invalid` samples no
 //! conversion accepts, `dropped_time` samples older than the view,
-//! `extra = [poses, fixes, diagnostics, clients connected]`.
+//! and [`FoxgloveCounters`] (poses, fixes and diagnostics logged, clients
+//! connected).
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -42,7 +43,10 @@ use std::time::Duration;
 
 use foxglove::messages::{FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate};
 use foxglove::{Channel, Context, PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
-use insuwb_msg::{topics, FilterDiag, FusedState, GroundTruth, Health, UwbFix, UwbTdoa};
+use insuwb_msg::{
+    topics, FilterDiag, FoxgloveCounters, FusedState, GroundTruth, Health, StageCounters, UwbFix,
+    UwbTdoa,
+};
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
 };
@@ -508,7 +512,12 @@ impl ReportOutputs for Outputs {
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
         let clients = self.server.as_ref().map_or(0, |h| h.client_count());
-        c.extra = [s.poses, s.fixes, s.diags, clients as u64];
+        c.stage = StageCounters::Foxglove(FoxgloveCounters {
+            poses: s.poses,
+            fixes: s.fixes,
+            diags: s.diags,
+            clients: clients as u64,
+        });
         c
     }
 }

@@ -85,8 +85,20 @@ pub struct FusionEngineConfig {
     /// behind the INS stream (one that does is dropped as late, counted);
     /// it takes the prediction off the measurement's path and lets the
     /// coasting covariance grow while UWB is silent. Default None; the
-    /// fusion stage sets it in real time.
+    /// fusion stage sets it in real time from its one home, robot.toml's
+    /// `[fusion] eager_lag_s` (the fusion process's table): the estimator
+    /// settings' `[fusion.engine] eager_lag_s` is refused, naming it.
+    #[serde(skip)]
     pub eager_lag_s: Option<f64>,
+    /// Refuses `[fusion.engine] eager_lag_s`, naming robot.toml's key.
+    #[doc(hidden)]
+    #[serde(
+        default,
+        rename = "eager_lag_s",
+        skip_serializing,
+        deserialize_with = "moved::eager_lag_s"
+    )]
+    pub eager_lag_s_elsewhere: (),
     /// The divergence monitor of every filter, tight or loose
     /// (`[fusion.engine.monitor]`): when at least `fraction` of the last
     /// `window` updates (fixes for the loose filters, TDOA differences for
@@ -127,6 +139,7 @@ mod moved {
         window => "moved to fusion.engine.monitor.window (the one divergence monitor of every filter)",
         gate_per_dim => "moved to fusion.engine.monitor.gate_per_dim (the one divergence monitor of every filter)",
         fraction => "moved to fusion.engine.monitor.fraction (the one divergence monitor of every filter)",
+        eager_lag_s => "the fusion process's setting, set in robot.toml's [fusion] table (`[fusion] eager_lag_s`, see config/robot.toml), not in the estimator's settings; the lockstep runner of `insuwb eval` and replay predicts lazily",
     }
 }
 
@@ -146,6 +159,7 @@ impl Default for FusionEngineConfig {
             reset_gate_m: 0.3,
             reset_velocity_from_fix: true,
             eager_lag_s: None,
+            eager_lag_s_elsewhere: (),
             monitor: MonitorConfig::default(),
             nis_window: (),
             nis_gate_per_dim: (),
@@ -1042,7 +1056,7 @@ mod tests {
 
     /// The monitor's keys live in `[fusion.engine.monitor]`; the former keys
     /// of `[fusion.engine]` are refused with a message naming the new one,
-    /// and are never written.
+    /// and are never written; likewise `eager_lag_s`, robot.toml's.
     #[test]
     fn the_monitor_keys_and_their_former_names() {
         let c: FusionEngineConfig =
@@ -1071,6 +1085,17 @@ mod tests {
         }
         let text = toml::to_string(&FusionEngineConfig::default()).unwrap();
         assert!(!text.contains("nis_"), "{text}");
+        // The eager prediction's lag: robot.toml's, never written here.
+        let e = toml::from_str::<FusionEngineConfig>("eager_lag_s = 0.01")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("robot.toml's [fusion]"), "{e}");
+        let eager = FusionEngineConfig {
+            eager_lag_s: Some(0.01),
+            ..FusionEngineConfig::default()
+        };
+        let text = toml::to_string(&eager).unwrap();
+        assert!(!text.contains("eager"), "{text}");
         let bad = FusionEngineConfig {
             monitor: MonitorConfig {
                 fraction: 1.5,
@@ -1102,7 +1127,7 @@ mod tests {
         let (mut e, _) = kf_from_first_fix();
         let p = e.epoch_period_ns();
         assert_eq!(p, 100_000_000);
-        let epoch = 31_360_002_500_000; // a whole second plus 2.5 ms
+        let epoch = 31_360_002_500_000; // a start epoch (`insuwb_runtime::epoch`)
         let ts = [
             1,
             97_500_000,

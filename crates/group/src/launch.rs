@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 
 use insuwb_launch::{Event, LaunchError, Supervisor, SupervisorState};
 use insuwb_msg::StageRole;
+use insuwb_sim::rng::{Noise, RngExt};
 
 /// Signal numbers the injector sends (Linux).
 mod sig {
@@ -101,7 +102,7 @@ impl std::str::FromStr for Fault {
 #[derive(Debug)]
 pub struct FaultInjector {
     timed: std::iter::Peekable<std::vec::IntoIter<Fault>>,
-    chaos: Option<insuwb_sim::rng::Rng>,
+    chaos: Option<insuwb_sim::rng::SimRng>,
     next_chaos: Option<Duration>,
     stages: Vec<String>,
     duration: Option<Duration>,
@@ -120,7 +121,7 @@ impl FaultInjector {
         duration: Option<Duration>,
     ) -> Self {
         faults.sort_by_key(|f| f.at);
-        let mut chaos = chaos_seed.map(|seed| insuwb_sim::rng::Rng::stream(seed, 0x000C_4A05));
+        let mut chaos = chaos_seed.map(|seed| insuwb_sim::rng::stream(seed, 0x000C_4A05));
         let next_chaos = chaos
             .as_mut()
             .map(|r| Duration::from_secs_f64(r.uniform_in(1.0, 5.0)));
@@ -149,9 +150,8 @@ impl FaultInjector {
                 .duration
                 .is_some_and(|d| elapsed + Duration::from_secs(3) > d);
             if elapsed >= at && !quiet && !self.stages.is_empty() {
-                let n = self.stages.len() as u64;
-                let stage = self.stages[usize::try_from(rng.next_u64() % n).unwrap_or(0)].clone();
-                let stop = rng.next_u64() % 2 == 1;
+                let stage = self.stages[rng.random_range(0..self.stages.len())].clone();
+                let stop = rng.random::<bool>();
                 let signal = if stop { sig::STOP } else { sig::KILL };
                 tracing::warn!(
                     "chaos: {} {stage}",

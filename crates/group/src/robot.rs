@@ -1,9 +1,21 @@
 //! The robot group configuration (`config/robot.toml`): deployment (prefix,
-//! run directory), sensor sources, fusion settings, logger, restart policy
-//! and the bridges' tables. Every stage and the launcher read the same file,
-//! so they agree. [`RobotConfig::load`] parses it, makes its relative paths
-//! absolute under the file's folder and checks each section; an error names
-//! the file, the line and the key ([`RobotConfigError`]).
+//! run directory), sensor sources, the fusion process's table, logger,
+//! restart policy and the bridges' tables. Every stage and the launcher read
+//! the same file, so they agree. [`RobotConfig::load`] parses it (the
+//! sources into [`Source`]s, the real-time tables' keys into
+//! [`StageRole`]s), makes its relative paths absolute under the file's
+//! folder and checks each section; an error names the file, the line and
+//! the key ([`RobotConfigError`]).
+//!
+//! Two things are called "fusion": robot.toml's `[fusion]` table,
+//! [`FusionProcessConfig`] (the fusion process: which filter, where its
+//! estimator settings come from, checkpoints, the eager prediction's lag),
+//! and the estimator's settings, [`insuwb_fusion::config::FusionConfig`]
+//! (the `[fusion]` table of the file `fusion.config` names, of a scenario
+//! or of a replayed log's metadata: INS, fix builder, filters), which
+//! [`RobotConfig::fusion_config`] reads. Each setting has one home: an
+//! estimator table written in robot.toml's `[fusion]` is refused with a
+//! message saying where it goes.
 
 use std::collections::BTreeMap;
 use std::path::{Component, Path, PathBuf};
@@ -17,6 +29,8 @@ use serde::{Deserialize, Serialize};
 
 use insuwb_fusion::scenario::{fusion_table, ScenarioError, ScenarioFile};
 
+use crate::sources::Source;
+
 /// Why a robot config could not be loaded, or its fusion settings read.
 #[derive(Debug, thiserror::Error)]
 pub enum RobotConfigError {
@@ -28,9 +42,9 @@ pub enum RobotConfigError {
     /// could not be read.
     #[error("reading the current directory: {0}")]
     CurrentDir(std::io::Error),
-    /// The replayed log, whose metadata holds the fusion settings, could
-    /// not be read.
-    #[error("{path}: cannot read: {error}")]
+    /// The replayed log's header, whose metadata holds the fusion
+    /// settings, could not be read.
+    #[error("{path}: cannot read the log header: {error}")]
     Log {
         /// The log.
         path: String,
@@ -76,12 +90,13 @@ impl Default for GroupConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SourcesConfig {
-    /// IMU source: `sim`, `replay:FILE` (an insuwb log), `device` or
-    /// `ros2:/TOPIC` (`sensor_msgs/Imu` over DDS, node, namespace and domain
-    /// from `[ros2]`; see `insuwb_stage::ros2_source`).
-    pub imu: String,
-    /// UWB source: `sim` or `replay:FILE`.
-    pub uwb: String,
+    /// IMU source: `sim`, `replay:FILE` (an insuwb log, absolute after
+    /// loading), `device` or `ros2:/TOPIC` (`sensor_msgs/Imu` over DDS,
+    /// node, namespace and domain from `[ros2]`; see
+    /// `insuwb_stage::ros2_source`).
+    pub imu: Source,
+    /// UWB source: `sim`, `replay:FILE` or `device` (not `ros2:`).
+    pub uwb: Source,
     /// Scenario for `sim` sources (built-in name or TOML file).
     pub scenario: String,
     /// Simulation seed.
@@ -121,11 +136,36 @@ mod speed_serde {
     }
 }
 
+/// `[realtime.<stage>]`: the tables, each named by a stage role.
+mod realtime_serde {
+    use std::collections::BTreeMap;
+
+    use insuwb_msg::StageRole;
+    use insuwb_runtime::realtime::RealtimeConfig;
+    use serde::de::Error;
+    use serde::{Deserialize, Deserializer};
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<BTreeMap<StageRole, RealtimeConfig>, D::Error> {
+        BTreeMap::<String, RealtimeConfig>::deserialize(d)?
+            .into_iter()
+            .map(|(name, rt)| match name.parse::<StageRole>() {
+                Ok(role) => Ok((role, rt)),
+                Err(_) => Err(D::Error::custom(format!(
+                    "[realtime.{name}]: unknown stage '{name}' (known: {})",
+                    StageRole::NAMES.join(", ")
+                ))),
+            })
+            .collect()
+    }
+}
+
 impl Default for SourcesConfig {
     fn default() -> Self {
         Self {
-            imu: "sim".into(),
-            uwb: "sim".into(),
+            imu: Source::Sim,
+            uwb: Source::Sim,
             scenario: "nlos-long".into(),
             seed: 1,
             speed: 1.0,
@@ -133,21 +173,30 @@ impl Default for SourcesConfig {
     }
 }
 
-/// Fusion stage settings.
+/// The fusion process's table, robot.toml's `[fusion]`: which filter it
+/// runs, where its estimator settings come from, checkpoints and the eager
+/// prediction. Not the estimator's settings
+/// ([`insuwb_fusion::config::FusionConfig`], the `[fusion]` table of the
+/// file `config` names), which every stage reads
+/// ([`RobotConfig::fusion_config`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct FusionStageConfig {
-    /// Filter: kf, shaf, stf, iakf, iakf_tdoa.
+pub struct FusionProcessConfig {
+    /// Filter: kf, shaf, stf, iakf, iakf_tdoa (the estimator settings'
+    /// `[fusion.filter]` table is the adaptive filters' parameters).
     pub filter: FilterKind,
-    /// Fusion settings file (with a `[fusion]` table); empty: the scenario's
-    /// (sim sources) or the replayed log's own.
+    /// The estimator settings' file (its `[fusion]` table, e.g.
+    /// `config/util.toml`), relative to the robot config's folder; empty:
+    /// the scenario's (sim sources) or the replayed log's own.
     pub config: String,
     /// Checkpoint period, s (a restarted fusion stage resumes from it).
     pub checkpoint_period_s: f64,
     /// Predict through INS states as they arrive, keeping the newest this
-    /// many seconds buffered for UWB samples still on their way, s (see
-    /// `FusionEngineConfig::eager_lag_s`): takes the prediction off the
-    /// fix-to-fused path and lets the coasting covariance grow. The result is
+    /// many seconds buffered for UWB samples still on their way, s (the
+    /// engine's `FusionEngineConfig::eager_lag_s`, whose one home this is:
+    /// the estimator settings refuse `[fusion.engine] eager_lag_s`): takes
+    /// the prediction off the fix-to-fused path and lets the coasting
+    /// covariance grow. The result is
     /// the lazy engine's while a UWB sample of time t arrives before the INS
     /// state at t + one IMU period + this lag (15 ms at 100 Hz with the
     /// default 5 ms; the fix usually arrives first); a later one is applied
@@ -158,7 +207,7 @@ pub struct FusionStageConfig {
     pub eager_lag_s: f64,
 }
 
-impl Default for FusionStageConfig {
+impl Default for FusionProcessConfig {
     fn default() -> Self {
         Self {
             filter: FilterKind::Iakf,
@@ -276,8 +325,9 @@ pub struct RobotConfig {
     pub group: GroupConfig,
     /// Sensor sources.
     pub sources: SourcesConfig,
-    /// Fusion stage.
-    pub fusion: FusionStageConfig,
+    /// The fusion process (`[fusion]`; the estimator's settings are in the
+    /// file its `config` names).
+    pub fusion: FusionProcessConfig,
     /// UWB driver.
     pub uwb: UwbStageConfig,
     /// Logger.
@@ -300,8 +350,10 @@ pub struct RobotConfig {
     /// file's folder.
     pub zenoh: insuwb_zenoh::ZenohConfig,
     /// Optional CPU pinning and SCHED_FIFO per stage (`[realtime.fusion]`
-    /// `cpus = [1]`, `fifo_priority = 50`); none by default.
-    pub realtime: BTreeMap<String, RealtimeConfig>,
+    /// `cpus = [1]`, `fifo_priority = 50`); none by default. A table whose
+    /// name is not a stage role is refused, naming it.
+    #[serde(deserialize_with = "realtime_serde::deserialize")]
+    pub realtime: BTreeMap<StageRole, RealtimeConfig>,
 }
 
 impl RobotConfig {
@@ -314,7 +366,7 @@ impl RobotConfig {
     pub fn load(path: &Path) -> Result<Self, RobotConfigError> {
         let text = insuwb_config::read_text(path)?;
         let origin = path.display().to_string();
-        let mut c: Self = insuwb_config::load_str(&text, &origin)?;
+        let mut c = Self::parse(&text, &origin)?;
         // Relative paths in the file are relative to its folder, made
         // absolute here (the iceoryx2 root must be absolute).
         let base = path.parent().unwrap_or(Path::new("."));
@@ -336,9 +388,16 @@ impl RobotConfig {
     /// [`RobotConfigError::Config`] for a text that does not parse or holds
     /// a value not accepted.
     pub fn from_str(text: &str, origin: &str, base: &Path) -> Result<Self, RobotConfigError> {
-        let mut c: Self = insuwb_config::load_str(text, origin)?;
+        let mut c = Self::parse(text, origin)?;
         c.resolve(base, origin, text)?;
         Ok(c)
+    }
+
+    /// Parses `text`: an estimator table in `[fusion]` first, with a
+    /// message saying where it goes, then the whole.
+    fn parse(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        check_fusion_keys(text, origin).map_err(|e| e.with_line_in(text))?;
+        insuwb_config::load_str(text, origin)
     }
 
     /// Fills in the default stages, makes the relative paths absolute
@@ -360,6 +419,7 @@ impl RobotConfig {
         self.sources.resolve(base, origin)?;
         self.devices.check(&self.sources, origin)?;
         check_realtime(&self.realtime, origin)?;
+        self.sources.check_ros2_imu_only(origin)?;
         self.sources.check_speed(origin)?;
         self.fusion.resolve(base, origin)?;
         self.uwb.resolve(base, origin)?;
@@ -434,23 +494,31 @@ impl RobotConfig {
             prefix: self.group.prefix.clone(),
             root_path: Some(self.iox_root()),
             stage_name: name.to_owned(),
-            realtime: self.realtime.get(name).cloned().unwrap_or_default(),
+            realtime: name
+                .parse::<StageRole>()
+                .ok()
+                .and_then(|role| self.realtime.get(&role))
+                .cloned()
+                .unwrap_or_default(),
             ..insuwb_runtime::RuntimeConfig::default()
         }
     }
 
-    /// The fusion settings every stage uses: `fusion.config`'s `[fusion]`
-    /// table if set, else the scenario's (sim, INS start for `sources.seed`),
-    /// else the replayed log's metadata; with `[uwb] calibration`'s site
-    /// calibration.
+    /// The estimator's settings every stage uses (the INS's, the UWB
+    /// driver's fix builder's, the filters'; not robot.toml's `[fusion]`
+    /// table, [`RobotConfig::fusion`]): `fusion.config`'s `[fusion]` table
+    /// if set, else the replayed IMU log's metadata (read from its header
+    /// alone), else the scenario's (INS start for `sources.seed`); with
+    /// `[uwb] calibration`'s site calibration.
     ///
     /// # Errors
-    /// [`RobotConfigError`] when that file, log or scenario cannot be read.
+    /// [`RobotConfigError`] when that file, log header or scenario cannot
+    /// be read.
     pub fn fusion_config(&self) -> Result<FusionConfig, RobotConfigError> {
         let mut f = self.fusion_config_file()?;
         f.calibration.clone_from(&self.uwb.loaded);
         // A UWB device's antenna lever arm (robot.toml) is the loose filters'.
-        if let (true, Some(d)) = (self.sources.uwb == "device", &self.devices.uwb) {
+        if let (Source::Device, Some(d)) = (&self.sources.uwb, &self.devices.uwb) {
             if d.lever_arm_m != [0.0; 3] {
                 f.loose.lever_arm_m = d.lever_arm_m;
             }
@@ -464,14 +532,15 @@ impl RobotConfig {
             // Only the [fusion] table matters here; other tables are the file's business.
             return Ok(fusion_table(&text, &self.fusion.config)?);
         }
-        if let Some(file) = self.sources.imu.strip_prefix("replay:") {
-            let (_, _, header) =
-                insuwb_log::read_all(file).map_err(|error| RobotConfigError::Log {
-                    path: file.to_owned(),
+        if let Some(file) = self.sources.imu.replay_file() {
+            let path = file.display().to_string();
+            let header =
+                insuwb_log::read_header_file(file).map_err(|error| RobotConfigError::Log {
+                    path: path.clone(),
                     error,
                 })?;
             return Ok(match header.meta.entries.get("fusion_config") {
-                Some(text) => fusion_table(text, file)?,
+                Some(text) => fusion_table(text, &path)?,
                 None => FusionConfig::default(),
             });
         }
@@ -498,6 +567,21 @@ impl SourcesConfig {
         resolve_source("sources.uwb", &mut self.uwb, base, origin)
     }
 
+    /// A ROS 2 source is the IMU's only.
+    fn check_ros2_imu_only(&self, origin: &str) -> Result<(), ConfigError> {
+        if matches!(self.uwb, Source::Ros2 { .. }) {
+            return Err(invalid(
+                origin,
+                "sources.uwb",
+                format!(
+                    "a ROS 2 source (ros2:TOPIC) is for the IMU only, got '{}'",
+                    self.uwb
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// `speed`: a factor in (0, 1000] or `"max"`.
     fn check_speed(&self, origin: &str) -> Result<(), ConfigError> {
         let sp = self.speed;
@@ -513,7 +597,7 @@ impl SourcesConfig {
 
     /// The scenario loads where a source is `sim`.
     fn check_scenario(&self, origin: &str) -> Result<(), ConfigError> {
-        if self.imu == "sim" || self.uwb == "sim" {
+        if self.imu == Source::Sim || self.uwb == Source::Sim {
             ScenarioFile::load(&self.scenario)
                 .map_err(|e| invalid(origin, "sources.scenario", e.to_string()))?;
         }
@@ -521,39 +605,30 @@ impl SourcesConfig {
     }
 }
 
-/// One driver's source (`key`: `sources.imu` or `sources.uwb`): `sim`,
-/// `device`, `replay:FILE` (made absolute under `base`, must exist) or, for
-/// the IMU, `ros2:TOPIC`.
+/// One driver's source (`key`: `sources.imu` or `sources.uwb`): a
+/// replayed file made absolute under `base`, which must exist.
 fn resolve_source(
     key: &str,
-    src: &mut String,
+    src: &mut Source,
     base: &Path,
     origin: &str,
 ) -> Result<(), ConfigError> {
-    let imu = key == "sources.imu";
-    let bad = |message: String| Err(invalid(origin, key, message));
-    match src.split_once(':') {
-        None if src == "sim" || src == "device" => Ok(()),
-        Some(("replay", file)) => {
-            let p = under(base, file);
-            if !p.is_file() {
-                return bad(format!("replay file {} does not exist", p.display()));
-            }
-            *src = format!("replay:{}", p.display());
-            Ok(())
+    if let Source::Replay(file) = src {
+        let p = if file.is_relative() {
+            base.join(&*file)
+        } else {
+            file.clone()
+        };
+        if !p.is_file() {
+            return Err(invalid(
+                origin,
+                key,
+                format!("replay file {} does not exist", p.display()),
+            ));
         }
-        Some(("ros2", topic)) if imu => insuwb_ros2::config::check_topic_name(topic)
-            .map_err(|e| invalid(origin, key, format!("ros2:TOPIC: {e}"))),
-        Some(("ros2", _)) => bad(format!(
-            "a ROS 2 source (ros2:TOPIC) is for the IMU only, got '{src}'"
-        )),
-        _ if imu => bad(format!(
-            "unknown source '{src}' (sim, replay:FILE, device or ros2:/TOPIC)"
-        )),
-        _ => bad(format!(
-            "unknown source '{src}' (sim, replay:FILE or device)"
-        )),
+        *file = p;
     }
+    Ok(())
 }
 
 impl DevicesConfig {
@@ -562,13 +637,13 @@ impl DevicesConfig {
         for (name, wanted, dev, protocols) in [
             (
                 "imu",
-                sources.imu == "device",
+                sources.imu == Source::Device,
                 &self.imu,
                 ["witmotion", "mavlink"],
             ),
             (
                 "uwb",
-                sources.uwb == "device",
+                sources.uwb == Source::Device,
                 &self.uwb,
                 ["nlink", "eliko"],
             ),
@@ -638,28 +713,70 @@ impl DeviceConfig {
     }
 }
 
-/// `[realtime.<stage>]`: a stage role each, with valid settings.
+/// The keys of the estimator's settings (`insuwb_fusion::config::FusionConfig`'s
+/// tables and values), which robot.toml's `[fusion]` does not hold.
+const ESTIMATOR_KEYS: [&str; 14] = [
+    "ins",
+    "fix",
+    "engine",
+    "model",
+    "filter",
+    "setup",
+    "loose",
+    "eskf",
+    "tight",
+    "vibration",
+    "vehicle",
+    "multirotor",
+    "ground",
+    "output",
+];
+
+/// robot.toml's `[fusion]` is the fusion process's table: one of the
+/// estimator settings' keys written there (`[fusion.fix]`, a
+/// `[fusion.filter]` table) is refused, saying where it goes. A text that
+/// does not parse is left to the parser's message.
+fn check_fusion_keys(text: &str, origin: &str) -> Result<(), ConfigError> {
+    let Ok(doc) = toml::from_str::<toml::Table>(text) else {
+        return Ok(());
+    };
+    let Some(toml::Value::Table(fusion)) = doc.get("fusion") else {
+        return Ok(());
+    };
+    for (key, value) in fusion {
+        let estimator = match key.as_str() {
+            "filter" => value.is_table(),
+            k => ESTIMATOR_KEYS.contains(&k),
+        };
+        if estimator {
+            return Err(invalid(
+                origin,
+                &format!("fusion.{key}"),
+                "an estimator setting, not the fusion process's: write it in the [fusion] table of the file that `fusion.config` names (e.g. config/util.toml; left empty, the scenario's or the replayed log's own are used); robot.toml's [fusion] holds filter (a name), config, checkpoint_period_s and eager_lag_s",
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// `[realtime.<stage>]`: valid settings (the keys, stage roles, were
+/// checked as they were parsed).
 fn check_realtime(
-    realtime: &BTreeMap<String, RealtimeConfig>,
+    realtime: &BTreeMap<StageRole, RealtimeConfig>,
     origin: &str,
 ) -> Result<(), ConfigError> {
     for (stage, rt) in realtime {
         let key = format!("realtime.{stage}");
-        if stage.parse::<StageRole>().is_err() {
-            return Err(invalid(
-                origin,
-                &key,
-                format!("unknown stage (known: {})", StageRole::NAMES.join(", ")),
-            ));
-        }
         rt.validate()
             .map_err(|e| invalid(origin, &key, e.to_string()))?;
     }
     Ok(())
 }
 
-impl FusionStageConfig {
-    /// `config`: a file, absolute under `base`; a positive checkpoint period.
+impl FusionProcessConfig {
+    /// `config`: a file, absolute under `base`, whose `[fusion]` table
+    /// reads as the estimator's settings (an error names that file and its
+    /// key, before any stage starts); a positive checkpoint period.
     fn resolve(&mut self, base: &Path, origin: &str) -> Result<(), ConfigError> {
         if !self.config.is_empty() {
             let p = under(base, &self.config);
@@ -671,6 +788,7 @@ impl FusionStageConfig {
                 ));
             }
             self.config = p.display().to_string();
+            fusion_table(&insuwb_config::read_text(&p)?, &self.config)?;
         }
         let v = self.checkpoint_period_s;
         if !(v.is_finite() && v > 0.0) {
@@ -976,6 +1094,19 @@ mod tests {
         assert!(format!("{:#}", e.unwrap_err()).contains("ros2"));
     }
 
+    /// robot.toml's `[fusion]` refuses exactly the estimator's keys: those
+    /// `FusionConfig` writes, and its `output` (not written when absent).
+    #[test]
+    fn the_estimator_keys_are_fusion_config_s() {
+        let t = toml::Table::try_from(FusionConfig::default()).unwrap();
+        let mut want: Vec<&str> = t.keys().map(String::as_str).collect();
+        want.push("output");
+        want.sort_unstable();
+        let mut have = ESTIMATOR_KEYS.to_vec();
+        have.sort_unstable();
+        assert_eq!(have, want);
+    }
+
     /// `sources.imu = "ros2:/TOPIC"`: a ROS topic name, IMU only; the
     /// error names the file, the line and the key.
     #[test]
@@ -988,7 +1119,12 @@ mod tests {
             )
         };
         let c = with("ros2:/imu/data", "sim").unwrap();
-        assert_eq!(c.sources.imu, "ros2:/imu/data");
+        assert_eq!(
+            c.sources.imu,
+            Source::Ros2 {
+                topic: "/imu/data".into()
+            }
+        );
         with("ros2:imu", "sim").unwrap();
         for bad in ["ros2:/imu//data", "ros2:", "ros2:/9imu", "ros2:/imu/"] {
             let msg = format!("{:#}", with(bad, "sim").unwrap_err());

@@ -2,7 +2,8 @@
 //! with length and CRC-32 after a versioned file header; [`LogWriter`] for one
 //! file, [`SegmentWriter`] for the logger's rotating run directory, and
 //! [`LogReader`] / [`read_all`] / [`read_segments`], which stop cleanly at a
-//! torn or corrupted tail and say where ([`TailReport`]).
+//! torn or corrupted tail and say where ([`TailReport`]); [`read_header_file`]
+//! reads a file's header (its metadata) alone.
 //!
 //! ```
 //! use insuwb_log::{read_all, LogWriter, Metadata, Record};
@@ -48,7 +49,9 @@ pub use format::{
     Metadata, RecordEncoder, FIXED_HEADER_LEN, FORMAT_VERSION, FRAME_HEADER_LEN, MAGIC,
     MAX_META_LEN, MAX_RECORD_LEN,
 };
-pub use reader::{read_all, LogReader, OpenError, ReadError, TailReason, TailReport};
+pub use reader::{
+    read_all, read_header_file, LogReader, OpenError, ReadError, TailReason, TailReport,
+};
 pub use record::Record;
 pub use segment::{
     list_segments, parse_segment_name, read_segments, segment_file_name, FlushPolicy,

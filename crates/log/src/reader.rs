@@ -1,4 +1,5 @@
-//! Reading logs: [`LogReader`] (streaming, torn-tail tolerant) and [`read_all`].
+//! Reading logs: [`LogReader`] (streaming, torn-tail tolerant),
+//! [`read_all`] and, for a log's metadata alone, [`read_header_file`].
 
 use std::fmt;
 use std::fs::File;
@@ -114,7 +115,8 @@ pub enum ReadError {
     },
 }
 
-/// Error opening a log file (and, for [`read_all`], reading it whole).
+/// Error opening a log file and reading its header (and, for [`read_all`],
+/// reading it whole); each message names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum OpenError {
     /// The path cannot be a log file.
@@ -186,22 +188,7 @@ impl LogReader<BufReader<File>> {
     /// [`OpenError`]: bad path (a directory), open failure, invalid header.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, OpenError> {
         let path = path.as_ref();
-        if path.as_os_str().is_empty() {
-            return Err(OpenError::BadPath {
-                path: path.to_path_buf(),
-                reason: "empty path",
-            });
-        }
-        if path.is_dir() {
-            return Err(OpenError::BadPath {
-                path: path.to_path_buf(),
-                reason: "is a directory",
-            });
-        }
-        let file = File::open(path).map_err(|error| OpenError::Open {
-            path: path.to_path_buf(),
-            error,
-        })?;
+        let file = open_file(path)?;
         Self::from_reader(BufReader::with_capacity(64 * 1024, file)).map_err(|error| {
             OpenError::Header {
                 path: path.to_path_buf(),
@@ -209,6 +196,43 @@ impl LogReader<BufReader<File>> {
             }
         })
     }
+}
+
+/// Opens `path` for reading, refusing an empty path and a directory.
+fn open_file(path: &Path) -> Result<File, OpenError> {
+    if path.as_os_str().is_empty() {
+        return Err(OpenError::BadPath {
+            path: path.to_path_buf(),
+            reason: "empty path",
+        });
+    }
+    if path.is_dir() {
+        return Err(OpenError::BadPath {
+            path: path.to_path_buf(),
+            reason: "is a directory",
+        });
+    }
+    File::open(path).map_err(|error| OpenError::Open {
+        path: path.to_path_buf(),
+        error,
+    })
+}
+
+/// Reads a log file's header (format, creation time, metadata) and
+/// nothing after it: the records are neither read nor checked, so a log of
+/// any size, even one whose body is damaged, costs two reads of its first
+/// bytes.
+///
+/// # Errors
+/// [`OpenError`] naming the file: a bad path, an open failure, an invalid
+/// or truncated header.
+pub fn read_header_file(path: impl AsRef<Path>) -> Result<LogHeader, OpenError> {
+    let path = path.as_ref();
+    let mut file = open_file(path)?;
+    read_header(&mut file).map_err(|error| OpenError::Header {
+        path: path.to_path_buf(),
+        error,
+    })
 }
 
 impl<R: Read> LogReader<R> {

@@ -619,10 +619,11 @@ pub fn export_log(
     let mut cuts = Vec::new();
     let mut first_header = None;
     for f in &files {
-        match LogReader::open(f) {
-            Ok(r) => {
+        // The headers alone: the records are read once, while writing.
+        match insuwb_log::read_header_file(f) {
+            Ok(header) => {
                 if first_header.is_none() {
-                    first_header = Some(r.header().clone());
+                    first_header = Some(header);
                 }
             }
             Err(e) => match header_cut(f, &e) {

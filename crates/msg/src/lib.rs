@@ -23,15 +23,26 @@
 #![warn(missing_docs)]
 
 pub mod check;
+pub mod health;
 pub mod qos;
+
+pub use health::{
+    CounterBlock, CounterKind, CounterValue, DeviceCounters, FoxgloveCounters, FusionCounters,
+    Health, HealthState, InsCounters, LoggerCounters, Ros2BridgeCounters, Ros2SourceCounters,
+    StageCounters, StateCode, UnknownCounterKind, UnknownState, UwbDriverCounters, ZenohCounters,
+    COUNTER_WORDS, NO_VALUE,
+};
 
 use iceoryx2_bb_derive_macros::ZeroCopySend;
 use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
 /// Version of every sample layout in this crate (and of the log format's records).
-/// Bump it whenever a field, its order or its meaning changes.
-pub const LAYOUT_VERSION: u16 = 1;
+/// Bump it whenever a field, its order or its meaning changes; a stage drops
+/// samples of another version and a log reader refuses a file of another
+/// version. Version 2: [`Health`] carries a [`StateCode`] and a
+/// [`CounterBlock`] (kind-tagged named counters) instead of four untyped words.
+pub const LAYOUT_VERSION: u16 = 2;
 
 /// Header common to every sample.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
@@ -532,46 +543,6 @@ impl GroundTruth {
     pub const FLAG_VEL_VALID: u32 = 1;
 }
 
-/// Stage health and heartbeat (topic [`topics::HEALTH`]).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
-#[repr(C)]
-#[type_name("insuwb::Health")]
-pub struct Health {
-    /// Common header (`source_id` is the stage id).
-    pub header: Header,
-    /// Stage name, NUL-padded ASCII.
-    pub stage: [u8; 16],
-    /// Process id.
-    pub pid: u32,
-    /// Stage state code (see `STATE_*`).
-    pub state: u32,
-    /// Samples received.
-    pub received: u64,
-    /// Samples published.
-    pub published: u64,
-    /// Samples dropped for a wrong layout version.
-    pub dropped_version: u64,
-    /// Samples dropped for a NaN, infinity or out-of-range value.
-    pub dropped_invalid: u64,
-    /// Samples dropped for a timestamp going backwards or repeated.
-    pub dropped_time: u64,
-    /// Sequence gaps seen on inputs (samples missing).
-    pub seq_gaps: u64,
-    /// Other stage-specific counter (e.g. outliers flagged, records written).
-    pub extra: [u64; 4],
-}
-
-impl Health {
-    /// Running normally.
-    pub const STATE_OK: u32 = 0;
-    /// Running with degraded inputs.
-    pub const STATE_DEGRADED: u32 = 1;
-    /// Input source disconnected.
-    pub const STATE_DISCONNECTED: u32 = 2;
-    /// Shutting down.
-    pub const STATE_STOPPING: u32 = 3;
-}
-
 /// Copies an ASCII name into a NUL-padded fixed field (truncating).
 #[must_use]
 pub fn fixed_name<const N: usize>(name: &str) -> [u8; N] {
@@ -754,9 +725,8 @@ mod layout_tests {
         assert_eq!(offset_of!(FilterDiag, dim), 312);
 
         assert_eq!(size_of::<GroundTruth>(), 120);
-        assert_eq!(size_of::<Health>(), 144);
-        assert_eq!(offset_of!(Health, pid), 56);
-        assert_eq!(offset_of!(Health, extra), 112);
+        // Health: pinned field by field in its module.
+        assert_eq!(size_of::<Health>(), 168);
         for a in [
             align_of::<ImuSample>(),
             align_of::<UwbTdoa>(),

@@ -17,7 +17,7 @@
 //! assert_eq!(c, [StageCondition::Ok, StageCondition::Down]);
 //! ```
 
-use insuwb_msg::{name_str, FusedState, Health, StageRole};
+use insuwb_msg::{name_str, FusedState, Health, HealthState, StageRole, StateCode, UnknownState};
 
 /// What is known of one stage from its heartbeats.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -113,15 +113,16 @@ impl StageCondition {
     }
 
     /// The condition a heartbeat's state code says by itself (no age, no
-    /// coasting): `Ok`, `Degraded`, `Disconnected`, `Stopping` or `Unknown`.
+    /// coasting): `Ok`, `Degraded`, `Disconnected`, `Stopping` or, for a
+    /// code this version does not know, `Unknown`.
     #[must_use]
-    pub fn of_state(state: u32) -> Self {
-        match state {
-            Health::STATE_OK => Self::Ok,
-            Health::STATE_DEGRADED => Self::Degraded,
-            Health::STATE_DISCONNECTED => Self::Disconnected,
-            Health::STATE_STOPPING => Self::Stopping,
-            other => Self::Unknown(other),
+    pub fn of_state(state: StateCode) -> Self {
+        match state.get() {
+            Ok(HealthState::Ok) => Self::Ok,
+            Ok(HealthState::Degraded) => Self::Degraded,
+            Ok(HealthState::Disconnected) => Self::Disconnected,
+            Ok(HealthState::Stopping) => Self::Stopping,
+            Err(UnknownState(code)) => Self::Unknown(code),
         }
     }
 
@@ -276,8 +277,8 @@ mod tests {
             [Severity::Ok, Severity::Warn, Severity::Error].map(Severity::level),
             [0, 1, 2]
         );
-        assert_eq!(C::of_state(Health::STATE_STOPPING), C::Stopping);
-        assert_eq!(C::of_state(77), C::Unknown(77));
+        assert_eq!(C::of_state(HealthState::Stopping.into()), C::Stopping);
+        assert_eq!(C::of_state(StateCode::from_raw(77)), C::Unknown(77));
     }
 
     #[test]
@@ -290,10 +291,13 @@ mod tests {
         assert_eq!(of(&seen, true, 1_501), StageCondition::Stale);
         assert_eq!(seen.age_ns(900), 0);
         for (state, want) in [
-            (Health::STATE_STOPPING, StageCondition::Stopping),
-            (Health::STATE_DISCONNECTED, StageCondition::Disconnected),
-            (Health::STATE_DEGRADED, StageCondition::Degraded),
-            (9, StageCondition::Unknown(9)),
+            (HealthState::Stopping.into(), StageCondition::Stopping),
+            (
+                HealthState::Disconnected.into(),
+                StageCondition::Disconnected,
+            ),
+            (HealthState::Degraded.into(), StageCondition::Degraded),
+            (StateCode::from_raw(9), StageCondition::Unknown(9)),
         ] {
             let mut s = seen;
             s.last.state = state;

@@ -4,13 +4,13 @@
 //! its inputs then (or [`DRAIN_PERIOD_NS`] after the last drain while no
 //! fused state comes), makes its periodic report of the group's health on
 //! its own interval (with the stamp clock's offset measured again), and
-//! beats on `health` like every stage, `STATE_STOPPING` last. What it drains
+//! beats on `health` like every stage, `stopping` last. What it drains
 //! and publishes is the stage's own ([`ReportOutputs`]). No DDS: the
 //! Foxglove live view builds it without the `dds` feature.
 
 use std::time::Duration;
 
-use insuwb_msg::{FusedState, Health};
+use insuwb_msg::{FusedState, HealthState};
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PublishError, ReceiveError, Stage, Sub,
@@ -92,7 +92,7 @@ pub struct ReportLoop<'a> {
 
 impl ReportLoop<'_> {
     /// Runs until SIGINT/SIGTERM (the stage's waiter says so), then beats
-    /// `STATE_STOPPING`.
+    /// [`HealthState::Stopping`].
     ///
     /// # Errors
     /// `O::Error` when waiting, receiving or the heartbeat fails (a report
@@ -142,12 +142,12 @@ impl ReportLoop<'_> {
             }
             if next.beat {
                 counters = out.counters(inputs);
-                if let Err(e) = health.report(&counters, Health::STATE_OK) {
+                if let Err(e) = health.report(&counters, HealthState::Ok) {
                     break Err(e.into());
                 }
             }
         };
-        let _ = health.report(&counters, Health::STATE_STOPPING);
+        let _ = health.report(&counters, HealthState::Stopping);
         result
     }
 }

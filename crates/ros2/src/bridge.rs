@@ -24,10 +24,11 @@
 //!
 //! Heartbeat counters: `received` what the subscribers got, `published` the
 //! DDS messages written, `dropped_invalid` samples no conversion accepts,
-//! `dropped_time` samples too old to republish, `extra = [odometry, imu,
-//! tf, write failures]`.
+//! `dropped_time` samples too old to republish, and
+//! [`Ros2BridgeCounters`] (odometry, IMU and transforms written, write
+//! failures).
 
-use insuwb_msg::{topics, FusedState, Health, ImuSample};
+use insuwb_msg::{topics, FusedState, Health, ImuSample, Ros2BridgeCounters, StageCounters};
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
 };
@@ -469,7 +470,12 @@ impl ReportOutputs for Outputs {
         c.published = s.odometry + s.imu + s.tf + s.diagnostics;
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
-        c.extra = [s.odometry, s.imu, s.tf, s.write_failures];
+        c.stage = StageCounters::Ros2Bridge(Ros2BridgeCounters {
+            odometry: s.odometry,
+            imu: s.imu,
+            tf: s.tf,
+            write_failures: s.write_failures,
+        });
         c
     }
 }

@@ -452,8 +452,9 @@ pub fn stage_status(
     }
 }
 
-/// The key-values of a stage's last heartbeat aged `age_ns`: its counters,
-/// its rates, its age and the stage's restarts.
+/// The key-values of a stage's last heartbeat aged `age_ns`: its counters
+/// (those of its kind by their names), its rates, its age and the stage's
+/// restarts.
 fn heartbeat_values(s: &StageSeen, age_ns: u64) -> Vec<KeyValue> {
     let h = &s.last;
     let kv = |k: &str, v: String| KeyValue {
@@ -478,8 +479,9 @@ fn heartbeat_values(s: &StageSeen, age_ns: u64) -> Vec<KeyValue> {
         kv("dropped_time", h.dropped_time.to_string()),
         kv("seq_gaps", h.seq_gaps.to_string()),
     ]);
-    for (i, e) in h.extra.iter().enumerate() {
-        values.push(kv(&format!("extra_{i}"), e.to_string()));
+    match h.counters() {
+        Ok(c) => values.extend(c.values().map(|(k, v)| kv(k, v.to_string()))),
+        Err(e) => values.push(kv("counters", e.to_string())),
     }
     values
 }
@@ -546,7 +548,9 @@ pub fn ros_to_imu_sample(m: &Imu, clock: &ClockOffset, rx_ns: u64) -> (ImuSample
 #[cfg(test)]
 mod tests {
     use super::*;
-    use insuwb_msg::{fixed_name, Header as MsgHeader, Health};
+    use insuwb_msg::{
+        fixed_name, FusionCounters, Header as MsgHeader, Health, HealthState, StageCounters,
+    };
 
     /// Yaw of `a` rad about z as insuwb's `[w, x, y, z]`.
     fn yaw(a: f64) -> [f64; 4] {
@@ -742,7 +746,7 @@ mod tests {
             header: MsgHeader::new(0, 1_000_000_000),
             stage: fixed_name("fusion"),
             pid: 42,
-            state: Health::STATE_OK,
+            state: HealthState::Ok.into(),
             received: 100,
             published: 10,
             ..Health::default()
@@ -752,6 +756,10 @@ mod tests {
         h.header.meas_time_ns = 1_200_000_000;
         h.received = 120;
         h.published = 12;
+        h.set_counters(StageCounters::Fusion(FusionCounters {
+            outliers: 3,
+            ..FusionCounters::default()
+        }));
         seen.note(h, 1_200_000_000);
         let st = |seen: Option<&StageSeen>, coasting, now| {
             stage_status("fusion", "robot", seen, coasting, now, 1_000_000_000)
@@ -769,6 +777,10 @@ mod tests {
         assert_eq!(get(&ok, "restarts").as_deref(), Some("2"));
         assert_eq!(get(&ok, "received_rate_hz").as_deref(), Some("100.00"));
         assert_eq!(get(&ok, "published_rate_hz").as_deref(), Some("10.00"));
+        // The stage's own counters by their names.
+        assert_eq!(get(&ok, "outliers").as_deref(), Some("3"));
+        assert_eq!(get(&ok, "updates").as_deref(), Some("0"));
+        assert!(ok.values.iter().all(|v| !v.key.starts_with("extra")));
         assert_eq!(
             st(Some(&seen), true, 1_300_000_000).level,
             DiagnosticStatus::WARN
@@ -779,12 +791,12 @@ mod tests {
         );
         assert_eq!(st(None, false, 0).level, DiagnosticStatus::ERROR);
         for (state, level) in [
-            (Health::STATE_DEGRADED, DiagnosticStatus::WARN),
-            (Health::STATE_DISCONNECTED, DiagnosticStatus::ERROR),
-            (Health::STATE_STOPPING, DiagnosticStatus::ERROR),
+            (HealthState::Degraded, DiagnosticStatus::WARN),
+            (HealthState::Disconnected, DiagnosticStatus::ERROR),
+            (HealthState::Stopping, DiagnosticStatus::ERROR),
         ] {
             let mut s = seen;
-            s.last.state = state;
+            s.last.set_state(state);
             assert_eq!(st(Some(&s), false, 1_300_000_000).level, level);
         }
         // A new process: no rate until its second heartbeat.

@@ -4,7 +4,7 @@
 
 use core::time::Duration;
 
-use insuwb_msg::{fixed_name, Header, Health};
+use insuwb_msg::{fixed_name, Header, Health, HealthState, StageCounters};
 
 use crate::monotonic_ns;
 use crate::port::{Pub, PublishError, SubStats};
@@ -25,8 +25,8 @@ pub struct HealthCounters {
     pub dropped_time: u64,
     /// Samples missing on inputs (sequence gaps).
     pub seq_gaps: u64,
-    /// Stage-specific counters.
-    pub extra: [u64; 4],
+    /// The counters of the stage's kind.
+    pub stage: StageCounters,
 }
 
 impl HealthCounters {
@@ -72,22 +72,26 @@ impl HealthReporter {
         self.period
     }
 
-    /// Publishes one heartbeat now with `counters` and `state`
-    /// ([`Health::STATE_OK`], ...); returns its seq.
-    pub fn report(&mut self, counters: &HealthCounters, state: u32) -> Result<u64, PublishError> {
+    /// Publishes one heartbeat now with `counters` and `state`; returns its
+    /// seq.
+    pub fn report(
+        &mut self,
+        counters: &HealthCounters,
+        state: HealthState,
+    ) -> Result<u64, PublishError> {
         let now = monotonic_ns();
         let h = Health {
             header: Header::new(0, now),
             stage: self.stage,
             pid: self.pid,
-            state,
+            state: state.into(),
             received: counters.received,
             published: counters.published,
             dropped_version: counters.dropped_version,
             dropped_invalid: counters.dropped_invalid,
             dropped_time: counters.dropped_time,
             seq_gaps: counters.seq_gaps,
-            extra: counters.extra,
+            counters: counters.stage.into(),
         };
         let seq = self.publisher.publish(h)?;
         let period_ns = u64::try_from(self.period.as_nanos()).unwrap_or(u64::MAX);
@@ -114,7 +118,7 @@ impl HealthReporter {
         &mut self,
         now_ns: u64,
         counters: &HealthCounters,
-        state: u32,
+        state: HealthState,
     ) -> Result<Option<u64>, PublishError> {
         if now_ns < self.next_due_ns {
             return Ok(None);

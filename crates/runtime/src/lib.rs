@@ -54,7 +54,7 @@
 //!                 if fired.contains(&heartbeat) {
 //!                     let mut c = insuwb_runtime::HealthCounters::default();
 //!                     c.add_sub(&imu_sub.stats());
-//!                     health.report(&c, insuwb_msg::Health::STATE_OK)?;
+//!                     health.report(&c, insuwb_msg::HealthState::Ok)?;
 //!                 }
 //!             }
 //!         }

@@ -10,7 +10,9 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use insuwb_msg::{topics, Header, Health, ImuSample, LAYOUT_VERSION};
+use insuwb_msg::{
+    topics, FusionCounters, Header, Health, HealthState, ImuSample, StageCounters, LAYOUT_VERSION,
+};
 use insuwb_runtime::cleanup::{self, NodeLiveness, ServiceKind};
 use insuwb_runtime::{monotonic_ns, HealthCounters, RuntimeConfig, Stage, Wake};
 
@@ -174,15 +176,20 @@ fn two_nodes_in_one_process_exchange_stamped_samples() {
         let mut c = HealthCounters {
             published: p.published(),
             dropped_time: 4,
-            extra: [1, 2, 3, 4],
+            stage: StageCounters::Fusion(FusionCounters {
+                updates: 1,
+                outliers: 2,
+                resets: 3,
+                corrections: 4,
+            }),
             ..Default::default()
         };
         c.add_sub(&st);
-        hr.report(&c, Health::STATE_DEGRADED).unwrap();
+        hr.report(&c, HealthState::Degraded).unwrap();
         let h = hs.receive().unwrap().unwrap();
         assert_eq!(insuwb_msg::name_str(&h.stage), "a");
         assert_eq!(h.pid, std::process::id());
-        assert_eq!(h.state, Health::STATE_DEGRADED);
+        assert_eq!(h.state(), Ok(HealthState::Degraded));
         assert_eq!(
             (
                 h.received,
@@ -193,10 +200,14 @@ fn two_nodes_in_one_process_exchange_stamped_samples() {
             ),
             (6, 7, 1, 2, 4)
         );
-        assert_eq!(h.extra, [1, 2, 3, 4]);
+        assert_eq!(h.counters(), Ok(c.stage));
         assert_eq!((h.header.source_id, h.header.generation), (42, 3));
         // Not due again right away.
-        assert_eq!(hr.report_if_due(monotonic_ns(), &c, 0).unwrap(), None);
+        assert_eq!(
+            hr.report_if_due(monotonic_ns(), &c, HealthState::Ok)
+                .unwrap(),
+            None
+        );
     }
     env.finish();
 }

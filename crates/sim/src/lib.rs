@@ -4,8 +4,9 @@
 //! A [`Scenario`] (the `[sim]` table of a scenario file) and a seed give,
 //! through [`simulate`], bit-identical [`insuwb_msg::ImuSample`],
 //! [`insuwb_msg::UwbTdoa`] and [`insuwb_msg::GroundTruth`] streams (times in
-//! ns from 0, `seq` from 0 per stream). The randomness comes from this
-//! crate's own generator ([`rng`]), never from a dependency.
+//! ns from 0, `seq` from 0 per stream). The randomness comes from one
+//! seeded generator of the rand family, one stream per random quantity
+//! ([`rng`]).
 //!
 //! Scenario files keep the simulator's settings in a `[sim]` table (see
 //! `config/scenarios/*.toml`, embedded as [`builtin`]); every table inside it

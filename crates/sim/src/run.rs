@@ -3,13 +3,13 @@
 //! noise, anchor biases, NLOS excess paths and dropouts.
 //!
 //! Every random quantity draws from its own stream of the seed
-//! ([`crate::rng::Rng::stream`]); the output is a pure function of the
+//! ([`crate::rng::stream`]); the output is a pure function of the
 //! scenario and the seed.
 
 use insuwb_msg::{GroundTruth, Header, ImuSample, UwbTdoa};
 use thiserror::Error;
 
-use crate::rng::Rng;
+use crate::rng::{self, Noise};
 use crate::scenario::{sample_count, NoiseModel, Scenario, ScenarioConfigError};
 use crate::trajectory::{TrajectoryError, TrajectoryModel};
 
@@ -192,7 +192,7 @@ impl Scenario {
             t_s: 0.0,
             error: source,
         })?;
-        let mut rng = Rng::stream(seed, STREAM_INITIAL);
+        let mut rng = rng::stream(seed, STREAM_INITIAL);
         let e = &self.initial_error;
         let dp = [rng.normal(e.pos_m), rng.normal(e.pos_m)];
         let dv = [rng.normal(e.vel_mps), rng.normal(e.vel_mps)];
@@ -253,7 +253,7 @@ fn simulate_imu(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Imu
     let rate = sc.imu_rate_hz;
     let dt = 1.0 / rate;
 
-    let mut bias_rng = Rng::stream(seed, STREAM_IMU_BIAS);
+    let mut bias_rng = rng::stream(seed, STREAM_IMU_BIAS);
     let mut gyro_bias = [0.0; 3];
     let mut accel_bias = [0.0; 3];
     for b in &mut gyro_bias {
@@ -273,7 +273,7 @@ fn simulate_imu(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Imu
     // Bias walk step per sample: density * sqrt(dt).
     let gyro_walk = e.gyro_bias_walk_deg_per_h_per_sqrt_s * DEG / 3600.0 * dt.sqrt();
     let accel_walk = e.accel_bias_walk_g_per_sqrt_s * g * dt.sqrt();
-    let mut rng = Rng::stream(seed, STREAM_IMU_NOISE);
+    let mut rng = rng::stream(seed, STREAM_IMU_NOISE);
 
     let n = sample_count(sc.duration_s, rate);
     let cap = usize::try_from(n).unwrap_or(0);
@@ -328,7 +328,7 @@ fn random_nlos_events(sc: &Scenario, seed: u64) -> Vec<NlosEvent> {
     if r.rate_per_s <= 0.0 {
         return events;
     }
-    let mut rng = Rng::stream(seed, STREAM_RANDOM_NLOS);
+    let mut rng = rng::stream(seed, STREAM_RANDOM_NLOS);
     // Hard cap on the number of events (validation bounds the expectation).
     let cap = (crate::scenario::MAX_RANDOM_NLOS_EVENTS * 2.0) as usize;
     for (ai, a) in sc.uwb.anchors.iter().enumerate() {
@@ -378,8 +378,8 @@ fn simulate_uwb(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Uwb
         .collect();
     let random = random_nlos_events(sc, seed);
 
-    let mut noise_rng = Rng::stream(seed, STREAM_UWB_NOISE);
-    let mut burst_rng = Rng::stream(seed, STREAM_OUTLIERS);
+    let mut noise_rng = rng::stream(seed, STREAM_UWB_NOISE);
+    let mut burst_rng = rng::stream(seed, STREAM_OUTLIERS);
     let (anchor_sigma, diff_sigma) = match u.noise_model {
         NoiseModel::PerAnchor => (u.tdoa_sigma_m / core::f64::consts::SQRT_2, 0.0),
         NoiseModel::PerDifference => (0.0, u.tdoa_sigma_m),

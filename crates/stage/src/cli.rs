@@ -8,6 +8,7 @@ use clap::Parser;
 use crate::lock::STAGE_LOCK_WAIT;
 use crate::source::Want;
 use insuwb_group::robot::{start_epoch_ns, RobotConfig};
+use insuwb_group::sources::Source;
 
 pub use insuwb_msg::StageRole;
 
@@ -21,10 +22,10 @@ pub struct StageArgs {
     /// The robot group configuration (config/robot.toml).
     #[arg(long)]
     pub config: PathBuf,
-    /// Driver source, overriding the config: `sim`, `replay:FILE`, `device`
-    /// or (IMU) `ros2:/TOPIC`.
+    /// Driver source, overriding the config: `sim`, `replay:FILE` (relative
+    /// to the current directory), `device` or (IMU) `ros2:/TOPIC`.
     #[arg(long)]
-    pub source: Option<String>,
+    pub source: Option<Source>,
     /// Replay speed, overriding the config's `sources.speed` for every stage
     /// (the drivers' pacing and the fusion stage's eager updates alike): a
     /// factor (10 = ten times real time) or `max` (lockstep with the
@@ -81,18 +82,12 @@ fn run(kind: StageRole, args: &StageArgs) -> anyhow::Result<()> {
     let speed = apply_speed(&mut cfg, args.speed)?;
     let result = match kind {
         StageRole::Imu => {
-            let src = args
-                .source
-                .clone()
-                .unwrap_or_else(|| cfg.sources.imu.clone());
-            crate::driver::run(Want::Imu, &cfg, &src, speed, epoch)
+            let src = args.source.as_ref().unwrap_or(&cfg.sources.imu);
+            crate::driver::run(Want::Imu, &cfg, src, speed, epoch)
         }
         StageRole::Uwb => {
-            let src = args
-                .source
-                .clone()
-                .unwrap_or_else(|| cfg.sources.uwb.clone());
-            crate::driver::run(Want::Uwb, &cfg, &src, speed, epoch)
+            let src = args.source.as_ref().unwrap_or(&cfg.sources.uwb);
+            crate::driver::run(Want::Uwb, &cfg, src, speed, epoch)
         }
         StageRole::Ins => crate::ins::run(&cfg),
         StageRole::Fusion => crate::fusion::run(&cfg, epoch),

@@ -43,23 +43,19 @@
 //!
 //! # Heartbeat
 //!
-//! State [`Health::STATE_DISCONNECTED`] while the link is down,
-//! [`Health::STATE_OK`] while valid frames arrive, and
-//! [`Health::STATE_DEGRADED`] when connected but no valid frame came for
+//! State [`HealthState::Disconnected`] while the link is down,
+//! [`HealthState::Ok`] while valid frames arrive, and
+//! [`HealthState::Degraded`] when connected but no valid frame came for
 //! [`SILENT_NS`] or the decoder has seen `wrong_baud_bytes` bytes without a
 //! valid frame (then an error names the port, the baud rate and the
 //! protocol, once per episode; the driver keeps reading: the device may be
 //! fixed while it runs). A change of state is published at once, besides the
 //! periodic heartbeat. Counters: `received` valid frames, `published`
 //! samples, `dropped_invalid`, `dropped_time`, `seq_gaps` the device's own
-//! sequence gaps (Eliko), and `extra` as [`DEVICE_EXTRA`]:
-//!
-//! | index | meaning |
-//! |-------|---------|
-//! | 0 | decoder resynchronisations + checksum errors |
-//! | 1 | link reconnections (connections after the first) |
-//! | 2 | device clock offset, host minus device, ns (`i64` bits; 0: unknown) |
-//! | 3 | device clock drift, ppb (`i64` bits; 0: unknown) |
+//! sequence gaps (Eliko), and [`DeviceCounters`]: decoder
+//! resynchronisations plus checksum errors, link reconnections
+//! (connections after the first), and the device clock's offset (host
+//! minus device, ns) and drift (ppb), `None` while unknown.
 //!
 //! The loop allocates nothing per sample: a fixed read buffer, decoders with
 //! fixed buffers, a regression window allocated once.
@@ -71,21 +67,13 @@ use insuwb_devices::clock::{ClockConfig, ClockEvent, ClockFilter};
 use insuwb_devices::frame::{wire_time_ns, AnyDecoder, DeviceTime, Protocol, Reading};
 use insuwb_devices::link::{Link, LinkConfigError, LinkSpec, LinkState, Read, ReconnectPolicy};
 use insuwb_devices::{eliko, witmotion};
-use insuwb_msg::{topics, Header, Health, ImuSample, UwbFix};
+use insuwb_msg::{topics, DeviceCounters, Header, HealthState, ImuSample, StageCounters, UwbFix};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 use insuwb_uwb::velocity::{VelocityConfig, VelocityConfigError, VelocityEstimator};
 
 use crate::source::Want;
 use insuwb_group::robot::{DeviceConfig, RobotConfig};
 use insuwb_msg::check::imu_values;
-
-/// Meaning of a device driver's `Health::extra` counters, in order.
-pub const DEVICE_EXTRA: [&str; 4] = [
-    "decoder_errors",
-    "reconnects",
-    "clock_offset_ns",
-    "clock_drift_ppb",
-];
 
 /// Connected without a valid frame for this long: state DEGRADED, ns.
 pub const SILENT_NS: u64 = 1_000_000_000;
@@ -459,30 +447,22 @@ impl Converter {
     }
 }
 
-/// An `i64` carried in a `u64` counter (two's complement bits).
-fn i64_bits(v: i64) -> u64 {
-    u64::from_ne_bytes(v.to_ne_bytes())
-}
-
-/// The device clock's offset (ns) and drift (ppb) from a device driver's
-/// `Health::extra` (indices 2 and 3 of [`DEVICE_EXTRA`]); `None` while unknown.
-#[must_use]
-pub fn clock_from_extra(extra: &[u64; 4]) -> (Option<i64>, Option<i64>) {
-    let signed = |v: u64| (v != 0).then(|| i64::from_ne_bytes(v.to_ne_bytes()));
-    (signed(extra[2]), signed(extra[3]))
-}
-
 /// The driver's state from the link and what the decoder saw.
-fn device_state(link: LinkState, wrong_baud: bool, last_frame_ns: Option<u64>, now_ns: u64) -> u32 {
+fn device_state(
+    link: LinkState,
+    wrong_baud: bool,
+    last_frame_ns: Option<u64>,
+    now_ns: u64,
+) -> HealthState {
     match link {
-        LinkState::Disconnected { .. } => Health::STATE_DISCONNECTED,
+        LinkState::Disconnected { .. } => HealthState::Disconnected,
         LinkState::Connected { since_ns } => {
             let fresh = last_frame_ns
                 .is_some_and(|t| t >= since_ns && now_ns.saturating_sub(t) < SILENT_NS);
             if fresh && !wrong_baud {
-                Health::STATE_OK
+                HealthState::Ok
             } else {
-                Health::STATE_DEGRADED
+                HealthState::Degraded
             }
         }
     }
@@ -572,7 +552,7 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
     let mut frames_seen = 0u64;
     let mut last_frame_ns: Option<u64> = None;
     let mut wrong_baud = false;
-    let mut last_state: Option<u32> = None;
+    let mut last_state: Option<HealthState> = None;
     loop {
         let beat = match waiter.wait_timeout(Duration::ZERO)? {
             Wake::Shutdown => break,
@@ -639,15 +619,15 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
         let state = device_state(link.state(), wrong_baud, last_frame_ns, monotonic_ns());
         if last_state != Some(state) {
             match state {
-                Health::STATE_DISCONNECTED => tracing::warn!(
+                HealthState::Disconnected => tracing::warn!(
                     "{name} driver: {} disconnected ({}); retrying",
                     setup.spec,
                     link.stats().last_error.as_deref().unwrap_or("not found")
                 ),
-                Health::STATE_OK => {
+                HealthState::Ok => {
                     tracing::info!("{name} driver: {}: receiving", setup.spec);
                 }
-                _ => {}
+                HealthState::Degraded | HealthState::Stopping => {}
             }
         }
         if beat || last_state != Some(state) {
@@ -660,12 +640,12 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
             counters.dropped_invalid = conv.drops.invalid;
             counters.dropped_time = conv.drops.time;
             counters.seq_gaps = stats.seq_gaps;
-            counters.extra = [
-                stats.resyncs.saturating_add(stats.checksum_errors),
-                link.stats().connects.saturating_sub(1),
-                conv.clock_offset_ns().map_or(0, i64_bits),
-                conv.clock_drift_ppb().map_or(0, i64_bits),
-            ];
+            counters.stage = StageCounters::Device(DeviceCounters {
+                decoder_errors: stats.resyncs.saturating_add(stats.checksum_errors),
+                reconnects: link.stats().connects.saturating_sub(1),
+                clock_offset_ns: conv.clock_offset_ns(),
+                clock_drift_ppb: conv.clock_drift_ppb(),
+            });
             health.report(&counters, state)?;
             last_state = Some(state);
             // Late subscribers get history only when the publisher acts.
@@ -677,7 +657,7 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
             }
         }
     }
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     tracing::info!(
         "{name} driver: stopped after {} samples",
         counters.published
@@ -799,12 +779,6 @@ mod tests {
         let offset = c.clock_offset_ns().unwrap();
         assert!((offset - 5_000_000_000).abs() < 100_000, "{offset}");
         assert!(c.clock_drift_ppb().is_some());
-        assert_eq!(i64_bits(-1), u64::MAX);
-        assert_eq!(
-            clock_from_extra(&[7, 1, i64_bits(-1_700), i64_bits(3_800)]),
-            (Some(-1_700), Some(3_800))
-        );
-        assert_eq!(clock_from_extra(&[7, 1, 0, 0]), (None, None));
     }
 
     #[test]
@@ -895,22 +869,22 @@ mod tests {
         };
         assert_eq!(
             device_state(down, false, Some(50), 60),
-            Health::STATE_DISCONNECTED
+            HealthState::Disconnected
         );
-        assert_eq!(device_state(up, false, None, 200), Health::STATE_DEGRADED);
+        assert_eq!(device_state(up, false, None, 200), HealthState::Degraded);
         // A frame of the previous connection does not count.
         assert_eq!(
             device_state(up, false, Some(50), 200),
-            Health::STATE_DEGRADED
+            HealthState::Degraded
         );
-        assert_eq!(device_state(up, false, Some(150), 200), Health::STATE_OK);
+        assert_eq!(device_state(up, false, Some(150), 200), HealthState::Ok);
         assert_eq!(
             device_state(up, true, Some(150), 200),
-            Health::STATE_DEGRADED
+            HealthState::Degraded
         );
         assert_eq!(
             device_state(up, false, Some(150), 150 + SILENT_NS),
-            Health::STATE_DEGRADED
+            HealthState::Degraded
         );
     }
 

@@ -12,7 +12,8 @@ use insuwb_fusion::config::{build_estimator, FusionConfig};
 use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
 use insuwb_fusion::output::{OutputPolicy, OutputPolicyConfig};
 use insuwb_msg::{
-    topics, FilterDiag, FusedState, Health, InsCorrection, NavState, StageRole, UwbFix, UwbTdoa,
+    topics, FilterDiag, FusedState, FusionCounters, HealthState, InsCorrection, NavState,
+    StageCounters, StageRole, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
@@ -270,11 +271,16 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
             counters.published = fused_pub.published();
             counters.dropped_invalid = c.dropped_invalid;
             counters.dropped_time = c.meas_late;
-            counters.extra = [c.updates, c.outliers, c.resets, c.corrections];
+            counters.stage = StageCounters::Fusion(FusionCounters {
+                updates: c.updates,
+                outliers: c.outliers,
+                resets: c.resets,
+                corrections: c.corrections,
+            });
             let state = if policy.stale() {
-                Health::STATE_DEGRADED
+                HealthState::Degraded
             } else {
-                Health::STATE_OK
+                HealthState::Ok
             };
             health.report(&counters, state)?;
             fused_pub.update_connections()?;
@@ -285,6 +291,6 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
         }
     }
     writer.finish();
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     Ok(())
 }

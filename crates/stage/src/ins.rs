@@ -9,7 +9,10 @@ use std::time::Duration;
 
 use anyhow::Result;
 use insuwb_fusion::ins_engine::{InsBiases, InsEngine};
-use insuwb_msg::{topics, FusedState, Health, ImuSample, InsCorrection, NavState, StageRole};
+use insuwb_msg::{
+    topics, FusedState, HealthState, ImuSample, InsCorrection, InsCounters, NavState,
+    StageCounters, StageRole,
+};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
 
 use insuwb_group::robot::RobotConfig;
@@ -136,19 +139,19 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
                     counters.dropped_invalid = c.dropped_invalid;
                     counters.dropped_time = c.dropped_time;
                     counters.dropped_version += c.dropped_version;
-                    counters.extra = [
-                        c.corrections,
-                        c.repropagated,
-                        c.corrections_too_old,
-                        c.imu_restarts,
-                    ];
-                    health.report(&counters, Health::STATE_OK)?;
+                    counters.stage = StageCounters::Ins(InsCounters {
+                        corrections: c.corrections,
+                        repropagated: c.repropagated,
+                        corrections_too_old: c.corrections_too_old,
+                        imu_restarts: c.imu_restarts,
+                    });
+                    health.report(&counters, HealthState::Ok)?;
                     nav_pub.update_connections()?;
                 }
             }
         }
     }
     writer.finish();
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     Ok(())
 }

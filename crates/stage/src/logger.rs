@@ -3,7 +3,7 @@
 //! it drains them `BULK_PERIOD_NS` (50 ms) after the last drain
 //! ([`DrainClock`]). The receive loop only copies samples into a bounded
 //! channel (a full channel drops the record and counts it in the
-//! heartbeat's `extra[1]`) and, after each drain, wakes a writer thread,
+//! heartbeat's `dropped` counter, [`insuwb_msg::LoggerCounters`]) and, after each drain, wakes a writer thread,
 //! which appends what the channel holds to the current segment
 //! ([`SegmentWriter`]: framed records in a 64 KiB buffer that reaches the
 //! file when it fills, on rotation, and as `[logger.segments.flush]` says,
@@ -28,8 +28,8 @@ use anyhow::{bail, Context, Result};
 use crossbeam_channel::{bounded, RecvTimeoutError, TryRecvError, TrySendError};
 use insuwb_log::{Metadata, Record, SegmentWriter};
 use insuwb_msg::{
-    topics, FilterDiag, FusedState, GroundTruth, Health, ImuSample, InsCorrection, NavState,
-    StageRole, UwbFix, UwbTdoa,
+    topics, FilterDiag, FusedState, GroundTruth, Health, HealthState, ImuSample, InsCorrection,
+    LoggerCounters, NavState, StageCounters, StageRole, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage};
@@ -217,14 +217,14 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             for st in [imu.stats(), tdoa.stats(), fused.stats(), nav.stats()] {
                 counters.add_sub(&st);
             }
-            counters.extra = [sent, dropped, 0, 0];
-            if let Err(e) = health.report(&counters, Health::STATE_OK) {
+            counters.stage = StageCounters::Logger(LoggerCounters { sent, dropped });
+            if let Err(e) = health.report(&counters, HealthState::Ok) {
                 result = Err(e.into());
                 break;
             }
         }
     }
-    let _ = health.report(&counters, Health::STATE_STOPPING);
+    let _ = health.report(&counters, HealthState::Stopping);
     if let Some(t) = &fused_trace {
         if let Err(e) = t.write() {
             tracing::warn!("fused receive trace: {e:#}");

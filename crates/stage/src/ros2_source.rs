@@ -33,25 +33,22 @@
 //! or out-of-range value are dropped and counted in
 //! `Health::dropped_invalid` (with messages that do not decode as
 //! `sensor_msgs/Imu`), samples whose time is not after the previous one in
-//! `Health::dropped_time`. State [`Health::STATE_OK`] while messages
-//! arrive, [`Health::STATE_DEGRADED`] before the first one and when none
+//! `Health::dropped_time`. State [`HealthState::Ok`] while messages
+//! arrive, [`HealthState::Degraded`] before the first one and when none
 //! came for [`SILENT_NS`]; a change of state is published at once. Counters:
-//! `received` messages taken, `published` samples, and `extra` as
-//! [`ROS2_SOURCE_EXTRA`]:
-//!
-//! | index | meaning |
-//! |-------|---------|
-//! | 0 | samples timed by their receive time (stamp unset, ahead or too old) |
-//! | 1 | messages that did not decode as `sensor_msgs/Imu` |
-//! | 2 | clock offset, CLOCK_MONOTONIC minus the stamp clock, ns (`i64` bits; 0 for monotonic stamps) |
-//! | 3 | messages in a frame other than the body frame |
+//! `received` messages taken, `published` samples, and
+//! [`Ros2SourceCounters`]: samples timed by their receive time (stamp
+//! unset, ahead or too old), messages that did not decode as
+//! `sensor_msgs/Imu`, the clock offset (CLOCK_MONOTONIC minus the stamp
+//! clock, ns; 0 for monotonic stamps), messages in a frame other than the
+//! body frame.
 //!
 //! Each message allocates its frame id as it is decoded (unlike the device
 //! loop, which allocates nothing per sample).
 
-use insuwb_msg::{Health, ImuSample};
+use insuwb_msg::{HealthState, ImuSample, Ros2SourceCounters, StageCounters};
 use insuwb_report::clock::ClockOffset;
-use insuwb_ros2::config::{check_topic_name, Ros2Config, TopicNameError};
+use insuwb_ros2::config::Ros2Config;
 use insuwb_ros2::convert::{ros_to_imu_sample, ImuTimeSource};
 use insuwb_ros2::msgs::Imu;
 
@@ -59,36 +56,16 @@ use crate::device::SILENT_NS;
 use insuwb_group::robot::RobotConfig;
 use insuwb_msg::check::imu_values;
 
-/// The prefix of a ROS 2 source: `ros2:/TOPIC`.
-pub const SOURCE_PREFIX: &str = "ros2:";
-
-/// Meaning of the `Health::extra` counters of the IMU driver on a ROS 2
-/// source, in order.
-pub const ROS2_SOURCE_EXTRA: [&str; 4] = [
-    "receive_timed",
-    "undecodable",
-    "clock_offset_ns",
-    "other_frame",
-];
-
 /// Why a ROS 2 source cannot run.
 #[derive(Debug, thiserror::Error)]
 pub enum Ros2SourceError {
     /// This build has no DDS subscriber (feature `ros2-source` off).
     #[error(
-        "Ros2SourceError::NotBuilt: sources.imu = \"{spec}\": this IMU stage was built without the ROS 2 source (cargo feature `ros2-source` of insuwb-stage): build it with `cargo build --release --workspace` (with the ROS 2 bridge) or `cargo build --release -p insuwb-stage-imu --features jazzy`"
+        "Ros2SourceError::NotBuilt: sources.imu = \"ros2:{topic}\": this IMU stage was built without the ROS 2 source (cargo feature `ros2-source` of insuwb-stage): build it with `cargo build --release --workspace` (with the ROS 2 bridge) or `cargo build --release -p insuwb-stage-imu --features jazzy`"
     )]
     NotBuilt {
-        /// The source as given.
-        spec: String,
-    },
-    /// The topic is not a ROS topic name.
-    #[error("Ros2SourceError::Topic: sources.imu = \"{spec}\": {error}")]
-    Topic {
-        /// The source as given.
-        spec: String,
-        /// What is wrong with the name.
-        error: TopicNameError,
+        /// The source's topic.
+        topic: String,
     },
     /// A ROS 2 source for a driver other than the IMU's.
     #[error("Ros2SourceError::NotImu: sources.{sensor} = \"{spec}\": a ROS 2 source is for the IMU only")]
@@ -98,23 +75,6 @@ pub enum Ros2SourceError {
         /// The source as given.
         spec: String,
     },
-}
-
-/// The topic of the source `spec` = `ros2:TOPIC`, checked; `None` when
-/// `spec` is not a ROS 2 source.
-///
-/// # Errors
-/// [`Ros2SourceError::Topic`] for a name ROS refuses.
-pub fn topic_of(spec: &str) -> Option<Result<&str, Ros2SourceError>> {
-    let topic = spec.strip_prefix(SOURCE_PREFIX)?;
-    Some(
-        check_topic_name(topic)
-            .map(|()| topic)
-            .map_err(|error| Ros2SourceError::Topic {
-                spec: spec.to_owned(),
-                error,
-            }),
-    )
 }
 
 /// What the driver counted of the messages.
@@ -206,12 +166,12 @@ impl Intake {
             received: c.received,
             dropped_invalid: c.invalid.saturating_add(c.undecodable),
             dropped_time: c.time,
-            extra: [
-                c.receive_timed,
-                c.undecodable,
-                u64::from_ne_bytes(clock.offset_ns.wrapping_neg().to_ne_bytes()),
-                c.other_frame,
-            ],
+            stage: StageCounters::Ros2Source(Ros2SourceCounters {
+                receive_timed: c.receive_timed,
+                undecodable: c.undecodable,
+                clock_offset_ns: clock.offset_ns.wrapping_neg(),
+                other_frame: c.other_frame,
+            }),
             ..insuwb_runtime::HealthCounters::default()
         }
     }
@@ -220,21 +180,21 @@ impl Intake {
 /// The driver's state: OK while messages arrive, DEGRADED before the first
 /// and after [`SILENT_NS`] without one.
 #[must_use]
-pub fn source_state(last_msg_ns: Option<u64>, now_ns: u64) -> u32 {
+pub fn source_state(last_msg_ns: Option<u64>, now_ns: u64) -> HealthState {
     match last_msg_ns {
-        Some(t) if now_ns.saturating_sub(t) < SILENT_NS => Health::STATE_OK,
-        _ => Health::STATE_DEGRADED,
+        Some(t) if now_ns.saturating_sub(t) < SILENT_NS => HealthState::Ok,
+        _ => HealthState::Degraded,
     }
 }
 
-/// Runs the IMU driver on the ROS 2 source `spec` (`ros2:TOPIC`) until
-/// SIGINT/SIGTERM.
+/// Runs the IMU driver on the ROS 2 source `ros2:TOPIC` (its topic, checked
+/// as the source was parsed) until SIGINT/SIGTERM.
 ///
 /// # Errors
-/// [`Ros2SourceError`] for a bad topic or a build without the feature; the
-/// subscriber cannot be opened; a port, the waiter or the reader fails.
+/// [`Ros2SourceError`] for a build without the feature; the subscriber
+/// cannot be opened; a port, the waiter or the reader fails.
 #[cfg(feature = "ros2-source")]
-pub fn run(cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
+pub fn run(cfg: &RobotConfig, topic: &str) -> anyhow::Result<()> {
     use std::time::Duration;
 
     use anyhow::Context;
@@ -248,10 +208,6 @@ pub fn run(cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
     /// Messages taken at most per round after the first.
     const BATCH: usize = 256;
 
-    let topic = match topic_of(spec) {
-        Some(t) => t?,
-        None => anyhow::bail!("not a ROS 2 source: {spec}"),
-    };
     let name = crate::source::Want::Imu.role().name();
     let stage = Stage::new(cfg.runtime(name))?;
     let mut imu_pub = stage.publisher::<ImuSample>(topics::IMU)?;
@@ -259,7 +215,7 @@ pub fn run(cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
     let waiter = stage.waiter()?;
     let hb = waiter.attach_interval(health.period())?;
     let mut sub = ImuSubscriber::open(&cfg.ros2, topic)
-        .with_context(|| format!("sources.imu = \"{spec}\": opening the ROS 2 subscriber"))?;
+        .with_context(|| format!("sources.imu = \"ros2:{topic}\": opening the ROS 2 subscriber"))?;
     tracing::info!(
         "{name} driver: ROS 2 topic {} (sensor_msgs/Imu, domain {}, node {}/{}), generation {}",
         sub.topic(),
@@ -272,7 +228,7 @@ pub fn run(cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
     let mut clock = ClockOffset::measure(cfg.ros2.stamp_clock);
     let mut counters = insuwb_runtime::HealthCounters::default();
     let mut last_msg_ns: Option<u64> = None;
-    let mut last_state: Option<u32> = None;
+    let mut last_state: Option<HealthState> = None;
     loop {
         let beat = match waiter.wait_timeout(Duration::ZERO)? {
             Wake::Shutdown => break,
@@ -304,7 +260,7 @@ pub fn run(cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
         let state = source_state(last_msg_ns, monotonic_ns());
         if last_state != Some(state) {
             match state {
-                Health::STATE_OK => tracing::info!("{name} driver: {}: receiving", sub.topic()),
+                HealthState::Ok => tracing::info!("{name} driver: {}: receiving", sub.topic()),
                 _ if last_state.is_some() => tracing::warn!(
                     "{name} driver: {}: no message for {} ms",
                     sub.topic(),
@@ -325,7 +281,7 @@ pub fn run(cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
             imu_pub.update_connections()?;
         }
     }
-    health.report(&counters, Health::STATE_STOPPING)?;
+    health.report(&counters, HealthState::Stopping)?;
     tracing::info!(
         "{name} driver: stopped after {} samples from {}",
         counters.published,
@@ -334,17 +290,14 @@ pub fn run(cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Refuses the ROS 2 source: this build has no DDS subscriber.
+/// Refuses the ROS 2 source `ros2:TOPIC`: this build has no DDS subscriber.
 ///
 /// # Errors
-/// Always [`Ros2SourceError::NotBuilt`] (or [`Ros2SourceError::Topic`]).
+/// Always [`Ros2SourceError::NotBuilt`].
 #[cfg(not(feature = "ros2-source"))]
-pub fn run(_cfg: &RobotConfig, spec: &str) -> anyhow::Result<()> {
-    if let Some(Err(e)) = topic_of(spec) {
-        return Err(e.into());
-    }
+pub fn run(_cfg: &RobotConfig, topic: &str) -> anyhow::Result<()> {
     Err(Ros2SourceError::NotBuilt {
-        spec: spec.to_owned(),
+        topic: topic.to_owned(),
     }
     .into())
 }
@@ -375,16 +328,6 @@ mod tests {
             angular_velocity: v(gyro),
             ..Imu::default()
         }
-    }
-
-    #[test]
-    fn topics_are_checked() {
-        assert_eq!(topic_of("ros2:/imu/data").unwrap().unwrap(), "/imu/data");
-        assert!(topic_of("sim").is_none());
-        assert!(topic_of("device").is_none());
-        let e = topic_of("ros2:/imu data").unwrap().unwrap_err();
-        assert!(e.to_string().contains("sources.imu"), "{e}");
-        assert!(topic_of("ros2:").unwrap().is_err());
     }
 
     #[test]
@@ -431,19 +374,27 @@ mod tests {
         );
         let h = i.health(&ClockOffset { offset_ns: 5 });
         assert_eq!((h.received, h.dropped_invalid, h.dropped_time), (7, 3, 2));
-        assert_eq!(h.extra, [1, 1, (-5i64).cast_unsigned(), 1]);
+        assert_eq!(
+            h.stage,
+            StageCounters::Ros2Source(Ros2SourceCounters {
+                receive_timed: 1,
+                undecodable: 1,
+                clock_offset_ns: -5,
+                other_frame: 1,
+            })
+        );
     }
 
     #[test]
     fn state_follows_the_messages() {
-        assert_eq!(source_state(None, 5), Health::STATE_DEGRADED);
+        assert_eq!(source_state(None, 5), HealthState::Degraded);
         assert_eq!(
             source_state(Some(100), 100 + SILENT_NS - 1),
-            Health::STATE_OK
+            HealthState::Ok
         );
         assert_eq!(
             source_state(Some(100), 100 + SILENT_NS),
-            Health::STATE_DEGRADED
+            HealthState::Degraded
         );
     }
 
@@ -451,12 +402,10 @@ mod tests {
     #[test]
     fn without_the_feature_the_source_is_refused_by_name() {
         let cfg = RobotConfig::default();
-        let e = run(&cfg, "ros2:/imu").unwrap_err().to_string();
+        let e = run(&cfg, "/imu").unwrap_err().to_string();
         assert!(
-            e.contains("sources.imu") && e.contains("ros2-source"),
+            e.contains("sources.imu = \"ros2:/imu\"") && e.contains("ros2-source"),
             "{e}"
         );
-        let e = run(&cfg, "ros2:/imu//x").unwrap_err().to_string();
-        assert!(e.contains("Topic"), "{e}");
     }
 }

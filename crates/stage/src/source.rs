@@ -6,6 +6,7 @@
 //! it is read.
 
 use anyhow::{bail, Context, Result};
+use insuwb_group::sources;
 use insuwb_log::Record;
 use insuwb_msg::{GroundTruth, ImuSample, UwbTdoa};
 
@@ -148,10 +149,13 @@ impl Source for Recorded {
     }
 }
 
-/// Opens the source named `spec` (`sim` or `replay:FILE`) for `want`.
-pub fn open(spec: &str, scenario: &str, seed: u64, want: Want) -> Result<Recorded> {
+/// Opens the recorded source `source` (`sim` or `replay:FILE`) for `want`.
+///
+/// # Errors
+/// A live source (`device`, `ros2:`); the scenario or the log cannot be read.
+pub fn open(source: &sources::Source, scenario: &str, seed: u64, want: Want) -> Result<Recorded> {
     let mut items = Vec::new();
-    if spec == "sim" {
+    if *source == sources::Source::Sim {
         let sc = insuwb_fusion::scenario::ScenarioFile::load(scenario)?;
         let out = insuwb_sim::simulate(&sc.sim, seed).context("simulating the scenario")?;
         match want {
@@ -161,11 +165,11 @@ pub fn open(spec: &str, scenario: &str, seed: u64, want: Want) -> Result<Recorde
             }
             Want::Uwb => items.extend(out.tdoa.iter().map(|s| Item::Tdoa(*s))),
         }
-    } else if let Some(file) = spec.strip_prefix("replay:") {
-        let (records, tail, _) =
-            insuwb_log::read_all(file).with_context(|| format!("{file}: cannot read the log"))?;
+    } else if let Some(file) = source.replay_file() {
+        let (records, tail, _) = insuwb_log::read_all(file)
+            .with_context(|| format!("{}: cannot read the log", file.display()))?;
         if let Some(t) = tail {
-            tracing::warn!("{file}: {t}");
+            tracing::warn!("{}: {t}", file.display());
         }
         for r in records {
             match (want, r) {
@@ -176,7 +180,7 @@ pub fn open(spec: &str, scenario: &str, seed: u64, want: Want) -> Result<Recorde
             }
         }
     } else {
-        bail!("unknown source '{spec}' (sim or replay:FILE)");
+        bail!("source '{source}' is live, not recorded (sim or replay:FILE)");
     }
     Ok(Recorded::new(items))
 }

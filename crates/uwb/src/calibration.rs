@@ -851,6 +851,8 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
     use insuwb_msg::Header;
+    use rand::{RngExt as _, SeedableRng as _};
+    use rand_xoshiro::Xoshiro256StarStar;
 
     use super::*;
 
@@ -871,13 +873,10 @@ mod tests {
         s * (0.05 * f64::from(k.0 + 1) - 0.03 * f64::from(k.1) + 0.04 * p[0])
     }
 
-    /// A deterministic pseudo-random sequence in [-0.5, 0.5).
-    fn noise(i: u64) -> f64 {
-        let x = i.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1) >> 11;
-        (x as f64 / (1u64 << 53) as f64) - 0.5
-    }
-
     fn samples() -> Vec<Sample> {
+        // Seeded uniform noise in [-0.5, 0.5) (xoshiro256**).
+        let mut rng = Xoshiro256StarStar::seed_from_u64(1);
+        let mut noise = || rng.random::<f64>() - 0.5;
         let mut out = Vec::new();
         let mut i = 0u64;
         for ix in -30..30 {
@@ -891,7 +890,7 @@ mod tests {
                         a,
                         b,
                         pos_m: p,
-                        residual_m: true_bias(a, b, &p) + 0.1 * noise(i) + gross,
+                        residual_m: true_bias(a, b, &p) + 0.1 * noise() + gross,
                     });
                 }
             }

@@ -548,7 +548,7 @@ impl FixBuilder {
     /// Aligns the epoch windows to a recording replayed from `epoch_ns`
     /// (measurement times `epoch_ns + t`): the windows then hold the same
     /// measurements as for the recording's own times `t`, whatever the
-    /// epoch (`insuwb_runtime::epoch` puts it 2.5 ms after a whole second).
+    /// epoch (a group's is the start epoch, `insuwb_runtime::epoch`).
     /// Call before the first push.
     pub fn align_to(&mut self, epoch_ns: u64) {
         self.phase_ns = epoch_ns % self.period_ns.max(1);

@@ -24,11 +24,11 @@
 //!
 //! Heartbeat counters: `received` what the subscribers got, `published`
 //! the Zenoh samples put, `dropped_invalid` samples no payload holds,
-//! `dropped_time` samples too old to republish, `extra = [poses, health,
-//! fixes and diagnostics, put failures]`.
+//! `dropped_time` samples too old to republish, and [`ZenohCounters`]
+//! (poses, health reports, fixes and diagnostics put, put failures).
 
 use insuwb_fleet::keys::Kind;
-use insuwb_msg::{topics, FilterDiag, FusedState, Health, UwbFix};
+use insuwb_msg::{topics, FilterDiag, FusedState, Health, StageCounters, UwbFix, ZenohCounters};
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::GroupSeen;
 use insuwb_report::report_loop::{ReportLoop, ReportOutputs};
@@ -408,7 +408,13 @@ impl ReportOutputs for Outputs {
         c.published = s.poses + s.health + s.fixes + s.diags;
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
-        c.extra = [s.poses, s.health, s.fixes + s.diags, s.put_failures];
+        c.stage = StageCounters::Zenoh(ZenohCounters {
+            poses: s.poses,
+            health: s.health,
+            fixes: s.fixes,
+            diags: s.diags,
+            put_failures: s.put_failures,
+        });
         c
     }
 }

@@ -122,6 +122,9 @@ pub struct LinkConfig {
     pub listen: Vec<String>,
     /// The certificates of the `tls/` endpoints.
     pub tls: TlsConfig,
+    /// Refuse a plain `tcp/` endpoint off the loopback
+    /// ([`LinkConfig::plain_off_loopback`]) instead of warning about it.
+    pub require_tls: bool,
 }
 
 /// `[zenoh]`: the Zenoh bridge stage (`insuwb-stage-zenoh`, run when
@@ -142,6 +145,9 @@ pub struct ZenohConfig {
     pub listen: Vec<String>,
     /// The certificates of the `tls/` endpoints.
     pub tls: TlsConfig,
+    /// Refuse to start with a plain `tcp/` endpoint off the loopback
+    /// (by default such an endpoint is only warned about).
+    pub require_tls: bool,
     /// Publish the UWB fixes on `insuwb/<robot>/fix`.
     pub publish_fixes: bool,
     /// Publish the filter's diagnostics on `insuwb/<robot>/diag`.
@@ -166,6 +172,7 @@ impl Default for ZenohConfig {
             connect: Vec::new(),
             listen: Vec::new(),
             tls: TlsConfig::default(),
+            require_tls: false,
             publish_fixes: false,
             publish_diag: false,
             only_valid: false,
@@ -233,7 +240,49 @@ pub fn is_tls(e: &str) -> bool {
     e.starts_with("tls/")
 }
 
+/// Whether `e` (a checked endpoint) names a loopback host: `localhost`,
+/// an address of 127.0.0.0/8 or `::1`.
+#[must_use]
+pub fn is_loopback(e: &str) -> bool {
+    let rest = e.split_once('/').map_or(e, |(_, r)| r);
+    let addr = rest.split(['?', '#']).next().unwrap_or_default();
+    let Some((host, _)) = addr.rsplit_once(':') else {
+        return false;
+    };
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host.eq_ignore_ascii_case("localhost")
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
+/// What a plain `tcp/` endpoint off the loopback exposes and how to close
+/// it: the text of the warning, and of the error under `require_tls`.
+#[must_use]
+pub fn plain_tcp_text(e: &str) -> String {
+    format!(
+        "endpoint {e:?} is plain TCP off the loopback: anyone on that network can read the \
+         fleet's samples and put poses for any robot; use a tls/ endpoint with the TLS \
+         section beside this key (root_ca_certificate, certificate, private_key; \
+         docs/ZENOH.md, \"TLS\")"
+    )
+}
+
 impl LinkConfig {
+    /// The plain `tcp/` endpoints to connect to or listen on whose host is
+    /// not a loopback one, each with its key (`connect` or `listen`): the
+    /// stage and the station warn about each when they start, and refuse
+    /// them under `require_tls`.
+    #[must_use]
+    pub fn plain_off_loopback(&self) -> Vec<(&'static str, &str)> {
+        self.connect
+            .iter()
+            .map(|e| ("connect", e.as_str()))
+            .chain(self.listen.iter().map(|e| ("listen", e.as_str())))
+            .filter(|(_, e)| e.starts_with("tcp/") && !is_loopback(e))
+            .collect()
+    }
+
     /// Checks the endpoints and the TLS settings they need; the error names
     /// the first bad key.
     ///
@@ -245,6 +294,14 @@ impl LinkConfig {
         }
         for e in &self.listen {
             check_endpoint("listen", e)?;
+        }
+        if self.require_tls {
+            if let Some((key, e)) = self.plain_off_loopback().first() {
+                return bad(
+                    key,
+                    format!("{} (refused: require_tls is set)", plain_tcp_text(e)),
+                );
+            }
         }
         let t = &self.tls;
         for (key, p) in [
@@ -356,6 +413,7 @@ impl ZenohConfig {
             connect: self.connect.clone(),
             listen: self.listen.clone(),
             tls: self.tls.clone(),
+            require_tls: self.require_tls,
         }
     }
 
@@ -400,6 +458,63 @@ mod tests {
             p
         });
         (dir, files)
+    }
+
+    #[test]
+    fn plain_tcp_off_the_loopback_is_named_and_refused_under_require_tls() {
+        for e in [
+            "tcp/127.0.0.1:7447",
+            "tcp/127.3.2.1:7447",
+            "tcp/[::1]:7447",
+            "tcp/localhost:7447",
+            "tls/10.0.0.1:7447",
+        ] {
+            let c = ZenohConfig {
+                connect: vec![e.into()],
+                require_tls: true,
+                ..enabled()
+            };
+            assert!(c.link().plain_off_loopback().is_empty(), "{e}");
+            if !is_tls(e) {
+                c.validate().unwrap();
+            }
+        }
+        let c = ZenohConfig {
+            connect: vec!["tcp/127.0.0.1:7447".into(), "tcp/10.0.0.1:7447".into()],
+            listen: vec!["tcp/0.0.0.0:7447".into(), "tcp/[fe80::1]:7447".into()],
+            ..enabled()
+        };
+        assert_eq!(
+            c.link().plain_off_loopback(),
+            vec![
+                ("connect", "tcp/10.0.0.1:7447"),
+                ("listen", "tcp/0.0.0.0:7447"),
+                ("listen", "tcp/[fe80::1]:7447"),
+            ]
+        );
+        // Warned about (when the session opens), not refused ...
+        c.validate().unwrap();
+        // ... unless require_tls is set: the first one is named with its key.
+        let e = ZenohConfig {
+            require_tls: true,
+            ..c
+        }
+        .validate()
+        .unwrap_err();
+        assert_eq!(e.key, "connect");
+        let text = e.to_string();
+        assert!(
+            text.starts_with(
+                "key 'zenoh.connect': endpoint \"tcp/10.0.0.1:7447\" is plain TCP off the loopback"
+            ),
+            "{text}"
+        );
+        assert!(
+            text.contains("tls/ endpoint") && text.contains("require_tls is set"),
+            "{text}"
+        );
+        let c: ZenohConfig = toml::from_str("robot = \"r1\"\nrequire_tls = true").unwrap();
+        assert!(c.require_tls && c.link().require_tls);
     }
 
     #[test]

@@ -210,6 +210,7 @@ fn health_at(robot: &str, t_ns: u64) -> HealthPayload {
         heartbeat_age_s: Some(0.1),
         received_rate_hz: Some(100.0),
         published_rate_hz: Some(100.0),
+        counters: std::collections::BTreeMap::new(),
     };
     HealthPayload {
         version: VERSION,

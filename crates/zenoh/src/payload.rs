@@ -33,9 +33,11 @@
 //! ```
 #![doc = include_str!("../../../docs/ZENOH.md")]
 
+use std::collections::BTreeMap;
+
 use insuwb_fleet::keys::{Key, KeyError, Kind};
 use insuwb_fleet::station::{HealthSample, PoseSample, StageHealth, StageState};
-use insuwb_msg::{FilterDiag, FilterKind, FusedState, UwbFix};
+use insuwb_msg::{CounterValue, FilterDiag, FilterKind, FusedState, UwbFix};
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::{GroupSeen, StageCondition};
 use insuwb_ros2::cdr;
@@ -303,6 +305,10 @@ pub struct StagePayload {
     pub received_rate_hz: Option<f64>,
     /// Samples published per second (`null` until two heartbeats).
     pub published_rate_hz: Option<f64>,
+    /// The counters of its kind from its last heartbeat, by name (empty
+    /// without a heartbeat or for a kind this version does not know).
+    #[serde(default)]
+    pub counters: BTreeMap<String, CounterValue>,
 }
 
 impl StagePayload {
@@ -337,6 +343,10 @@ impl StagePayload {
             heartbeat_age_s: seen.map(|s| s.age_ns(now_ns) as f64 * 1e-9),
             received_rate_hz: seen.and_then(|s| s.rates_hz).map(|r| r.0),
             published_rate_hz: seen.and_then(|s| s.rates_hz).map(|r| r.1),
+            counters: seen
+                .and_then(|s| s.last.counters().ok())
+                .map(|c| c.values().map(|(k, v)| (k.to_owned(), v)).collect())
+                .unwrap_or_default(),
         }
     }
 }
@@ -622,7 +632,7 @@ pub fn decode(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use insuwb_msg::{fixed_name, Header, Health};
+    use insuwb_msg::{fixed_name, FusionCounters, Header, Health, StageCounters};
 
     fn fused() -> FusedState {
         let a: f64 = 0.6;
@@ -696,6 +706,13 @@ mod tests {
             };
             h.header.generation = generation;
             h.header.pub_time_ns = t;
+            if stage == "fusion" {
+                h.set_counters(StageCounters::Fusion(FusionCounters {
+                    updates: 7,
+                    outliers: 2,
+                    ..FusionCounters::default()
+                }));
+            }
             g.note_heartbeat(h, t);
         }
         let mut coasting = FusedState::default();
@@ -709,6 +726,9 @@ mod tests {
         assert_eq!(json["stages"][0]["state"], "ok");
         assert_eq!(json["stages"][0]["restarts"], 2);
         assert_eq!(json["stages"][1]["condition"], "coasting");
+        assert_eq!(json["stages"][1]["counters"]["outliers"], 2);
+        assert_eq!(json["stages"][1]["counters"]["updates"], 7);
+        assert_eq!(json["stages"][0]["counters"], serde_json::json!({}));
         assert_eq!(json["stages"][2]["state"], "down");
         assert!(json["stages"][2]["heartbeat_age_s"].is_null());
         let rate = json["stages"][0]["published_rate_hz"].as_f64().unwrap();

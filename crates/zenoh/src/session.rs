@@ -132,6 +132,10 @@ pub fn zenoh_config(link: &LinkConfig) -> Result<zenoh::Config, SessionError> {
 /// signal blocked while Zenoh starts its threads, so that SIGTERM and
 /// SIGINT reach the stage's own thread.
 ///
+/// Each plain `tcp/` endpoint off the loopback is warned about
+/// ([`LinkConfig::plain_off_loopback`]; refused by [`zenoh_config`] under
+/// `require_tls`).
+///
 /// A peer or router returns at once while the endpoints to connect to are
 /// down (it retries in the background); a client waits for one.
 ///
@@ -139,6 +143,12 @@ pub fn zenoh_config(link: &LinkConfig) -> Result<zenoh::Config, SessionError> {
 /// [`SessionError`] naming what failed.
 pub fn open(link: &LinkConfig) -> Result<Session, SessionError> {
     let config = zenoh_config(link)?;
+    for (key, e) in link.plain_off_loopback() {
+        tracing::warn!(
+            "{key}: {}; require_tls = true refuses it",
+            crate::config::plain_tcp_text(e)
+        );
+    }
     insuwb_runtime::signal::with_signals_blocked(|| zenoh::open(config).wait())
         .map_err(|e| SessionError::Open(e.to_string()))
 }

@@ -48,7 +48,7 @@ use insuwb_fleet::record::{FleetRecorder, RecordError, RobotRecording};
 use insuwb_fleet::station::StageState;
 use insuwb_fleet::station::{Event, Station, StationConfig, StationConfigError};
 use insuwb_fleet::view::Snapshot;
-use insuwb_msg::{fixed_name, FusedState, Header, Health};
+use insuwb_msg::{fixed_name, FusedState, Header, Health, HealthState};
 use insuwb_report::clock::{ClockOffset, StampClock};
 use insuwb_runtime::monotonic_ns;
 use serde::{Deserialize, Serialize};
@@ -85,6 +85,9 @@ pub struct StationSettings {
     /// The certificates of the `tls/` endpoints (`[station.tls]`, the keys
     /// of `[zenoh.tls]`).
     pub tls: TlsConfig,
+    /// Refuse to start with a plain `tcp/` endpoint off the loopback (by
+    /// default such an endpoint is only warned about).
+    pub require_tls: bool,
     /// The clock of the robots' stamps (their `[zenoh] stamp_clock`):
     /// `realtime` (default) or `monotonic` (robots on this machine); the
     /// delay of a pose is its receive time in this clock minus its stamp.
@@ -106,6 +109,7 @@ impl Default for StationSettings {
             connect: Vec::new(),
             listen: Vec::new(),
             tls: TlsConfig::default(),
+            require_tls: false,
             stamp_clock: StampClock::Realtime,
             lost_after_s: d.lost_after_s,
             stale_after_s: d.stale_after_s,
@@ -145,6 +149,7 @@ impl StationSettings {
             connect: self.connect.clone(),
             listen: self.listen.clone(),
             tls: self.tls.clone(),
+            require_tls: self.require_tls,
         }
     }
 
@@ -276,13 +281,14 @@ struct Arrival {
     sample: Result<Received, (String, DecodeError)>,
 }
 
-/// The state code of a stage's health record.
-fn state_code(s: StageState) -> Option<u32> {
+/// The heartbeat state of a stage's health record (none for a stage
+/// that is down).
+fn heartbeat_state(s: StageState) -> Option<HealthState> {
     match s {
-        StageState::Ok => Some(Health::STATE_OK),
-        StageState::Degraded => Some(Health::STATE_DEGRADED),
-        StageState::Disconnected => Some(Health::STATE_DISCONNECTED),
-        StageState::Stopping => Some(Health::STATE_STOPPING),
+        StageState::Ok => Some(HealthState::Ok),
+        StageState::Degraded => Some(HealthState::Degraded),
+        StageState::Disconnected => Some(HealthState::Disconnected),
+        StageState::Stopping => Some(HealthState::Stopping),
         StageState::Down => None,
     }
 }
@@ -292,13 +298,14 @@ fn state_code(s: StageState) -> Option<u32> {
 /// heartbeat, so it has none), with the stage's name, process id, state
 /// and restarts (`header.generation`); the report's stamp as measurement
 /// time, `rx_ns` (the station's receive time) as publish time, `seq` the
-/// report's. The counters stay 0: the report carries rates, not counts.
+/// report's. The counters stay 0, of no stage kind: the report carries
+/// rates, and the stage's own counters by name only.
 #[must_use]
 pub fn health_records(h: &HealthPayload, seq: u64, rx_ns: u64) -> Vec<Health> {
     h.stages
         .iter()
         .filter_map(|s| {
-            let state = state_code(s.state)?;
+            let state = heartbeat_state(s.state)?;
             let mut header = Header::new(seq, h.stamp_ns);
             header.pub_time_ns = rx_ns;
             header.generation = u32::try_from(s.restarts).unwrap_or(u32::MAX);
@@ -306,7 +313,7 @@ pub fn health_records(h: &HealthPayload, seq: u64, rx_ns: u64) -> Vec<Health> {
                 header,
                 stage: fixed_name(&s.stage),
                 pid: s.pid,
-                state,
+                state: state.into(),
                 ..Health::default()
             })
         })
@@ -716,6 +723,7 @@ mod tests {
             heartbeat_age_s: None,
             received_rate_hz: None,
             published_rate_hz: None,
+            counters: std::collections::BTreeMap::new(),
         };
         let h = HealthPayload {
             version: VERSION,
@@ -731,7 +739,7 @@ mod tests {
         assert_eq!(beats.len(), 2, "the stage that is down sent no heartbeat");
         assert_eq!(insuwb_msg::name_str(&beats[0].stage), "imu");
         assert_eq!((beats[0].header.generation, beats[0].pid), (2, 7));
-        assert_eq!(beats[1].state, Health::STATE_DEGRADED);
+        assert_eq!(beats[1].state(), Ok(HealthState::Degraded));
         let hd = beats[1].header;
         assert_eq!((hd.seq, hd.meas_time_ns, hd.pub_time_ns), (4, 123, 999));
     }

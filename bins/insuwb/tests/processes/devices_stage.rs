@@ -28,8 +28,11 @@ use insuwb_devices::Protocol;
 use insuwb_eval::metrics::TruthTrack;
 use insuwb_group::recording::{self, Recording};
 use insuwb_log::Record;
-use insuwb_msg::{FusedState, GroundTruth, Health, ImuSample};
+use insuwb_msg::{
+    DeviceCounters, FusedState, GroundTruth, Health, HealthState, ImuSample, StageCounters,
+};
 use insuwb_runtime::monotonic_ns;
+use insuwb_sim::rng::{RngExt as _, SeedableRng as _, SimRng};
 
 use crate::common;
 use common::{f, one_at_a_time as lock, records, Group};
@@ -164,6 +167,19 @@ fn health_of(recs: &[Record], name: &str) -> Vec<Health> {
     h
 }
 
+/// A device driver's counters in heartbeat `h`.
+fn device_counters(h: &Health) -> DeviceCounters {
+    match h.counters() {
+        Ok(StageCounters::Device(c)) => c,
+        other => panic!("not a device driver's counters: {other:?}"),
+    }
+}
+
+/// The state of heartbeat `h`, known to this version.
+fn state(h: &Health) -> HealthState {
+    h.state().unwrap()
+}
+
 /// Horizontal RMS error of the valid UWB-updated fused states against the
 /// scenario's truth placed at `epoch`, and how many states it used.
 fn fused_rmse(recs: &[Record], rec: &Recording, epoch: u64) -> (f64, usize) {
@@ -251,7 +267,7 @@ fn a_witmotion_imu_on_a_pty_feeds_the_group_at_10_hz() {
     let last = health
         .iter()
         .rev()
-        .find(|h| h.state != Health::STATE_STOPPING)
+        .find(|h| state(h) != HealthState::Stopping)
         .expect("no IMU heartbeat");
     eprintln!(
         "witmotion IMU over {}: fused {fused_hz:.2} Hz, imu {imu_hz:.1} Hz, rmse_horizontal {rmse:.4} m over {n} states; \
@@ -259,9 +275,13 @@ fn a_witmotion_imu_on_a_pty_feeds_the_group_at_10_hz() {
         link.display()
     );
     assert!(rmse < 0.06, "rmse_horizontal {rmse:.4} m");
-    assert_eq!(last.state, Health::STATE_OK, "{last:?}");
+    assert_eq!(state(last), HealthState::Ok, "{last:?}");
     assert_eq!(last.dropped_invalid, 0, "{last:?}");
-    assert_eq!(last.extra[0], 0, "decoder errors: {last:?}");
+    assert_eq!(
+        device_counters(last).decoder_errors,
+        0,
+        "decoder errors: {last:?}"
+    );
     assert!(
         last.published > 500 && last.received >= 2 * last.published - 2,
         "{last:?}"
@@ -316,7 +336,7 @@ fn unplugging_the_imu_for_half_a_second_reconnects_without_a_restart() {
     let at = |h: &Health| h.header.pub_time_ns;
     let down: Vec<&Health> = health
         .iter()
-        .filter(|h| h.state == Health::STATE_DISCONNECTED)
+        .filter(|h| state(h) == HealthState::Disconnected)
         .collect();
     assert!(
         !down.is_empty()
@@ -325,18 +345,18 @@ fn unplugging_the_imu_for_half_a_second_reconnects_without_a_restart() {
                 .all(|h| (unplugged..back + 1_000_000_000).contains(&at(h))),
         "disconnected heartbeats {:?} outside the unplug [{unplugged}, {back}]; states {:?}\n{stderr}",
         down.iter().map(|h| at(h)).collect::<Vec<_>>(),
-        health.iter().map(|h| (at(h), h.state)).collect::<Vec<_>>()
+        health.iter().map(|h| (at(h), state(h))).collect::<Vec<_>>()
     );
     let recovered = health
         .iter()
-        .find(|h| at(h) > back && h.state == Health::STATE_OK)
+        .find(|h| at(h) > back && state(h) == HealthState::Ok)
         .expect("the IMU driver never reported OK after the replug");
     let recovery_ms = (at(recovered) - back) as f64 * 1e-6;
     let first_down_ms = (at(down[0]).saturating_sub(unplugged)) as f64 * 1e-6;
     let last = health
         .iter()
         .rev()
-        .find(|h| h.state != Health::STATE_STOPPING)
+        .find(|h| state(h) != HealthState::Stopping)
         .unwrap();
     // Valid fused output goes on after the device's return.
     let valid_after: Vec<u64> = recs
@@ -363,8 +383,11 @@ fn unplugging_the_imu_for_half_a_second_reconnects_without_a_restart() {
     );
     // The driver came back on its own (OK after the replug, found above)
     // and valid fused output resumed; how soon is the figure printed above.
-    assert!(last.extra[1] >= 1, "no reconnection counted: {last:?}");
-    assert_eq!(last.state, Health::STATE_OK, "{last:?}");
+    assert!(
+        device_counters(last).reconnects >= 1,
+        "no reconnection counted: {last:?}"
+    );
+    assert_eq!(state(last), HealthState::Ok, "{last:?}");
     assert!(
         valid_after.len() >= 10,
         "valid fused output {resumed_ms:.0} ms after the replug, {} states",
@@ -378,18 +401,13 @@ fn bytes_that_never_frame_are_named_as_a_wrong_baud_rate_and_the_driver_stays_up
     let (g, link) = device_group("devbaud", "wrong_baud_bytes = 2000");
     // What a WitMotion at another baud rate looks like: bytes, never a
     // frame (no 0x55 header at all), 22 every 10 ms.
-    let mut x = 0x2545_F491_4F6C_DD1D_u64;
+    let mut rng = SimRng::seed_from_u64(1);
     let chunks: Vec<(u64, Vec<u8>)> = (0..600u64)
         .map(|k| {
             let bytes = (0..22)
-                .map(|_| {
-                    x ^= x << 13;
-                    x ^= x >> 7;
-                    x ^= x << 17;
-                    match (x >> 32) as u8 {
-                        0x55 => 0x54,
-                        b => b,
-                    }
+                .map(|_| match rng.random::<u8>() {
+                    0x55 => 0x54,
+                    b => b,
                 })
                 .collect();
             (k * 10_000_000, bytes)
@@ -417,15 +435,18 @@ fn bytes_that_never_frame_are_named_as_a_wrong_baud_rate_and_the_driver_stays_up
     let health = health_of(&recs, "imu");
     let running: Vec<&Health> = health
         .iter()
-        .filter(|h| h.state != Health::STATE_STOPPING)
+        .filter(|h| state(h) != HealthState::Stopping)
         .collect();
     assert!(running.len() >= 10, "{} IMU heartbeats", running.len());
     assert!(
-        running.iter().all(|h| h.state == Health::STATE_DEGRADED),
+        running.iter().all(|h| state(h) == HealthState::Degraded),
         "states {:?}",
-        running.iter().map(|h| h.state).collect::<Vec<_>>()
+        running.iter().map(|h| state(h)).collect::<Vec<_>>()
     );
     let last = running.last().unwrap();
     assert_eq!(last.published, 0, "{last:?}");
-    assert!(last.extra[0] >= 1, "no resync counted: {last:?}");
+    assert!(
+        device_counters(last).decoder_errors >= 1,
+        "no resync counted: {last:?}"
+    );
 }

@@ -120,13 +120,13 @@ fn assert_fused_output_went_on(r: &serde_json::Value) {
     let rate = f(r, "fused_rate_hz");
     assert!((5.0..=10.2).contains(&rate), "fused rate {rate} Hz: {r}");
     assert_eq!(f(r, "deadlocks"), 0.0, "fused output stopped: {r}");
-    let count = |stage: &str, key: &str, i: Option<usize>| {
+    let count = |stage: &str, key: &str, counter: Option<&str>| {
         let v = &r["stages"][stage][key];
-        let v = i.map_or(v, |i| &v[i]);
+        let v = counter.map_or(v, |c| &v[c]);
         v.as_u64()
             .unwrap_or_else(|| panic!("no stages.{stage}.{key} in {r}"))
     };
-    let fixes = count("uwb", "extra", Some(0));
+    let fixes = count("uwb", "counters", Some("fixes"));
     let updates = count("fusion", "published", None).saturating_sub(f(r, "degraded") as u64);
     assert!(
         fixes >= 20 && 2 * updates >= fixes,
@@ -478,11 +478,10 @@ fn bad_samples_and_impossible_geometry_are_dropped_and_counted_and_files_are_own
     assert_eq!(stage("imu", "dropped_time"), inj.imu_time, "{r}");
     assert_eq!(stage("uwb", "dropped_invalid"), inj.tdoa_invalid, "{r}");
     assert_eq!(stage("uwb", "dropped_time"), inj.tdoa_time, "{r}");
-    let extra = |i: usize| r["stages"]["uwb"]["extra"][i].as_u64().unwrap();
-    // [fixes, too few pairs, geometry, solver]
-    assert_eq!(extra(1), inj.two_pair_epochs, "{r}");
-    assert_eq!(extra(2), inj.collinear_epochs, "{r}");
-    assert!(extra(0) > 30, "{r}");
+    let uwb = |k: &str| r["stages"]["uwb"]["counters"][k].as_u64().unwrap();
+    assert_eq!(uwb("skipped_too_few_pairs"), inj.two_pair_epochs, "{r}");
+    assert_eq!(uwb("skipped_geometry"), inj.collinear_epochs, "{r}");
+    assert!(uwb("fixes") > 30, "{r}");
     // The skips are logged with their reason.
     assert!(
         stderr.contains("epochs skipped without a fix"),

@@ -548,9 +548,9 @@ fn three_robots_at_a_station_one_lost_and_back_and_a_station_restart() {
     let _ = std::fs::remove_dir_all(&work);
 }
 
-/// A station with no endpoint, a bad one or a bad key in its config file
-/// is refused before anything opens, the error naming the option, or the
-/// file and the key.
+/// A station with no endpoint, a bad one, a bad key in its config file or
+/// plain TCP off the loopback under `require_tls` is refused before anything
+/// opens, the error naming the option, or the file and the key.
 #[test]
 fn a_station_without_an_endpoint_or_with_a_bad_key_is_refused() {
     let work = std::env::temp_dir().join(format!("insuwb-test-{}-fleet-bad", std::process::id()));
@@ -566,7 +566,21 @@ fn a_station_without_an_endpoint_or_with_a_bad_key_is_refused() {
         "lost.toml",
         "[station]\nlisten = [\"tcp/127.0.0.1:7447\"]\nlost_after_s = -1.0\n",
     );
-    let cases: [(Vec<&str>, String); 5] = [
+    let plain = file(
+        "plain.toml",
+        "[station]\nlisten = [\"tcp/192.0.2.1:7447\"]\nrequire_tls = true\n",
+    );
+    let cases: [(Vec<&str>, String); 7] = [
+        // Plain TCP off the loopback under require_tls (the option or the
+        // key): refused before a port opens.
+        (
+            vec!["fleet", "--listen", "tcp/0.0.0.0:7447", "--require-tls"],
+            "--listen: endpoint \"tcp/0.0.0.0:7447\" is plain TCP off the loopback".to_owned(),
+        ),
+        (
+            vec!["fleet", "--config", &plain],
+            format!("{plain}: key 'station.listen': endpoint \"tcp/192.0.2.1:7447\" is plain TCP off the loopback"),
+        ),
         (vec!["fleet"], "give --listen ENDPOINT".to_owned()),
         (
             vec!["fleet", "--listen", "udp/127.0.0.1:7447"],
@@ -592,4 +606,43 @@ fn a_station_without_an_endpoint_or_with_a_bad_key_is_refused() {
         assert!(err.contains(&want), "{args:?}: {err}");
     }
     let _ = std::fs::remove_dir_all(&work);
+}
+
+/// Set inside the network namespace of the plain-TCP test.
+const PLAIN_INNER: &str = "INSUWB_TEST_PLAIN_TCP_INNER";
+
+/// A station listening over plain TCP off the loopback starts with a
+/// warning naming the key, the endpoint and the TLS section to add. Run in
+/// a network namespace of its own with loopback only, so that listening on
+/// every interface opens nothing outside.
+#[test]
+fn plain_tcp_off_the_loopback_starts_with_a_warning() {
+    let _one = one_at_a_time();
+    if std::env::var_os(PLAIN_INNER).is_none() {
+        common::run_in_private_netns(
+            PLAIN_INNER,
+            "fleet_station::plain_tcp_off_the_loopback_starts_with_a_warning",
+            BOUND,
+        );
+        return;
+    }
+    let out = common::run(&[
+        "fleet",
+        "--listen",
+        "tcp/0.0.0.0:7447",
+        "--duration",
+        "1",
+        "--json",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("listen: endpoint \"tcp/0.0.0.0:7447\" is plain TCP off the loopback"),
+        "{err}"
+    );
+    assert!(
+        err.contains("use a tls/ endpoint with the TLS section")
+            && err.contains("require_tls = true refuses it"),
+        "{err}"
+    );
 }

@@ -29,7 +29,7 @@ use std::time::Duration;
 
 use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
 use insuwb_log::Record;
-use insuwb_msg::{Health, ImuSample};
+use insuwb_msg::{HealthState, ImuSample};
 
 /// Set in the re-executed test process, inside the network namespace.
 const INNER: &str = "INSUWB_ROS2_IMU_SOURCE_INNER";
@@ -175,9 +175,17 @@ fn inner() {
     assert_eq!(n("dropped_invalid"), 3, "{imu}");
     assert_eq!(n("dropped_time"), 1, "{imu}");
     // Every sample timed by its stamp, none in another frame.
-    let extra = imu["extra"].as_array().unwrap();
-    assert_eq!(extra[0].as_u64(), Some(0), "receive-timed samples: {imu}");
-    assert_eq!(extra[3].as_u64(), Some(0), "other frames: {imu}");
+    let counters = &imu["counters"];
+    assert_eq!(
+        counters["receive_timed"].as_u64(),
+        Some(0),
+        "receive-timed samples: {imu}"
+    );
+    assert_eq!(
+        counters["other_frame"].as_u64(),
+        Some(0),
+        "other frames: {imu}"
+    );
 
     // --- the recording: exactly the valid samples, at their stamps ---
     let mut logged: Vec<ImuSample> = Vec::new();
@@ -186,7 +194,7 @@ fn inner() {
         match r {
             Record::Imu(s) => logged.push(s),
             Record::Health(h)
-                if insuwb_msg::name_str(&h.stage) == "imu" && h.state == Health::STATE_OK =>
+                if insuwb_msg::name_str(&h.stage) == "imu" && h.state() == Ok(HealthState::Ok) =>
             {
                 ok_heartbeat = true;
             }

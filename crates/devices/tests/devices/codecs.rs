@@ -10,6 +10,8 @@ use insuwb_devices::frame::{
     wire_time_ns, AnyDecoder, DecoderStats, DeviceTime, Protocol, Reading, STANDARD_GRAVITY,
 };
 use insuwb_devices::{eliko, mavlink, nlink, witmotion};
+use rand::{RngExt as _, SeedableRng as _};
+use rand_xoshiro::Xoshiro256StarStar;
 
 const DEG: f64 = PI / 180.0;
 
@@ -637,9 +639,8 @@ fn time_on_the_wire() {
 #[test]
 fn noise_counts_towards_the_wrong_baud_alarm() {
     // A stream at the wrong baud rate looks like this: bytes, never a frame.
-    let noise: Vec<u8> = (0..5000u32)
-        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
-        .collect();
+    let mut rng = Xoshiro256StarStar::seed_from_u64(1);
+    let noise: Vec<u8> = (0..5000).map(|_| rng.random::<u8>()).collect();
     for protocol in Protocol::ALL {
         let mut decoder = AnyDecoder::new(protocol);
         decoder.push(&noise, &mut |r| panic!("{protocol} decoded noise: {r:?}"));

@@ -16,6 +16,8 @@ use insuwb_devices::emulator::{
 };
 use insuwb_devices::link::{Link, LinkSpec, LinkState, Read, ReconnectPolicy};
 use insuwb_runtime::monotonic_ns;
+use rand::{RngExt as _, SeedableRng as _};
+use rand_xoshiro::Xoshiro256StarStar;
 
 /// Tests here start threads, open ptys and sockets, and measure time: one at
 /// a time.
@@ -133,15 +135,8 @@ fn read_bytes(link: &mut Link, want: usize) -> Vec<u8> {
 
 /// A byte pattern in which a lost, repeated or swapped byte shows.
 fn pattern(len: usize, salt: u64) -> Vec<u8> {
-    let mut x = salt.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-    (0..len)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 24) as u8
-        })
-        .collect()
+    let mut rng = Xoshiro256StarStar::seed_from_u64(salt);
+    (0..len).map(|_| rng.random::<u8>()).collect()
 }
 
 #[test]

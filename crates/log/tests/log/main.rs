@@ -1,5 +1,5 @@
 //! The integration tests of insuwb-log, linked into one binary: each
-//! module is one topic (`corpus`, `roundtrip`, `segments`, `torn`), documented at its
+//! module is one topic (`corpus`, `header`, `roundtrip`, `segments`, `torn`), documented at its
 //! top; `common` holds their shared helpers.
 
 // Test helpers outside `#[test]` functions may unwrap and panic too.
@@ -7,6 +7,7 @@
 
 mod common;
 mod corpus;
+mod header;
 mod roundtrip;
 mod segments;
 mod torn;

@@ -23,10 +23,10 @@ fn hex(s: &str) -> Vec<u8> {
 /// varints, LE f64, CRCs computed independently with zlib).
 fn example_bytes() -> Vec<u8> {
     hex(
-        "49 4e 53 55 57 42 4c 47  01 00  01 00  15 cd 5b 07 00 00 00 00  0d 00 00 00  fb 53 32 7f
+        "49 4e 53 55 57 42 4c 47  01 00  02 00  15 cd 5b 07 00 00 00 00  0d 00 00 00  fb 53 32 7f
          04 74 65 73 74  01  04 73 65 65 64 01 37
-         3c 00 00 00  7f d1 22 d8
-         00  01 03 00 02 00  ac 02  c0 84 3d  00
+         3c 00 00 00  6c df f6 63
+         00  02 03 00 02 00  ac 02  c0 84 3d  00
          00 00 00 00 00 00 00 00  00 00 00 00 00 00 00 00  1f 85 eb 51 b8 9e 23 40
          00 00 00 00 00 00 00 00  00 00 00 00 00 00 00 00  00 00 00 00 00 00 e0 3f",
     )
@@ -35,7 +35,7 @@ fn example_bytes() -> Vec<u8> {
 fn example_record() -> Record {
     Record::Imu(ImuSample {
         header: Header {
-            layout_version: 1,
+            layout_version: 2,
             source_id: 3,
             flags: 0,
             generation: 2,
@@ -222,6 +222,15 @@ fn bad_headers_give_clear_errors() {
         open_bytes(&b),
         Err(HeaderError::LayoutVersion { found: 9, .. })
     ));
+    // A log of layout 1 (before `Health` carried named counters): refused
+    // at open, never misread.
+    let mut b = good.clone();
+    b[10] = 1;
+    let e = open_bytes(&b).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "log record layout version 1 not supported (this reader supports 2)"
+    );
     // Metadata length over the limit: refused before reading it.
     let mut b = good.clone();
     b[20..24].copy_from_slice(&u32::MAX.to_le_bytes());

@@ -11,8 +11,8 @@ use insuwb_log::{
     TailReason, TailReport, MAX_RECORD_LEN,
 };
 use insuwb_msg::{
-    FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample, InsCorrection, NavState,
-    UwbFix, UwbTdoa,
+    CounterBlock, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample, InsCorrection,
+    NavState, StateCode, UwbFix, UwbTdoa,
 };
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
@@ -224,14 +224,18 @@ fn arb_record() -> impl Strategy<Value = Record> {
                     header,
                     stage: name,
                     pid: u32_(0),
-                    state: u32_(1),
+                    state: StateCode::from_raw(u32_(1)),
                     received: ints[2],
                     published: ints[3],
                     dropped_version: ints[4],
                     dropped_invalid: ints[5],
                     dropped_time: ints[6],
                     seq_gaps: ints[7],
-                    extra: [ints[8], ints[9], ints[0], ints[1]],
+                    // Any kind code, known or not, and any words.
+                    counters: CounterBlock::from_raw(
+                        u32_(2) % 16,
+                        [ints[8], ints[9], ints[0], ints[1], ints[2], ints[3]],
+                    ),
                 }),
             }
         })

@@ -535,8 +535,10 @@ fn outliers_appear_only_in_their_windows() {
 #[test]
 fn random_nlos_is_seeded_and_only_adds_excess() {
     let sc = Scenario::builtin("nlos-long").unwrap();
-    let a = simulate(&sc, 1).unwrap();
-    let b = simulate(&sc, 2).unwrap();
+    // Seeds 2 and 3: 4 events each (seed 1 draws 2, both inside the UWB
+    // dropout from 40 s to 42 s, so no difference carries them).
+    let a = simulate(&sc, 2).unwrap();
+    let b = simulate(&sc, 3).unwrap();
     let hits = |o: &insuwb_sim::SimOutput| {
         o.tdoa_truth
             .iter()

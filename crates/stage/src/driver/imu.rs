@@ -9,6 +9,7 @@ use insuwb_runtime::{HealthCounters, Pub, Stage};
 use super::pacing::{self, Paced, Progress};
 use crate::source::{self, Item, Want};
 use insuwb_group::robot::RobotConfig;
+use insuwb_group::sources::Source;
 
 /// In lockstep the IMU stays this far ahead of fusion, ns: enough to cover
 /// the next fixes, little to re-propagate after a correction.
@@ -73,21 +74,16 @@ impl Paced for ImuDriver {
     }
 }
 
-/// Runs the IMU driver on the recorded source `source_spec` (`sim` or
+/// Runs the IMU driver on the recorded source `source` (`sim` or
 /// `replay:FILE`) until SIGINT/SIGTERM.
 ///
 /// # Errors
 /// The source cannot be opened, a port or the waiter fails.
-pub fn run(cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> Result<()> {
+pub fn run(cfg: &RobotConfig, source: &Source, speed: f64, epoch_ns: u64) -> Result<()> {
     let name = Want::Imu.role().name();
     let stage = Stage::new(cfg.runtime(name))?;
-    let src = source::open(
-        source_spec,
-        &cfg.sources.scenario,
-        cfg.sources.seed,
-        Want::Imu,
-    )?;
-    tracing::info!("{name} driver: source {source_spec}");
+    let src = source::open(source, &cfg.sources.scenario, cfg.sources.seed, Want::Imu)?;
+    tracing::info!("{name} driver: source {source}");
     let mut driver = ImuDriver {
         imu: stage.publisher(topics::IMU)?,
         truth: stage.publisher(topics::TRUTH)?,

@@ -30,13 +30,11 @@
 //! builder still refuses after the site calibration (too long once
 //! corrected, the epoch's pair table full) is published all the same,
 //! counted in its `FixStats` and logged, at most every
-//! [`SKIP_LOG_PERIOD_NS`]. The UWB driver's `Health::extra` holds
-//! the fix builder's figures ([`UWB_EXTRA`]): `[0]` fixes published, `[1]`
-//! epochs skipped for too few pairs, `[2]` epochs skipped for their
-//! geometry (too few distinct anchors or independent pairs, collinear or
-//! coincident anchors), `[3]` epochs the solver failed on (no convergence,
-//! a solution run away from the anchors, another solver error). Skips are
-//! also logged with their last reason, at most every [`SKIP_LOG_PERIOD_NS`].
+//! [`SKIP_LOG_PERIOD_NS`]. The UWB driver's heartbeat counters are the
+//! fix builder's figures ([`insuwb_msg::UwbDriverCounters`]: fixes
+//! published, epochs skipped for too few pairs, for their geometry, or
+//! because the solver failed). Skips are also logged with their last
+//! reason, at most every [`SKIP_LOG_PERIOD_NS`].
 
 pub mod imu;
 pub mod pacing;
@@ -46,8 +44,9 @@ use anyhow::Result;
 
 use crate::source::Want;
 use insuwb_group::robot::RobotConfig;
+use insuwb_group::sources::Source;
 
-pub use uwb::{SKIP_LOG_PERIOD_NS, UWB_EXTRA};
+pub use uwb::SKIP_LOG_PERIOD_NS;
 
 /// Runs a driver stage until SIGINT/SIGTERM. Source `device`: the live
 /// loop of [`crate::device`]; `ros2:/TOPIC` (IMU only): that of
@@ -55,25 +54,19 @@ pub use uwb::{SKIP_LOG_PERIOD_NS, UWB_EXTRA};
 pub fn run(
     want: Want,
     cfg: &RobotConfig,
-    source_spec: &str,
+    source: &Source,
     speed: f64,
     epoch_ns: u64,
 ) -> Result<()> {
-    if source_spec == "device" {
-        return crate::device::run(want, cfg);
-    }
-    if source_spec.starts_with(crate::ros2_source::SOURCE_PREFIX) {
-        return match want {
-            Want::Imu => crate::ros2_source::run(cfg, source_spec),
-            Want::Uwb => Err(crate::ros2_source::Ros2SourceError::NotImu {
-                sensor: "uwb",
-                spec: source_spec.to_owned(),
-            }
-            .into()),
-        };
-    }
-    match want {
-        Want::Imu => imu::run(cfg, source_spec, speed, epoch_ns),
-        Want::Uwb => uwb::run(cfg, source_spec, speed, epoch_ns),
+    match (source, want) {
+        (Source::Device, _) => crate::device::run(want, cfg),
+        (Source::Ros2 { topic }, Want::Imu) => crate::ros2_source::run(cfg, topic),
+        (Source::Ros2 { .. }, Want::Uwb) => Err(crate::ros2_source::Ros2SourceError::NotImu {
+            sensor: "uwb",
+            spec: source.to_string(),
+        }
+        .into()),
+        (Source::Sim | Source::Replay(_), Want::Imu) => imu::run(cfg, source, speed, epoch_ns),
+        (Source::Sim | Source::Replay(_), Want::Uwb) => uwb::run(cfg, source, speed, epoch_ns),
     }
 }

@@ -4,7 +4,7 @@
 //! the heartbeat. What a driver publishes and checks is its [`Paced`].
 
 use anyhow::Result;
-use insuwb_msg::{topics, FusedState, Health, UwbFix};
+use insuwb_msg::{topics, FusedState, HealthState, UwbFix};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Sub, Wake};
 
 use crate::source::{Item, Recorded, Source};
@@ -161,16 +161,16 @@ pub fn run<D: Paced>(
             Wake::Fired(f) if f.contains(&hb) => {
                 let counters = driver.heartbeat()?;
                 let state = if pending.is_none() {
-                    Health::STATE_DEGRADED
+                    HealthState::Degraded
                 } else {
-                    Health::STATE_OK
+                    HealthState::Ok
                 };
                 health.report(&counters, state)?;
             }
             _ => {}
         }
     }
-    health.report(&driver.heartbeat()?, Health::STATE_STOPPING)?;
+    health.report(&driver.heartbeat()?, HealthState::Stopping)?;
     tracing::info!(
         "{name} driver: stopped after {} samples",
         driver.published()

@@ -8,34 +8,27 @@
 
 use anyhow::Result;
 use insuwb_msg::check::TdoaGate;
-use insuwb_msg::{topics, UwbFix, UwbTdoa};
+use insuwb_msg::{topics, StageCounters, UwbDriverCounters, UwbFix, UwbTdoa};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Pub, Stage};
 use insuwb_uwb::fix::{FixBuilder, FixStats, PushError};
 
 use super::pacing::{self, Paced, Progress};
 use crate::source::{self, Item, Want};
 use insuwb_group::robot::RobotConfig;
-
-/// Meaning of the UWB driver's `Health::extra` counters, in order.
-pub const UWB_EXTRA: [&str; 4] = [
-    "fixes",
-    "skipped_too_few_pairs",
-    "skipped_geometry",
-    "skipped_solver",
-];
+use insuwb_group::sources::Source;
 
 /// Shortest interval between two log lines about skipped epochs (and
 /// between two about measurements the fix builder refused), ns.
 pub const SKIP_LOG_PERIOD_NS: u64 = 5_000_000_000;
 
-/// The UWB driver's `Health::extra` (see [`UWB_EXTRA`]).
-fn uwb_extra(s: &FixStats) -> [u64; 4] {
-    [
-        s.fixes,
-        s.skipped_too_few_pairs,
-        s.skipped_too_few_anchors + s.skipped_degenerate,
-        s.skipped_no_convergence + s.skipped_runaway + s.skipped_other,
-    ]
+/// The UWB driver's heartbeat counters: the fix builder's figures.
+fn uwb_counters(s: &FixStats) -> UwbDriverCounters {
+    UwbDriverCounters {
+        fixes: s.fixes,
+        skipped_too_few_pairs: s.skipped_too_few_pairs,
+        skipped_geometry: s.skipped_too_few_anchors + s.skipped_degenerate,
+        skipped_solver: s.skipped_no_convergence + s.skipped_runaway + s.skipped_other,
+    }
 }
 
 /// Measurements the fix builder refused after the gate passed them (a
@@ -125,16 +118,16 @@ impl Paced for UwbDriver {
     }
 
     fn heartbeat(&mut self) -> Result<HealthCounters> {
-        let extra = uwb_extra(self.fixes.stats());
-        let skips = extra[1..].iter().sum::<u64>();
+        let fix = uwb_counters(self.fixes.stats());
+        let skips = fix.skipped_too_few_pairs + fix.skipped_geometry + fix.skipped_solver;
         let t = monotonic_ns();
         if skips > self.skips_logged && t >= self.skip_logged_at + SKIP_LOG_PERIOD_NS {
             tracing::warn!(
                 "uwb driver: {} epochs skipped without a fix (too few pairs {}, geometry {}, solver {}); last: {}",
                 skips - self.skips_logged,
-                extra[1],
-                extra[2],
-                extra[3],
+                fix.skipped_too_few_pairs,
+                fix.skipped_geometry,
+                fix.skipped_solver,
                 self.fixes
                     .last_skip()
                     .map_or_else(|| "-".to_owned(), ToString::to_string)
@@ -159,7 +152,7 @@ impl Paced for UwbDriver {
         let gate = self.gate.refusals();
         self.counters.dropped_invalid = gate.invalid();
         self.counters.dropped_time = gate.time();
-        self.counters.extra = extra;
+        self.counters.stage = StageCounters::UwbDriver(fix);
         // Late subscribers get history only when the publisher acts.
         self.tdoa.update_connections()?;
         Ok(self.counters)
@@ -170,22 +163,17 @@ impl Paced for UwbDriver {
     }
 }
 
-/// Runs the UWB driver on the recorded source `source_spec` (`sim` or
-/// `replay:FILE`) until SIGINT/SIGTERM, building fixes with the group's
-/// `[fusion.fix]` settings.
+/// Runs the UWB driver on the recorded source `source` (`sim` or
+/// `replay:FILE`) until SIGINT/SIGTERM, building fixes with the `[fusion.fix]`
+/// table of the estimator's settings ([`RobotConfig::fusion_config`]).
 ///
 /// # Errors
 /// The source or the fix settings are refused, a port or the waiter fails.
-pub fn run(cfg: &RobotConfig, source_spec: &str, speed: f64, epoch_ns: u64) -> Result<()> {
+pub fn run(cfg: &RobotConfig, source: &Source, speed: f64, epoch_ns: u64) -> Result<()> {
     let name = Want::Uwb.role().name();
     let stage = Stage::new(cfg.runtime(name))?;
-    let src = source::open(
-        source_spec,
-        &cfg.sources.scenario,
-        cfg.sources.seed,
-        Want::Uwb,
-    )?;
-    tracing::info!("{name} driver: source {source_spec}");
+    let src = source::open(source, &cfg.sources.scenario, cfg.sources.seed, Want::Uwb)?;
+    tracing::info!("{name} driver: source {source}");
     let fcfg = cfg.fusion_config()?;
     let mut fixes = FixBuilder::new(fcfg.fix.clone())?.with_calibration(fcfg.calibration.clone());
     // Samples are stamped `epoch + t`: the fix epochs fall as for `t`.

@@ -21,6 +21,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use insuwb_group::robot::RobotConfig;
+use insuwb_group::sources::Source;
 use insuwb_stage::source::Want;
 
 const SLOTS: [&str; 6] = ["other", "imu", "uwb", "ins", "fusion", "logger"];
@@ -102,8 +103,8 @@ fn stages_do_not_allocate_per_sample_in_the_steady_state() {
         threads.push(std::thread::spawn(move || {
             SLOT.with(|s| s.set(slot));
             let r = match name {
-                "imu" => insuwb_stage::driver::run(Want::Imu, &cfg, "sim", 1.0, epoch),
-                "uwb" => insuwb_stage::driver::run(Want::Uwb, &cfg, "sim", 1.0, epoch),
+                "imu" => insuwb_stage::driver::run(Want::Imu, &cfg, &Source::Sim, 1.0, epoch),
+                "uwb" => insuwb_stage::driver::run(Want::Uwb, &cfg, &Source::Sim, 1.0, epoch),
                 "ins" => insuwb_stage::ins::run(&cfg),
                 "fusion" => insuwb_stage::fusion::run(&cfg, epoch),
                 _ => insuwb_stage::logger::run(&cfg),

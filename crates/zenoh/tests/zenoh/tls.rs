@@ -98,6 +98,7 @@ fn a_robot_with_a_client_certificate_gets_through_and_others_are_refused() {
         listen: vec![endpoint.clone()],
         connect: Vec::new(),
         tls: tls(d, "fleet", Some(("fleet", "station")), true),
+        require_tls: true,
     })
     .unwrap();
     let poses = station
@@ -112,6 +113,7 @@ fn a_robot_with_a_client_certificate_gets_through_and_others_are_refused() {
         connect: vec![endpoint.clone()],
         listen: Vec::new(),
         tls: tls(d, "fleet", Some(("fleet", "r1")), true),
+        require_tls: true,
     })
     .unwrap();
     // Refused, while the robot is connected: no client certificate, and a
@@ -128,6 +130,7 @@ fn a_robot_with_a_client_certificate_gets_through_and_others_are_refused() {
             connect: vec![endpoint.clone()],
             listen: Vec::new(),
             tls: t,
+            require_tls: true,
         });
         match r {
             Err(e) => eprintln!("{what}: refused: {e}"),

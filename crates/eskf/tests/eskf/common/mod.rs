@@ -4,27 +4,27 @@
 
 use insuwb_eskf::{quat_to_rot, Correction, Eskf};
 use nalgebra::{Matrix3, Vector3};
+use rand::{RngExt as _, SeedableRng as _};
+use rand_distr::StandardNormal;
+use rand_xoshiro::Xoshiro256StarStar;
 
 pub const G_MPS2: f64 = 9.81;
 /// UTIL's antenna lever arm (body, m).
 pub const LEVER_M: [f64; 3] = [-0.01245, 0.00127, 0.0908];
 
-/// xorshift64* with Box-Muller normals: deterministic from its seed.
-pub struct Rng(u64);
+/// Seeded random numbers: `rand_xoshiro`'s xoshiro256**, `rand`'s uniform
+/// and `rand_distr`'s standard normal laws.
+pub struct Rng(Xoshiro256StarStar);
 impl Rng {
     pub fn new(seed: u64) -> Self {
-        Self(seed.max(1))
+        Self(Xoshiro256StarStar::seed_from_u64(seed))
     }
+    /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let v = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
-        ((v >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        self.0.random()
     }
     pub fn normal(&mut self) -> f64 {
-        let (u1, u2) = (self.uniform(), self.uniform());
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+        self.0.sample(StandardNormal)
     }
     pub fn normal3(&mut self, s: f64) -> Vector3<f64> {
         Vector3::new(self.normal() * s, self.normal() * s, self.normal() * s)

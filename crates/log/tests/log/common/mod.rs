@@ -6,8 +6,8 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use insuwb_log::Record;
 use insuwb_msg::{
-    fixed_name, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample, InsCorrection,
-    NavState, UwbFix, UwbTdoa,
+    fixed_name, DeviceCounters, FilterDiag, FusedState, GroundTruth, Header, Health, HealthState,
+    ImuSample, InsCorrection, NavState, StageCounters, UwbFix, UwbTdoa,
 };
 
 /// A scratch directory under the system temp dir, removed on drop.
@@ -163,14 +163,20 @@ pub fn one_of_each(seq: u64) -> Vec<Record> {
             header: h,
             stage: fixed_name("fusion"),
             pid: 4242,
-            state: 1,
+            state: HealthState::Degraded.into(),
             received: 1,
             published: 2,
             dropped_version: 3,
             dropped_invalid: 4,
             dropped_time: 5,
             seq_gaps: 6,
-            extra: [7, 8, 9, u64::MAX],
+            counters: StageCounters::Device(DeviceCounters {
+                decoder_errors: 7,
+                reconnects: u64::MAX,
+                clock_offset_ns: Some(-9),
+                clock_drift_ppb: None,
+            })
+            .into(),
         }),
     ]
 }

@@ -1,45 +1,27 @@
-//! Shared test helpers: a deterministic Gaussian generator and anchor layouts.
+//! Shared test helpers: seeded random numbers and anchor layouts.
 #![allow(dead_code)]
 
 use insuwb_uwb::solve::TdoaObs;
+use rand::{RngExt as _, SeedableRng as _};
+use rand_distr::StandardNormal;
+use rand_xoshiro::Xoshiro256StarStar;
 
-/// splitmix64 + Box-Muller: deterministic standard normal samples.
-pub struct Gauss {
-    state: u64,
-    spare: Option<f64>,
-}
+/// Seeded random numbers: `rand_xoshiro`'s xoshiro256**, `rand`'s uniform
+/// and `rand_distr`'s standard normal laws.
+pub struct Gauss(Xoshiro256StarStar);
 
 impl Gauss {
     pub fn new(seed: u64) -> Self {
-        Self {
-            state: seed,
-            spare: None,
-        }
+        Self(Xoshiro256StarStar::seed_from_u64(seed))
     }
 
-    pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in (0, 1].
+    /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
-        ((self.next_u64() >> 11) as f64 + 1.0) / (1u64 << 53) as f64
+        self.0.random()
     }
 
     pub fn normal(&mut self) -> f64 {
-        if let Some(s) = self.spare.take() {
-            return s;
-        }
-        let u1 = self.uniform();
-        let u2 = self.uniform();
-        let r = (-2.0 * u1.ln()).sqrt();
-        let th = 2.0 * std::f64::consts::PI * u2;
-        self.spare = Some(r * th.sin());
-        r * th.cos()
+        self.0.sample(StandardNormal)
     }
 }
 
