@@ -110,9 +110,10 @@ def solve(x, pa, pb, z):
     return x
 
 
-def flight(data_dir, name, anchor_file):
-    d = load(data_dir / name)
-    anc = anchors(data_dir / anchor_file)
+def mocap_and_tdoa(d):
+    """A loaded log's motion capture (times in s, rows; repeated stamps
+    dropped) and its TDOA records inside it (times, rows), on the log's
+    clock from its first accelerometer sample."""
     t0 = d["estAcceleration"][0, 0]
     p = d["estPose"]
     tp = (p[:, 0] - t0) * 1e-6
@@ -121,7 +122,13 @@ def flight(data_dir, name, anchor_file):
     td = d["estTDOA"]
     tt = (td[:, 0] - t0) * 1e-6
     m = (tt > tp[0]) & (tt < tp[-1])
-    td, tt = td[m], tt[m]
+    return tp, p, td[m], tt[m]
+
+
+def flight(data_dir, name, anchor_file):
+    d = load(data_dir / name)
+    anc = anchors(data_dir / anchor_file)
+    tp, p, td, tt = mocap_and_tdoa(d)
     pos = np.stack([np.interp(tt, tp, p[:, 1 + i]) for i in range(3)], -1)
     q = np.stack([np.interp(tt, tp, p[:, 4 + i]) for i in range(4)], -1)
     q /= np.linalg.norm(q, axis=1, keepdims=True)

@@ -143,6 +143,12 @@ mod moved {
     }
 }
 
+/// The unknown acceleration, m/s^2, by which a UWB-only pose
+/// ([`FusionEngine::uwb_only_state`]) grows the last fused velocity's
+/// variance when the fix carries no velocity: a robot or a small drone
+/// indoors.
+pub const UWB_ONLY_ACCEL_MPS2: f64 = 2.0;
+
 /// Largest [`FusionEngineConfig::reset_min_fixes`].
 pub const MAX_RESET_FIXES: usize = 64;
 
@@ -463,6 +469,56 @@ impl FusionEngine {
         let mut f = self.fused_from(&ins, &Delta::default(), &n);
         f.header.flags |= FusedState::FLAG_DEGRADED;
         Some(f)
+    }
+
+    /// A pose built on the UWB fix `fix` alone, for while the INS cannot
+    /// serve (when to publish it is [`crate::output::OutputPolicy`]'s call):
+    /// position and its covariance from the fix; velocity from the fix when
+    /// it carries one, else the last fused velocity with its variance grown
+    /// as by an unknown acceleration of [`UWB_ONLY_ACCEL_MPS2`] since then;
+    /// attitude, heading and frame of the last fused state (None before
+    /// the first one: no attitude is known). Flagged
+    /// [`FusedState::FLAG_UWB_ONLY`] and valid.
+    #[must_use]
+    pub fn uwb_only_state(&mut self, fix: &UwbFix) -> Option<FusedState> {
+        let last = *self.last_fused.as_ref()?;
+        let mut cov = [[0.0; 6]; 6];
+        for (row, src) in cov.iter_mut().zip(&fix.pos_cov_m2) {
+            row[..3].copy_from_slice(src);
+        }
+        let vel = if fix.header.flags & UwbFix::FLAG_VEL_VALID != 0 {
+            for (row, src) in cov[3..].iter_mut().zip(&fix.vel_cov) {
+                row[3..].copy_from_slice(src);
+            }
+            fix.vel_mps
+        } else {
+            let dt = fix
+                .header
+                .meas_time_ns
+                .saturating_sub(last.header.meas_time_ns) as f64
+                * 1e-9;
+            let grown = (UWB_ONLY_ACCEL_MPS2 * dt).powi(2);
+            for (i, (row, src)) in cov[3..].iter_mut().zip(&last.cov[3..]).enumerate() {
+                row[3..].copy_from_slice(&src[3..]);
+                row[3 + i] += grown;
+            }
+            last.vel_mps
+        };
+        let seq = self.fused_seq;
+        self.fused_seq += 1;
+        Some(FusedState {
+            header: Header {
+                flags: FusedState::FLAG_VALID | FusedState::FLAG_UWB_ONLY,
+                ..Header::new(seq, fix.header.meas_time_ns)
+            },
+            pos_m: fix.pos_m,
+            vel_mps: vel,
+            cov,
+            uwb_seq: fix.header.seq,
+            uwb_meas_time_ns: fix.header.meas_time_ns,
+            uwb_pub_time_ns: fix.header.pub_time_ns,
+            ..last
+        })
     }
 
     /// Brings the code and data of the next update into the caches without

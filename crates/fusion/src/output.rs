@@ -12,6 +12,10 @@
 //!   coasting period after the previous coasting output publishes the
 //!   engine's INS-only state ([`crate::engine::FusionEngine::coasting_state`],
 //!   flagged [`FusedState::FLAG_DEGRADED`]), at `coast_rate_hz`.
+//! - While the INS input is stale, each UWB fix also gives a pose built on
+//!   the fix alone ([`OutputPolicy::on_fix`], flagged
+//!   [`FusedState::FLAG_UWB_ONLY`] and valid): a dead INS leaves the robot
+//!   a pose at the fix rate, with the fix's covariance.
 //!
 //! Times are whatever clock the caller ticks with (the stage: monotonic
 //! nanoseconds; the runner: the recording's measurement times).
@@ -141,6 +145,22 @@ impl OutputPolicy {
         let s = coasting_state()?;
         self.last_coast_ns = Some(now_ns);
         Some(self.flagged(s))
+    }
+
+    /// A UWB fix arrived: while the INS input is stale (at the last tick),
+    /// returns the pose `uwb_only_state` builds on the fix alone (called
+    /// only then; [`crate::engine::FusionEngine::uwb_only_state`]), so that
+    /// a dead or frozen INS leaves a valid, UWB-backed pose flagged
+    /// [`FusedState::FLAG_UWB_ONLY`] instead of none. It neither starts nor
+    /// stops coasting.
+    pub fn on_fix(
+        &mut self,
+        uwb_only_state: impl FnOnce() -> Option<FusedState>,
+    ) -> Option<FusedState> {
+        if !self.stale {
+            return None;
+        }
+        uwb_only_state()
     }
 
     /// Whether the INS input was stale at the last tick.
@@ -287,6 +307,30 @@ mod tests {
         assert!(!p.stale());
         let s = p.on_update(state(220 * MS), 220 * MS);
         assert_eq!(s.header.flags, FusedState::FLAG_VALID);
+    }
+
+    #[test]
+    fn a_fix_gives_a_uwb_only_pose_only_while_the_ins_is_stale() {
+        let cfg = OutputPolicyConfig::default();
+        let mut p = OutputPolicy::new(&cfg, 0, 0).unwrap();
+        let uwb_only = |t: u64| {
+            let mut s = state(t);
+            s.header.flags |= FusedState::FLAG_UWB_ONLY;
+            Some(s)
+        };
+        p.on_tick(10 * MS, Some(MS), || None);
+        assert!(p.on_fix(|| uwb_only(10 * MS)).is_none());
+        p.on_tick(20 * MS, Some(300 * MS), || None);
+        let s = p.on_fix(|| uwb_only(20 * MS)).unwrap();
+        // Valid, not flagged stale: it rests on no INS state.
+        assert_eq!(
+            s.header.flags,
+            FusedState::FLAG_VALID | FusedState::FLAG_UWB_ONLY
+        );
+        // It neither stops coasting nor counts as an update.
+        assert!(p.coasting(200 * MS));
+        p.on_tick(210 * MS, Some(MS), || None);
+        assert!(p.on_fix(|| uwb_only(210 * MS)).is_none());
     }
 
     #[test]

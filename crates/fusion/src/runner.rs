@@ -245,6 +245,12 @@ impl Runner {
         self.out.fixes.push(f);
         self.fusion.on_measurement(Measurement::Fix(f), &mut self.o);
         self.settle();
+        if let Some(p) = self.policy.as_mut() {
+            let fusion = &mut self.fusion;
+            if let Some(s) = p.on_fix(|| fusion.uwb_only_state(&f)) {
+                self.out.fused.push(s);
+            }
+        }
     }
 
     /// Delivers corrections to the INS and the re-propagated states back to

@@ -290,6 +290,10 @@ impl FusedState {
     pub const FLAG_RESUMED: u32 = 8;
     /// The filter was reset from UWB after divergence.
     pub const FLAG_RESET: u32 = 16;
+    /// Built on the UWB fix alone while the INS input is stale: position
+    /// and its covariance from the fix, attitude from the last fused state
+    /// (see `insuwb_fusion::output`).
+    pub const FLAG_UWB_ONLY: u32 = 32;
 }
 
 /// The filters, with their codes in [`FusedState::filter_kind`] and

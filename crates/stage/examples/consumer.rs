@@ -9,6 +9,8 @@
 //! - `FLAG_VALID` set, `FLAG_STALE` clear: built on fresh INS data;
 //! - `FLAG_DEGRADED`: INS-only coasting (no UWB for 150 ms): usable for a
 //!   short while, with a covariance that grows;
+//! - `FLAG_UWB_ONLY`: the INS cannot serve, the pose is the UWB fix's
+//!   (valid, with the fix's covariance; attitude as last known);
 //! - the covariance (`cov`, 6 x 6 over east, north, up position and velocity)
 //!   says how much: here the controller slows down when the horizontal
 //!   position sigma exceeds 0.2 m;
@@ -47,6 +49,8 @@ fn main() -> anyhow::Result<()> {
                         "hold: pose not valid"
                     } else if p.header.flags & FusedState::FLAG_DEGRADED != 0 {
                         "slow: coasting on INS"
+                    } else if p.header.flags & FusedState::FLAG_UWB_ONLY != 0 {
+                        "slow: UWB only, INS down"
                     } else if sigma > 0.2 {
                         "slow: uncertain"
                     } else {

@@ -1,8 +1,9 @@
 //! The fusion stage: runs the configured filter in the fusion engine (the
 //! code `insuwb eval` runs), publishes fused states, diagnostics and INS
-//! corrections; coasts (INS only, flagged degraded) when UWB is silent and
-//! flags stale INS input as the engine's output policy
-//! (`insuwb_fusion::output`) says, and checkpoints so a restart resumes.
+//! corrections; coasts (INS only, flagged degraded) when UWB is silent,
+//! flags stale INS input and publishes UWB-only poses while the INS cannot
+//! serve, as the engine's output policy (`insuwb_fusion::output`) says, and
+//! checkpoints so a restart resumes.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -184,6 +185,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     out.fused.reserve(64);
     out.diag.reserve(64);
     out.corrections.reserve(64);
+    let mut uwb_only: Vec<FusedState> = Vec::with_capacity(64);
     let ckpt_ns = (cfg.fusion.checkpoint_period_s * 1e9) as u64;
     let mut policy = OutputPolicy::new(&policy_cfg, tick_ns, monotonic_ns())
         .map_err(|e| anyhow::anyhow!("fusion.output.{e}"))?;
@@ -215,6 +217,10 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
                 next_fix.observe(m.header.meas_time_ns, m.header.pub_time_ns);
                 if fresh(m.header.pub_time_ns) {
                     engine.on_measurement(Measurement::Fix(m), &mut out);
+                    // A dead or frozen INS: the fix alone still gives a pose.
+                    if let Some(s) = policy.on_fix(|| engine.uwb_only_state(&m)) {
+                        uwb_only.push(s);
+                    }
                 }
             })?;
             if let Some(tdoa_sub) = &tdoa_sub {
@@ -235,6 +241,9 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
             updated = !out.fused.is_empty();
             for s in &out.fused {
                 fused_pub.publish(policy.on_update(*s, monotonic_ns()))?;
+            }
+            for s in uwb_only.drain(..) {
+                fused_pub.publish(s)?;
             }
             for c in &out.corrections {
                 corr_pub.publish(*c)?;

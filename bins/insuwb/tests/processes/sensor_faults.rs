@@ -1,7 +1,8 @@
 //! Sensor faults through the real process group: UWB silent for 10 s (INS
 //! coasting, flagged degraded, with a growing covariance, then a clean
-//! recovery) and the IMU driver frozen (fusion flags its outputs stale and
-//! publishes no valid pose built on a stale INS state).
+//! recovery) and the IMU driver frozen (fusion flags its outputs stale,
+//! publishes no valid pose built on a stale INS state and, from the UWB
+//! fixes, valid poses flagged UWB-only until the INS serves again).
 //!
 //! The tests start processes and measure time: one at a time (a lock).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -181,7 +182,7 @@ fn imu_frozen_flags_outputs_stale_and_no_valid_pose_rests_on_a_stale_ins() {
     let limit_ns = 350_000_000;
     let bad: Vec<(u64, u64)> = fused
         .iter()
-        .filter(|s| flagged(s, FusedState::FLAG_VALID))
+        .filter(|s| flagged(s, FusedState::FLAG_VALID) && !flagged(s, FusedState::FLAG_UWB_ONLY))
         .map(|s| {
             (
                 s.header.seq,
@@ -194,6 +195,16 @@ fn imu_frozen_flags_outputs_stale_and_no_valid_pose_rests_on_a_stale_ins() {
         bad.is_empty(),
         "valid outputs on an old INS state (seq, age ns): {bad:?}"
     );
+    // Meanwhile each UWB fix gave a valid pose on the fix alone (10 Hz
+    // fixes over the freeze less the stale timeout).
+    let uwb_only: Vec<&FusedState> = fused
+        .iter()
+        .filter(|s| flagged(s, FusedState::FLAG_UWB_ONLY))
+        .collect();
+    assert!(uwb_only.len() >= 3, "{} UWB-only poses", uwb_only.len());
+    assert!(uwb_only
+        .iter()
+        .all(|s| flagged(s, FusedState::FLAG_VALID) && !flagged(s, FusedState::FLAG_STALE)));
     // Valid output resumes after the restart.
     let resumed = fused
         .iter()
@@ -203,7 +214,8 @@ fn imu_frozen_flags_outputs_stale_and_no_valid_pose_rests_on_a_stale_ins() {
         .count();
     assert!(resumed >= 10, "{resumed} valid outputs after the restart");
     eprintln!(
-        "IMU frozen at 4 s: {} stale outputs, {resumed} valid after the restart",
-        stale.len()
+        "IMU frozen at 4 s: {} stale outputs, {} UWB-only, {resumed} valid after the restart",
+        stale.len(),
+        uwb_only.len()
     );
 }

@@ -428,10 +428,14 @@ fn process_noise_scale_follows_the_innovations() {
     };
     let drifting = run(&adaptive, 0.5, 7);
     assert!(drifting > 10.0, "{drifting}");
-    // Consistent: over seeds 1-300 the scale ends at 1.0 at the median and
-    // below 3.2 on 90 % of them (up to 12 on the worst).
-    let consistent = run(&adaptive, 0.0, 7);
-    assert!(consistent < 4.0, "{consistent}");
+    // Consistent: the scale is a random variable of the noise drawn, so the
+    // bar holds for the distribution over seeds, not one draw: over seeds
+    // 1-300 it ends at 1.0 at the median and below 3.2 on 90 % of them (up
+    // to 12 on the worst). Here seeds 1-40: median below 2, 90 % below 4.
+    let mut consistent: Vec<f64> = (1..=40).map(|s| run(&adaptive, 0.0, s)).collect();
+    consistent.sort_by(f64::total_cmp);
+    assert!(consistent[20] < 2.0, "median {consistent:?}");
+    assert!(consistent[35] < 4.0, "90th percentile {consistent:?}");
     assert_eq!(run(&config(), 0.5, 7), 1.0);
     // Bounded by q_scale_max.
     let capped = EskfConfig {

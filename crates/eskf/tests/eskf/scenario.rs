@@ -378,12 +378,14 @@ fn covariance_stays_spd_and_finite_over_a_long_run_with_outliers() {
 }
 
 /// The default yaw prior (1.8 rad) lets the closed loop recover far outside
-/// the small-angle range: from 120 deg of yaw error, over four seeds. After
-/// 20 s the yaw error is 2.6 deg at the median of seeds 1-30 and at most
-/// 12 deg (seed 1); the position is within 3 cm on all of them.
+/// the small-angle range: from 120 deg of yaw error. After 20 s the yaw error
+/// is 2.6 deg at the median of seeds 1-30 and at most 12 deg (seed 1); the
+/// position is within 3 cm on all of them. Checked on seeds 1-12: the
+/// median below 6 deg, every seed below 15 deg and 5 cm.
 #[test]
 fn circling_converges_from_a_120deg_yaw_error() {
-    for seed in 1..=4 {
+    let mut yaw_errs = Vec::new();
+    for seed in 1..=12 {
         let r = run(
             sim_config(),
             Sensors::default(),
@@ -400,5 +402,8 @@ fn circling_converges_from_a_120deg_yaw_error() {
         assert!(pos_err < 0.05, "seed {seed}: position error {pos_err}");
         assert!(yaw_err.abs() < 15.0, "seed {seed}: yaw error {yaw_err}");
         assert!(!r.filter.needs_reset());
+        yaw_errs.push(yaw_err.abs());
     }
+    yaw_errs.sort_by(f64::total_cmp);
+    assert!(yaw_errs[6] < 6.0, "median yaw error: {yaw_errs:?}");
 }

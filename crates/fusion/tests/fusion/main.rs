@@ -1,5 +1,5 @@
 //! The integration tests of insuwb-fusion, linked into one binary: each
-//! module is one topic (`divergence`, `util_real`), documented at its
+//! module is one topic (`divergence`, `ins_outage`, `util_real`), documented at its
 //! top; `common` holds their shared helpers.
 
 // Test helpers outside `#[test]` functions may unwrap and panic too.
@@ -7,4 +7,5 @@
 
 mod common;
 mod divergence;
+mod ins_outage;
 mod util_real;
