@@ -190,6 +190,15 @@ impl Monitor {
             self.degraded += 1;
             return;
         }
+        if f.header.flags & FusedState::FLAG_UWB_ONLY != 0 {
+            // A pose while the INS cannot serve: it closes a gap, but it is
+            // the UWB fix, not the filter: not in the rate, the latency or
+            // the accuracy of the fused states.
+            if f.header.flags & FusedState::FLAG_VALID != 0 {
+                self.note_valid(f.header.pub_time_ns);
+            }
+            return;
+        }
         self.updates.count(f.header.meas_time_ns);
         if f.uwb_pub_time_ns > 0 && f.header.pub_time_ns > f.uwb_pub_time_ns {
             if let Some(h) = self.latency.as_mut() {
@@ -201,7 +210,11 @@ impl Monitor {
         }
         self.accuracy
             .state(f.header.meas_time_ns, [f.pos_m[0], f.pos_m[1]]);
-        let at = f.header.pub_time_ns;
+        self.note_valid(f.header.pub_time_ns);
+    }
+
+    /// A valid pose published at `at`: the gap since the previous one.
+    fn note_valid(&mut self, at: u64) {
         if let Some(prev) = self.last_valid_pub {
             let gap = at.saturating_sub(prev);
             self.max_gap_ns = self.max_gap_ns.max(gap);
@@ -279,7 +292,8 @@ pub struct Figures {
     pub latency_p99_us: f64,
     /// States published while coasting.
     pub degraded: u64,
-    /// Largest gap between valid updates, ms.
+    /// Largest gap between valid poses (updates, or UWB-only poses while
+    /// the INS cannot serve), ms.
     pub max_gap_ms: f64,
     /// Gaps of more than 5 s between valid updates.
     pub deadlocks: u32,

@@ -170,7 +170,8 @@ pub fn util_data_dir(probe: &str) -> Option<PathBuf> {
     None
 }
 
-/// The recording's fused states that are not degraded (coasting).
+/// The recording's fused states that are updates of the filter: neither
+/// degraded (coasting) nor UWB-only ([`uwb_only`]).
 pub fn undegraded_fused(log_dir: &Path) -> Vec<insuwb_msg::FusedState> {
     records(log_dir)
         .into_iter()
@@ -180,26 +181,35 @@ pub fn undegraded_fused(log_dir: &Path) -> Vec<insuwb_msg::FusedState> {
             }
             _ => None,
         })
+        .filter(|s| !uwb_only(s))
         .collect()
 }
 
+/// A pose on the UWB fix alone, published while the INS input was stale on
+/// the wall clock: not an update of the filter, so not one that replay and
+/// eval must agree on.
+pub fn uwb_only(s: &insuwb_msg::FusedState) -> bool {
+    s.header.flags & insuwb_msg::FusedState::FLAG_UWB_ONLY != 0
+}
+
 /// The pipeline's fused states against eval's, paired by the UWB sample
-/// they fused: asserts that all but two of eval's found their pair and that
-/// no pair is more than 1 mm apart horizontally.
+/// they fused: asserts that all but two of eval's updates found their pair
+/// and that no pair is more than 1 mm apart horizontally.
 pub fn assert_same_fused(piped: &[insuwb_msg::FusedState], eval: &[insuwb_msg::FusedState]) {
     let (mut matched, mut worst) = (0usize, 0.0f64);
-    for p in piped {
-        if let Some(o) = eval.iter().find(|o| o.uwb_seq == p.uwb_seq) {
+    for p in piped.iter().filter(|s| !uwb_only(s)) {
+        if let Some(o) = eval
+            .iter()
+            .filter(|s| !uwb_only(s))
+            .find(|o| o.uwb_seq == p.uwb_seq)
+        {
             let d = ((p.pos_m[0] - o.pos_m[0]).powi(2) + (p.pos_m[1] - o.pos_m[1]).powi(2)).sqrt();
             worst = worst.max(d);
             matched += 1;
         }
     }
-    assert!(
-        matched + 2 >= eval.len(),
-        "matched {matched} of {}",
-        eval.len()
-    );
+    let updates = eval.iter().filter(|s| !uwb_only(s)).count();
+    assert!(matched + 2 >= updates, "matched {matched} of {updates}");
     assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
 }
 

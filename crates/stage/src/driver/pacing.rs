@@ -127,7 +127,8 @@ pub fn run<D: Paced>(
             s.drain(|f| {
                 let t = f.header.meas_time_ns;
                 progress.fused_time_ns = Some(progress.fused_time_ns.unwrap_or(0).max(t));
-                if f.header.flags & FusedState::FLAG_DEGRADED == 0 {
+                // Coasting and UWB-only poses consumed no fix of the filter.
+                if f.header.flags & (FusedState::FLAG_DEGRADED | FusedState::FLAG_UWB_ONLY) == 0 {
                     progress.fixes_consumed = progress.fixes_consumed.max(f.uwb_seq + 1);
                 }
             })?;
