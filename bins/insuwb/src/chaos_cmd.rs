@@ -36,6 +36,9 @@ struct ChaosReport {
     faults: u32,
     restarts: u32,
     max_gap_ms: f64,
+    /// The undisturbed run's: the scenario's own gaps (its scripted UWB
+    /// dropouts, where INS-only coasting is the answer).
+    max_gap_undisturbed_ms: f64,
     records_lost: u64,
     leftover_files: usize,
     deadlocks: u32,
@@ -111,6 +114,7 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
         faults: r.faults,
         restarts: r.restarts,
         max_gap_ms: r.max_gap_ms,
+        max_gap_undisturbed_ms: calm.max_gap_ms,
         records_lost: lost?,
         leftover_files: leftover,
         deadlocks: r.deadlocks,
