@@ -45,30 +45,40 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         // A checkpoint of an earlier run of the group is not this one's.
         let _ = std::fs::remove_file(&ckpt_path);
     }
-    // A restarted INS takes its state from the latest fused state (history of
-    // the fused topic) and skips the IMU samples before it.
+    // A restarted INS takes its state from the latest fused state of the
+    // filter (history of the fused topic) and skips the IMU samples before
+    // it. The UWB-only poses published while the INS was down carry the
+    // fix's position and no filter state: one is taken only when the
+    // history holds no filter state at all.
     let mut min_imu_t: u64 = 0;
     if stage.generation() > 0 {
         // Only a restart reads the fused topic (its history): a subscriber
         // held for good would add a listener every fused publish notifies.
         let fused_sub = stage.subscriber::<FusedState>(topics::FUSED)?;
         let mut last: Option<FusedState> = None;
+        let mut last_uwb_only: Option<FusedState> = None;
         let mut max_id = 0u64;
         for _ in 0..20 {
             fused_sub.drain(|f| {
-                if f.header.flags & FusedState::FLAG_VALID != 0 {
+                let flags = f.header.flags;
+                if flags & FusedState::FLAG_VALID == 0 {
+                    return;
+                }
+                if flags & FusedState::FLAG_UWB_ONLY != 0 {
+                    last_uwb_only = Some(f);
+                } else {
                     last = Some(f);
                 }
             })?;
             corr_sub.drain(|c| max_id = max_id.max(c.correction_id))?;
-            if last.is_some() {
+            if last.is_some() || last_uwb_only.is_some() {
                 break;
             }
             if stage.sleep(Duration::from_millis(25)).is_err() {
                 return Ok(());
             }
         }
-        if let Some(f) = last {
+        if let Some(f) = last.or(last_uwb_only) {
             // The fusion stage sends no correction while no INS state comes,
             // so a restarted INS may not learn the last id (it reads 0 from a
             // history that holds none): it starts above any id of an earlier
