@@ -103,7 +103,10 @@ fn evaluate_flight(
         a.ignore_crc,
         a.filters.as_deref(),
         calibration,
-        a.vehicle,
+        crate::dataset::RunChoice {
+            vehicle: a.vehicle,
+            aiding: a.aiding,
+        },
     )?;
     if let Some(dir) = &a.plot {
         write_plots(&rep, &loaded.data, &dir.join(figure_folder(&f.name)))

@@ -50,6 +50,9 @@ pub struct ConfigFile {
     pub import: insuwb_data::util::ImportOptions,
     /// Evaluation options.
     pub eval: EvalOptions,
+    /// The optical-flow deck's model (a UTIL log's `estFlow` and `estTOF`
+    /// records to body velocities, `--aiding flow`).
+    pub flow: insuwb_data::FlowDeck,
 }
 
 impl ConfigFile {
@@ -105,6 +108,62 @@ pub fn detect(path: &Path) -> Result<FileKind> {
     )
 }
 
+/// Which velocity measurements aid the filters (`insuwb eval --aiding`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Aiding {
+    /// None: IMU and UWB alone.
+    #[default]
+    None,
+    /// The optical-flow deck's body velocities (a UTIL log's `estFlow`
+    /// with its `estTOF` ranges).
+    Flow,
+}
+
+/// What a run overrides of a log's settings (`insuwb eval --vehicle
+/// --aiding`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RunChoice {
+    /// The vehicle model instead of the config's.
+    pub vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
+    /// The velocity aiding.
+    pub aiding: Aiding,
+}
+
+impl Loaded {
+    /// Puts the velocities `aiding` names into the dataset.
+    ///
+    /// # Errors
+    /// The log holds no such records (naming the file).
+    pub fn use_aiding(&mut self, aiding: Aiding, path: &Path) -> Result<()> {
+        match aiding {
+            Aiding::None => self.data.velocity.clear(),
+            Aiding::Flow => {
+                let Some((v, stats)) = &self.flow else {
+                    bail!(
+                        "{}: no optical-flow records (estFlow): --aiding flow needs a log of a vehicle with the flow deck",
+                        path.display()
+                    );
+                };
+                tracing::info!(
+                    "{}: {} flow velocities from {} flow records; refused: {} no range, {} range below {} m, {} above {} m, {} no body rates, {} time backwards",
+                    path.display(),
+                    stats.velocities,
+                    stats.records,
+                    stats.no_range,
+                    stats.range_low,
+                    self.config.flow.min_range_m,
+                    stats.range_high,
+                    self.config.flow.max_range_m,
+                    stats.no_gyro,
+                    stats.time_backwards
+                );
+                self.data.velocity.clone_from(v);
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A dataset with the config it should be evaluated with.
 #[derive(Debug)]
 pub struct Loaded {
@@ -118,6 +177,9 @@ pub struct Loaded {
     pub config: ConfigFile,
     /// Where the config came from, for messages.
     pub config_origin: String,
+    /// The body velocities of the log's flow deck, and what its records
+    /// gave (None: the log holds no flow records).
+    pub flow: Option<(Vec<insuwb_msg::BodyVelocity>, insuwb_data::FlowStats)>,
 }
 
 /// Loads a project log (a file, or a folder of `seg-*.iulog` segments as
@@ -220,6 +282,7 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
         recorded,
         config,
         config_origin: origin,
+        flow: None,
     })
 }
 
@@ -282,11 +345,19 @@ fn load_util(
         insuwb_data::segment::DEFAULT_MIN_HEIGHT_M
     };
     let segment = insuwb_data::segment::flight_segment(&flight.truth, min_h);
+    config
+        .flow
+        .validate()
+        .with_context(|| format!("{origin}: [flow]"))?;
+    let flow = (!flight.flow.is_empty()).then(|| {
+        insuwb_data::flow_velocities(&flight.flow, &flight.ranges, &flight.imu, &config.flow)
+    });
     let mut data = Dataset {
         name: path.display().to_string(),
         imu: flight.imu,
         tdoa: flight.tdoa,
         truth: flight.truth,
+        velocity: Vec::new(),
         segment,
     };
     sort_streams(&mut data);
@@ -295,5 +366,6 @@ fn load_util(
         recorded: Vec::new(),
         config,
         config_origin: origin,
+        flow,
     })
 }

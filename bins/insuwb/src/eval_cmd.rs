@@ -91,6 +91,12 @@ pub struct EvalArgs {
     /// ground (no lateral or vertical body velocity).
     #[arg(long)]
     pub vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
+    /// Velocity measurements that aid the filters (`flow`: a UTIL log's
+    /// optical-flow deck); the solutions keep their names, so the same
+    /// command with and without it compares them. A log without such
+    /// records is an error.
+    #[arg(long, value_enum, default_value_t = dataset::Aiding::None, conflicts_with = "scenario")]
+    pub aiding: dataset::Aiding,
 }
 
 /// Runs `insuwb eval`.
@@ -140,6 +146,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         if let Some(v) = a.vehicle {
             loaded.config.fusion.vehicle = v;
         }
+        loaded.use_aiding(a.aiding, path)?;
         if let Some(c) = &a.calibration {
             let c = crate::calibrate_cmd::CalibrationFile::load(c)?;
             c.apply(&mut loaded, a.anchors.as_ref(), path)?;
@@ -307,12 +314,13 @@ pub fn evaluate_file(
     ignore_crc: bool,
     filters: Option<&str>,
     calibration: Option<&crate::calibrate_cmd::CalibrationFile>,
-    vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
+    run: dataset::RunChoice,
 ) -> Result<(dataset::Loaded, EvalReport)> {
     let mut loaded = dataset::load(path, anchors, config, ignore_crc)?;
-    if let Some(v) = vehicle {
+    if let Some(v) = run.vehicle {
         loaded.config.fusion.vehicle = v;
     }
+    loaded.use_aiding(run.aiding, path)?;
     if !loaded.recorded.is_empty() {
         bail!(
             "{}: the log holds fused states but no IMU and UWB records to run the filters on: `insuwb eval {}` reports its recorded track",

@@ -3,7 +3,8 @@
 //! - [`cflog`]: the binary event log (versions 1 and 2), format detection;
 //! - [`anchors`]: the `anN_p,x,y,z` anchor survey files;
 //! - [`util`]: import of a UTIL flight as `insuwb-msg` samples (IMU, TDOA,
-//!   ground truth) with counts of what was skipped;
+//!   ground truth, flow-deck records) with counts of what was skipped;
+//! - [`flow`]: the flow deck's model, pixel flow and range to body velocity;
 //! - [`segment`]: the flight segment and ground-truth interpolation.
 //!
 //! ```no_run
@@ -22,6 +23,7 @@
 
 pub mod anchors;
 pub mod cflog;
+pub mod flow;
 pub mod segment;
 #[cfg(test)]
 mod testlog;
@@ -29,6 +31,7 @@ pub mod util;
 
 pub use anchors::{AnchorError, Anchors};
 pub use cflog::{is_cflog, CfLog, CfLogError, CutKind, CutReport, Integrity, ParseOptions};
+pub use flow::{flow_velocities, FlowDeck, FlowDeckError, FlowRecord, FlowStats, RangeRecord};
 pub use segment::{flight_segment, interpolate_truth, interpolate_truth_within};
 pub use util::{
     load_util_flight, ImportError, ImportOptions, ImportStats, LoadError, UtilFlight,

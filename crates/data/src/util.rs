@@ -29,6 +29,7 @@ use thiserror::Error;
 
 use crate::anchors::{AnchorError, Anchors};
 use crate::cflog::{CfLog, CfLogError, Integrity, ParseOptions, Record};
+use crate::flow::{FlowRecord, RangeRecord};
 
 /// Standard gravity, m/s^2: the Crazyflie firmware converts its accelerometer
 /// to g with this value, so g are turned back into m/s^2 with it.
@@ -62,6 +63,10 @@ mod names {
     pub const GYRO_VARS: [&str; 3] = ["gyro.x", "gyro.y", "gyro.z"];
     pub const TDOA: &str = "estTDOA";
     pub const TDOA_VARS: [&str; 3] = ["idA", "idB", "distanceDiff"];
+    pub const FLOW: &str = "estFlow";
+    pub const FLOW_VARS: [&str; 2] = ["motion.deltaX", "motion.deltaY"];
+    pub const TOF: &str = "estTOF";
+    pub const TOF_VARS: [&str; 1] = ["range.zrange"];
     pub const POSE: &str = "estPose";
     pub const POSE_VARS: [&str; 7] = [
         "locSrv.x",
@@ -162,7 +167,7 @@ impl ImportOptions {
 pub struct ImportStats {
     /// Records in the log.
     pub records: u64,
-    /// Records of event types the importer does not use (estTOF, estFlow, ...).
+    /// Records of event types the importer does not use (estBarometer, ...).
     pub unknown_events: u64,
     /// Accelerometer records read.
     pub accel_records: u64,
@@ -172,6 +177,12 @@ pub struct ImportStats {
     pub tdoa_records: u64,
     /// Ground-truth records read.
     pub truth_records: u64,
+    /// Optical-flow records read (`estFlow`).
+    #[serde(default)]
+    pub flow_records: u64,
+    /// Time-of-flight range records read (`estTOF`).
+    #[serde(default)]
+    pub range_records: u64,
     /// TDOA records naming an anchor id the anchor file lacks (or not an integer).
     pub unknown_anchor: u64,
     /// TDOA records with `idA == idB`.
@@ -268,6 +279,13 @@ pub struct UtilFlight {
     pub tdoa: Vec<UwbTdoa>,
     /// Ground truth, strictly increasing times, deduplicated.
     pub truth: Vec<GroundTruth>,
+    /// The flow deck's motion counts (`estFlow`), increasing times; empty
+    /// for a log without the deck ([`crate::flow`] turns them into
+    /// velocities).
+    pub flow: Vec<FlowRecord>,
+    /// The flow deck's time-of-flight ranges (`estTOF`, mm to m),
+    /// increasing times.
+    pub ranges: Vec<RangeRecord>,
     /// Logger-clock time of the log's first record, us: the zero of every
     /// `meas_time_ns`.
     pub start_time_us: u64,
@@ -372,6 +390,8 @@ impl UtilFlight {
         let gyro_c = columns(log, names::GYRO, names::GYRO_VARS)?;
         let tdoa_c = columns(log, names::TDOA, names::TDOA_VARS)?;
         let pose_c = columns(log, names::POSE, names::POSE_VARS)?;
+        let flow_c = columns(log, names::FLOW, names::FLOW_VARS)?;
+        let tof_c = columns(log, names::TOF, names::TOF_VARS)?;
 
         let start_time_us = log.record(0).map_or(0, |r| r.time_us);
         let mut stats = ImportStats::default();
@@ -379,6 +399,8 @@ impl UtilFlight {
         let mut gyro: Vec<Vec3At> = Vec::new();
         let mut tdoa: Vec<UwbTdoa> = Vec::new();
         let mut truth: Vec<GroundTruth> = Vec::new();
+        let mut flow: Vec<FlowRecord> = Vec::new();
+        let mut ranges: Vec<RangeRecord> = Vec::new();
         let mut last_tdoa_ns = 0u64;
         let mut last_pose_ns: Option<u64> = None;
         let deg = std::f64::consts::PI / 180.0;
@@ -387,6 +409,8 @@ impl UtilFlight {
             gyro_c.as_ref().map(|c| c.id),
             tdoa_c.as_ref().map(|c| c.id),
             pose_c.as_ref().map(|c| c.id),
+            flow_c.as_ref().map(|c| c.id),
+            tof_c.as_ref().map(|c| c.id),
         ];
 
         for r in log.records() {
@@ -452,6 +476,33 @@ impl UtilFlight {
                     anchor_a_pos_m: pa,
                     anchor_b_pos_m: pb,
                 });
+            } else if let Some(c) = flow_c.as_ref().filter(|c| c.id == r.event.id) {
+                stats.flow_records += 1;
+                let [delta_x, delta_y] = c.f64s(&r);
+                if flow.last().is_some_and(|f| t_ns <= f.t_ns) {
+                    stats.time_backwards += 1;
+                } else if !(delta_x.is_finite() && delta_y.is_finite()) {
+                    stats.non_finite += 1;
+                } else {
+                    flow.push(FlowRecord {
+                        t_ns,
+                        delta_x,
+                        delta_y,
+                    });
+                }
+            } else if let Some(c) = tof_c.as_ref().filter(|c| c.id == r.event.id) {
+                stats.range_records += 1;
+                let [mm] = c.f64s(&r);
+                if ranges.last().is_some_and(|f| t_ns <= f.t_ns) {
+                    stats.time_backwards += 1;
+                } else if !mm.is_finite() {
+                    stats.non_finite += 1;
+                } else {
+                    ranges.push(RangeRecord {
+                        t_ns,
+                        range_m: mm * 1e-3,
+                    });
+                }
             } else if let Some(c) = pose_c.as_ref().filter(|c| c.id == r.event.id) {
                 stats.truth_records += 1;
                 let [x, y, z, qx, qy, qz, qw] = c.f64s(&r);
@@ -497,6 +548,8 @@ impl UtilFlight {
             imu,
             tdoa,
             truth,
+            flow,
+            ranges,
             start_time_us,
             stats,
             integrity: log.integrity().clone(),
@@ -567,6 +620,8 @@ mod tests {
     const TDOA: u16 = 3;
     const POSE: u16 = 4;
     const TOF: u16 = 5;
+    const FLOW: u16 = 6;
+    const BARO: u16 = 7;
 
     fn events() -> Vec<(u16, &'static str, &'static [&'static str])> {
         vec![
@@ -595,6 +650,8 @@ mod tests {
                 ],
             ),
             (TOF, "estTOF", &["range.zrange(H)"]),
+            (FLOW, "estFlow", &["motion.deltaX(h)", "motion.deltaY(h)"]),
+            (BARO, "estBarometer", &["baro.asl(f)"]),
         ]
     }
 
@@ -641,6 +698,18 @@ mod tests {
                 f32s(&[f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
             ),
             (ACC, t(10_000), f32s(&[0.0, 0.0, 1.0])), // 7.5 ms after the last gyro
+            (
+                FLOW,
+                t(10_100),
+                [(-3i16).to_le_bytes(), 7i16.to_le_bytes()].concat(),
+            ),
+            (
+                FLOW,
+                t(10_100),
+                [1i16.to_le_bytes(), 1i16.to_le_bytes()].concat(),
+            ), // repeated
+            (TOF, t(10_200), 1234u16.to_le_bytes().to_vec()),
+            (BARO, t(10_300), f32s(&[100.0])),
         ];
         let bytes = build(2, &events(), &recs);
         let log = CfLog::parse(&bytes, &ParseOptions::default()).unwrap();
@@ -692,13 +761,24 @@ mod tests {
         assert_eq!(f.truth[1].header.flags & GroundTruth::FLAG_VEL_VALID, 0);
 
         let s = f.stats;
-        assert_eq!(s.records, 22);
+        assert_eq!(s.records, 26);
         assert_eq!(s.unknown_events, 1);
+        assert_eq!((s.flow_records, s.range_records), (2, 2));
+        assert_eq!(
+            f.flow,
+            vec![FlowRecord {
+                t_ns: 9_100_000,
+                delta_x: -3.0,
+                delta_y: 7.0
+            }]
+        );
+        let r: Vec<(u64, f64)> = f.ranges.iter().map(|r| (r.t_ns, r.range_m)).collect();
+        assert_eq!(r, vec![(0, 0.3), (9_200_000, 1.234)]);
         assert_eq!(s.accel_records, 7); // the one before the first record is not counted here
         assert_eq!(s.gyro_records, 2);
         assert_eq!(s.tdoa_records, 6);
         assert_eq!(s.truth_records, 5);
-        assert_eq!(s.time_backwards, 3);
+        assert_eq!(s.time_backwards, 4);
         assert_eq!(s.time_repeated, 1);
         assert_eq!(s.non_finite, 3);
         assert_eq!(s.unknown_anchor, 1);

@@ -5,7 +5,9 @@
 
 use insuwb_fusion::config::{build_estimator, ConfigError, FusionConfig};
 use insuwb_fusion::runner::{self, RunOutput};
-use insuwb_msg::{FilterKind, FusedState, GroundTruth, ImuSample, NavState, UwbFix, UwbTdoa};
+use insuwb_msg::{
+    BodyVelocity, FilterKind, FusedState, GroundTruth, ImuSample, NavState, UwbFix, UwbTdoa,
+};
 
 use crate::metrics::{compute, Estimate, Metrics, MetricsError, TruthTrack};
 
@@ -20,6 +22,9 @@ pub struct Dataset {
     pub tdoa: Vec<UwbTdoa>,
     /// Ground truth.
     pub truth: Vec<GroundTruth>,
+    /// Body-frame velocities (odometry, flow) the filters are aided with;
+    /// empty: no aiding.
+    pub velocity: Vec<BodyVelocity>,
     /// Evaluate only epochs inside this span (ns), e.g. the flight segment.
     pub segment: Option<(u64, u64)>,
 }
@@ -153,7 +158,7 @@ pub fn evaluate_at(
 
     for &kind in filters {
         let est = build_estimator(kind, cfg)?;
-        let out = runner::run_with(&data.imu, &data.tdoa, cfg, est)?;
+        let out = runner::run_aided(&data.imu, &data.tdoa, &data.velocity, cfg, est)?;
         let track = match at {
             Epochs::Fixes => sample_fused(&out.fused, &fix_epochs),
             Epochs::Truth => interpolate(&published(&out.fused), &epochs, ESTIMATE_MAX_GAP_NS),

@@ -29,6 +29,7 @@ pub fn dataset(file: &ScenarioFile, seed: u64) -> Result<Dataset, ScenarioError>
         imu: out.imu,
         tdoa: out.tdoa,
         truth: out.truth,
+        velocity: Vec::new(),
         segment: None,
     })
 }

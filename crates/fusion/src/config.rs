@@ -50,6 +50,9 @@ pub struct FusionConfig {
     pub multirotor: MultirotorConfig,
     /// The ground model's settings (`vehicle = "ground"`).
     pub ground: GroundConfig,
+    /// The velocity updates' settings (odometry, flow): each source's
+    /// online scale factor ([`crate::aiding`]).
+    pub aiding: crate::aiding::AidingConfig,
     /// The coasting and stale-input policy (`[fusion.output]`), its one
     /// home: the fusion stage applies it on the monotonic clock (its
     /// defaults where absent), the lockstep runner on the recording's clock
@@ -92,6 +95,9 @@ pub enum ConfigError {
     /// The vehicle model's settings were refused.
     #[error(transparent)]
     Vehicle(#[from] VehicleConfigError),
+    /// The velocity aiding's settings were refused.
+    #[error(transparent)]
+    Aiding(#[from] crate::aiding::AidingConfigError),
     /// The engine's divergence monitor config was refused (the message
     /// names the key, `engine.monitor.*`).
     #[error("engine.{0}")]
@@ -168,6 +174,7 @@ pub fn build_estimator(
     cfg.vibration.validate()?;
     let vehicle = cfg.vehicle_settings();
     vehicle.validate()?;
+    cfg.aiding.validate()?;
     if kind == FilterKind::IakfTdoa {
         return Ok(Box::new(
             TightEstimator::new(
@@ -176,7 +183,8 @@ pub fn build_estimator(
                 cfg.ins.ins.gravity_mps2,
             )?
             .with_vibration(cfg.vibration.clone())
-            .with_vehicle(&vehicle),
+            .with_vehicle(&vehicle)
+            .with_aiding(&cfg.aiding),
         ));
     }
     cfg.loose.validate()?;

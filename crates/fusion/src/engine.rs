@@ -33,8 +33,8 @@ use std::collections::VecDeque;
 
 use insuwb_filter::{DivergenceMonitor, MonitorConfig, MonitorConfigError};
 use insuwb_msg::{
-    fixed_name, FilterDiag, FusedState, Header, InsCorrection, NavState, UwbFix, UwbTdoa,
-    LAYOUT_VERSION,
+    fixed_name, BodyVelocity, FilterDiag, FusedState, Header, InsCorrection, NavState, UwbFix,
+    UwbTdoa, LAYOUT_VERSION,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -220,26 +220,29 @@ pub struct FusionCounters {
     pub nis_divergences: u64,
 }
 
-/// A UWB measurement for the engine.
+/// A measurement for the engine.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Measurement {
     /// A multilaterated fix.
     Fix(UwbFix),
     /// One TDOA difference.
     Tdoa(UwbTdoa),
+    /// A body-frame velocity (odometry, flow): an aiding update of the
+    /// filters that take one ([`Estimator::update_velocity`]). In tight
+    /// coupling its correction goes out with its epoch's; it neither
+    /// initialises nor resets the filter.
+    Velocity(BodyVelocity),
 }
 
 impl Measurement {
     fn time(&self) -> u64 {
-        match self {
-            Self::Fix(f) => f.header.meas_time_ns,
-            Self::Tdoa(t) => t.header.meas_time_ns,
-        }
+        self.header().meas_time_ns
     }
     fn header(&self) -> &Header {
         match self {
             Self::Fix(f) => &f.header,
             Self::Tdoa(t) => &t.header,
+            Self::Velocity(v) => &v.header,
         }
     }
 }
@@ -585,6 +588,7 @@ impl FusionEngine {
                         .chain(&t.anchor_b_pos_m)
                         .all(|v| v.is_finite())
             }
+            Measurement::Velocity(v) => insuwb_msg::check::velocity_values(v).is_ok(),
         };
         if !finite {
             self.counters.dropped_invalid += 1;
@@ -765,6 +769,7 @@ impl FusionEngine {
         let info = match m {
             Measurement::Fix(f) => self.est.update_fix(&ins, &f),
             Measurement::Tdoa(t) => self.est.update_tdoa(&ins, &t),
+            Measurement::Velocity(v) => self.est.update_velocity(&ins, &v),
         };
         let Some(info) = info else {
             return; // not a measurement this estimator uses
@@ -793,7 +798,11 @@ impl FusionEngine {
         out.diag.push(diag);
         if self.est.is_tight() {
             let epoch = self.epoch_of(m.time());
-            self.dirty = Some((epoch, m, ins));
+            // An epoch's fused state is stamped with its last UWB
+            // measurement; with a velocity only when it has none.
+            if !(matches!(m, Measurement::Velocity(_)) && self.dirty.is_some()) {
+                self.dirty = Some((epoch, m, ins));
+            }
             if m.header().flags & UwbTdoa::FLAG_EPOCH_END != 0 {
                 self.emit_epoch(out);
             }

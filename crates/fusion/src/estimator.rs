@@ -4,7 +4,7 @@
 //! with each TDOA measurement.
 
 use crate::vibration::{VibrationConfig, VibrationMeter};
-use insuwb_msg::{FilterKind, NavState, UwbFix, UwbTdoa};
+use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbTdoa};
 
 /// The INS state at a measurement's epoch (interpolated between two samples).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -102,6 +102,11 @@ pub trait Estimator: std::fmt::Debug + Send {
     fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo>;
     /// Updates with one TDOA measurement (tight coupling); `None` when it does not use them.
     fn update_tdoa(&mut self, ins: &InsAt, m: &UwbTdoa) -> Option<UpdateInfo>;
+    /// Updates with a body-frame velocity (odometry, flow); `None` when it
+    /// does not use them (default).
+    fn update_velocity(&mut self, _ins: &InsAt, _m: &BodyVelocity) -> Option<UpdateInfo> {
+        None
+    }
     /// Returns the navigation error estimate and zeroes it (closed loop).
     fn take_correction(&mut self) -> Delta;
     /// Covariance of `[pe, pn, pu, ve, vn, vu]`.

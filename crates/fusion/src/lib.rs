@@ -22,10 +22,13 @@
 //! - [`scenario`]: the scenario file, what to simulate and how to fuse it
 //!   (`config/scenarios/`), read by `eval`, the `sim` sources and the
 //!   emulators;
+//! - [`aiding`]: velocity updates (odometry, flow) and each source's
+//!   online scale factor;
 //! - [`vehicle`]: the vehicle model (free, multirotor, ground) of the INS
 //!   and the filters, and the measurements it yields.
 #![warn(missing_docs)]
 
+pub mod aiding;
 pub mod config;
 pub mod engine;
 pub mod estimator;

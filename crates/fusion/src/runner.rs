@@ -16,9 +16,10 @@
 //! recording's clock, ticking on every input; unset, it publishes the
 //! updates' fused states only.
 
-use insuwb_msg::check::{ImuGate, Refusals, TdoaGate};
+use insuwb_msg::check::{ImuGate, Refusals, TdoaGate, VelocityGate};
 use insuwb_msg::{
-    FilterDiag, FilterKind, FusedState, ImuSample, InsCorrection, NavState, UwbFix, UwbTdoa,
+    BodyVelocity, FilterDiag, FilterKind, FusedState, ImuSample, InsCorrection, NavState, UwbFix,
+    UwbTdoa,
 };
 use insuwb_uwb::fix::{FixBuilder, FixStats};
 
@@ -62,6 +63,9 @@ pub enum Input<'a> {
     /// filter is tightly coupled; corrected by [`FusionConfig::calibration`]
     /// if set).
     Tdoa(&'a UwbTdoa),
+    /// A body-frame velocity (odometry, flow): to fusion, for the filters
+    /// that take one.
+    Velocity(&'a BodyVelocity),
 }
 
 impl Input<'_> {
@@ -71,6 +75,7 @@ impl Input<'_> {
         match self {
             Self::Imu(s) => s.header.meas_time_ns,
             Self::Tdoa(m) => m.header.meas_time_ns,
+            Self::Velocity(v) => v.header.meas_time_ns,
         }
     }
 }
@@ -115,11 +120,37 @@ pub fn merged<'a>(
     })
 }
 
+/// [`merged`] with a third stream, body velocities, each after the IMU
+/// samples and TDOA measurements of its time.
+pub fn merged_aided<'a>(
+    imu: &'a [ImuSample],
+    tdoa: &'a [UwbTdoa],
+    velocity: &'a [BodyVelocity],
+    ties: Ties,
+) -> impl Iterator<Item = Input<'a>> {
+    let mut base = merged(imu, tdoa, ties).peekable();
+    let mut k = 0usize;
+    std::iter::from_fn(move || {
+        let vel_first = match (base.peek(), velocity.get(k)) {
+            (Some(b), Some(v)) => v.header.meas_time_ns < b.time(),
+            (None, Some(_)) => true,
+            (_, None) => false,
+        };
+        if vel_first {
+            k += 1;
+            velocity.get(k - 1).map(Input::Velocity)
+        } else {
+            base.next()
+        }
+    })
+}
+
 /// The chain in lockstep, fed one input at a time.
 #[derive(Debug)]
 pub struct Runner {
     imu_gate: ImuGate,
     tdoa_gate: TdoaGate,
+    vel_gate: VelocityGate,
     ins: InsEngine,
     fixb: FixBuilder,
     fusion: FusionEngine,
@@ -150,6 +181,7 @@ impl Runner {
         Ok(Self {
             imu_gate: ImuGate::new(),
             tdoa_gate: TdoaGate::new(),
+            vel_gate: VelocityGate::new(),
             ins: InsEngine::new(cfg.ins_engine_config())?,
             fixb: FixBuilder::new(cfg.fix.clone())?.with_calibration(cfg.calibration.clone()),
             tight: est.is_tight(),
@@ -181,6 +213,7 @@ impl Runner {
         let passed = match input {
             Input::Imu(s) => self.imu_gate.check(s).is_ok(),
             Input::Tdoa(m) => self.tdoa_gate.check(m).is_ok(),
+            Input::Velocity(v) => self.vel_gate.check(v).is_ok(),
         };
         if !passed {
             return;
@@ -213,6 +246,10 @@ impl Runner {
                         .on_measurement(Measurement::Tdoa(m), &mut self.o);
                 }
             }
+            Input::Velocity(v) => {
+                self.fusion
+                    .on_measurement(Measurement::Velocity(*v), &mut self.o);
+            }
         }
         self.settle();
         if let Some(p) = self.policy.as_mut() {
@@ -236,6 +273,7 @@ impl Runner {
         self.out.refusals = Refusals {
             imu: *self.imu_gate.refusals(),
             tdoa: *self.tdoa_gate.refusals(),
+            velocity: *self.vel_gate.refusals(),
         };
         self.out.fix_stats = *self.fixb.stats();
         self.out
@@ -306,8 +344,22 @@ pub fn run_with(
     cfg: &FusionConfig,
     est: Box<dyn Estimator>,
 ) -> Result<RunOutput, ConfigError> {
+    run_aided(imu, tdoa, &[], cfg, est)
+}
+
+/// [`run_with`] with body velocities (odometry, flow) as aiding updates.
+///
+/// # Errors
+/// A configuration that does not validate.
+pub fn run_aided(
+    imu: &[ImuSample],
+    tdoa: &[UwbTdoa],
+    velocity: &[BodyVelocity],
+    cfg: &FusionConfig,
+    est: Box<dyn Estimator>,
+) -> Result<RunOutput, ConfigError> {
     let mut r = Runner::new(cfg, est)?;
-    for input in merged(imu, tdoa, Ties::ImuFirst) {
+    for input in merged_aided(imu, tdoa, velocity, Ties::ImuFirst) {
         r.push(input);
     }
     Ok(r.finish())
@@ -462,12 +514,55 @@ mod tests {
                     time_backwards: 1,
                     pair_repeated: 1,
                 },
+                ..Refusals::default()
             }
         );
         assert_eq!(out.ins, clean.ins);
         assert_eq!(out.fix_stats, clean.fix_stats);
         assert!(!out.fused.is_empty());
         assert_eq!(out.fused, clean.fused);
+    }
+
+    fn vel(t: u64, vx: f64) -> BodyVelocity {
+        BodyVelocity {
+            header: Header::new(t, t * 10_000_000),
+            vel_mps: [vx, 0.0, 0.0],
+            sigma_mps: [0.1, 0.1, 0.0],
+            source: BodyVelocity::SOURCE_FLOW,
+            reserved: 0,
+        }
+    }
+
+    #[test]
+    fn velocities_merge_after_their_time_and_bad_ones_are_refused_and_counted() {
+        let i = [imu(0), imu(1), imu(2)];
+        let t = [tdoa(1), tdoa(3)];
+        let v = [vel(1, 0.5), vel(2, f64::NAN), vel(4, 0.5)];
+        let order: Vec<(char, u64)> = merged_aided(&i, &t, &v, Ties::ImuFirst)
+            .map(|x| match x {
+                Input::Imu(s) => ('i', s.header.meas_time_ns / 10_000_000),
+                Input::Tdoa(m) => ('t', m.header.meas_time_ns / 10_000_000),
+                Input::Velocity(v) => ('v', v.header.meas_time_ns / 10_000_000),
+            })
+            .collect();
+        assert_eq!(
+            order,
+            [
+                ('i', 0),
+                ('i', 1),
+                ('t', 1),
+                ('v', 1),
+                ('i', 2),
+                ('v', 2),
+                ('t', 3),
+                ('v', 4)
+            ]
+        );
+        let cfg = FusionConfig::default();
+        let est = build_estimator(FilterKind::IakfTdoa, &cfg).unwrap();
+        let out = run_aided(&i, &t, &v, &cfg, est).unwrap();
+        assert_eq!(out.refusals.velocity.non_finite, 1);
+        assert_eq!(out.refusals.velocity.total(), 1);
     }
 
     #[test]
@@ -479,6 +574,7 @@ mod tests {
                 .map(|x| match x {
                     Input::Imu(s) => ('i', s.header.meas_time_ns / 10_000_000),
                     Input::Tdoa(m) => ('t', m.header.meas_time_ns / 10_000_000),
+                    Input::Velocity(v) => ('v', v.header.meas_time_ns / 10_000_000),
                 })
                 .collect::<Vec<_>>()
         };

@@ -11,13 +11,14 @@
 //! the engine's monitor finds from each update's NIS as for every filter
 //! (and [`Estimator::needs_reset`] when the covariance stops being finite).
 
+use crate::aiding::{AidingConfig, ScaleConfig, ScaleEstimator};
 use crate::vehicle::{DragMeasurement, DragMeter, GroundConfig, VehicleSettings};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_eskf::{
     Covariance, Eskf, EskfConfig, EskfConfigError, MultirotorDynamics, StateVector, TdoaOutcome,
     TdoaUpdateReport, IDX_ATT, IDX_VEL, N_STATES,
 };
-use insuwb_msg::{FilterKind, NavState, UwbFix, UwbTdoa};
+use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbTdoa};
 use insuwb_nav::vehicle::{model_accel_nav, Mechanisation};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -144,6 +145,12 @@ pub struct TightEstimator {
     /// Pseudo-measurements (drag, velocity constraints) applied and gated out.
     pseudo_applied: u64,
     pseudo_rejected: u64,
+    /// The scale factors of flow and odometry.
+    flow_scale: ScaleEstimator,
+    odometry_scale: ScaleEstimator,
+    /// Velocity components (odometry, flow) applied and gated out.
+    velocity_applied: u64,
+    velocity_rejected: u64,
     predict_errors: u64,
     update_errors: u64,
 }
@@ -182,6 +189,10 @@ impl TightEstimator {
             acc_vel: [0.0; 3],
             pseudo_applied: 0,
             pseudo_rejected: 0,
+            flow_scale: ScaleEstimator::new(ScaleConfig::default()),
+            odometry_scale: ScaleEstimator::new(ScaleConfig::default()),
+            velocity_applied: 0,
+            velocity_rejected: 0,
             predict_errors: 0,
             update_errors: 0,
         })
@@ -221,6 +232,28 @@ impl TightEstimator {
     #[must_use]
     pub fn pseudo_counts(&self) -> (u64, u64) {
         (self.pseudo_applied, self.pseudo_rejected)
+    }
+
+    /// Uses the velocity aiding's settings `aiding`: each source's scale
+    /// factor starts at its prior.
+    #[must_use]
+    pub fn with_aiding(mut self, aiding: &AidingConfig) -> Self {
+        self.flow_scale = ScaleEstimator::new(aiding.flow.clone());
+        self.odometry_scale = ScaleEstimator::new(aiding.odometry.clone());
+        self
+    }
+
+    /// The flow's and the odometry's scale factor estimates (`measured /
+    /// true`) and their standard deviations.
+    #[must_use]
+    pub fn velocity_scales(&self) -> [(f64, f64); 2] {
+        [self.flow_scale.scale(), self.odometry_scale.scale()]
+    }
+
+    /// Body-velocity components (odometry, flow) applied and gated out.
+    #[must_use]
+    pub fn velocity_counts(&self) -> (u64, u64) {
+        (self.velocity_applied, self.velocity_rejected)
     }
 
     /// The online drag coefficient estimate, 1/s (multirotor only).
@@ -482,6 +515,77 @@ impl Estimator for TightEstimator {
                 }
             }
         })
+    }
+
+    /// Each measured axis `i` of the body velocity: `z_i = (C e_i) . v`,
+    /// `H = -[(C e_i)^T on δv, ((C e_i) x v)^T on δθ]` (as the ground
+    /// constraint's), weighted and gated as every pseudo-measurement.
+    fn update_velocity(&mut self, ins: &InsAt, m: &BodyVelocity) -> Option<UpdateInfo> {
+        self.propagate();
+        let q = ins.quat;
+        let att =
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+        let vel = Vector3::from(ins.vel_mps);
+        let mut info = UpdateInfo {
+            fading: 1.0,
+            ..UpdateInfo::default()
+        };
+        let scale = if m.source == BodyVelocity::SOURCE_ODOMETRY {
+            &mut self.odometry_scale
+        } else {
+            &mut self.flow_scale
+        };
+        scale.advance(m.header.meas_time_ns);
+        let pv = self.eskf.position_velocity_cov();
+        let mut measured = 0;
+        for i in 0..3 {
+            if m.sigma_mps[i] <= 0.0 {
+                continue;
+            }
+            measured += 1;
+            let axis = att * Vector3::ith(i, 1.0);
+            // The filter's body velocity on this axis and its variance.
+            let predicted = axis.dot(&vel);
+            let mut predicted_var = 0.0;
+            for (r, ar) in axis.iter().enumerate() {
+                for (c, ac) in axis.iter().enumerate() {
+                    predicted_var += ar * ac * pv[3 + r][3 + c];
+                }
+            }
+            let (z, sigma) = scale.observe(m.vel_mps[i], m.sigma_mps[i], predicted, predicted_var);
+            let mut h = StateVector::zeros();
+            h.fixed_rows_mut::<3>(IDX_VEL).copy_from(&(-axis));
+            h.fixed_rows_mut::<3>(IDX_ATT)
+                .copy_from(&(-axis.cross(&vel)));
+            let innovation = z - predicted;
+            let r = sigma * sigma;
+            let k = info.dim as usize;
+            match self.eskf.update_pseudo(&h, innovation, r) {
+                Ok(rep) => {
+                    if let (Some(inn), Some(rd)) =
+                        (info.innovation.get_mut(k), info.r_diag.get_mut(k))
+                    {
+                        *inn = innovation;
+                        *rd = r;
+                    }
+                    if rep.applied {
+                        self.velocity_applied += 1;
+                        info.nis += rep.nis;
+                        info.dim += 1;
+                    } else {
+                        self.velocity_rejected += 1;
+                        info.outlier = true;
+                    }
+                }
+                Err(_) => self.update_errors += 1,
+            }
+        }
+        if measured == 0 {
+            return None;
+        }
+        info.rejected = info.dim == 0;
+        info.divergence = self.eskf.needs_reset();
+        Some(info)
     }
 
     fn take_correction(&mut self) -> Delta {

@@ -3,7 +3,8 @@
 //!
 //! A sample from a source (simulation, replay, a device) passes a gate
 //! before it is published or used: [`ImuGate`] for the IMU stream,
-//! [`TdoaGate`] for the UWB TDOA stream. A gate refuses a sample whose
+//! [`TdoaGate`] for the UWB TDOA stream, [`VelocityGate`] for body-frame
+//! velocities (odometry, flow). A gate refuses a sample whose
 //! values cannot be a measurement ([`imu_values`], [`tdoa_values`]) or whose
 //! time does not follow the stream's, counts every refusal by reason
 //! ([`ImuRefusals`], [`TdoaRefusals`]) and says why ([`ImuRefusal`],
@@ -48,19 +49,26 @@
 //!   pair does not), checked for the first [`MAX_PAIRS_PER_TIME`] pairs of
 //!   a time.
 //!
+//! - Body velocity: a NaN or infinite velocity or sigma; a negative sigma;
+//!   no axis measured (every sigma 0); a measured axis at or above
+//!   [`MAX_BODY_SPEED_MPS`]; an unknown source; a time before the previous
+//!   accepted measurement's, or equal to it.
+//!
 //! The value refusals (`Invalid`) are what a driver's heartbeat counts in
 //! `Health::dropped_invalid`, the time refusals in `Health::dropped_time`.
 //! A refused sample changes nothing in its gate but the counts. A new
 //! sample type gets its value check, its gate, its refusal enum and its
 //! counts the same way.
 
-use crate::{ImuSample, UwbTdoa};
+use crate::{BodyVelocity, ImuSample, UwbTdoa};
 use serde::{Deserialize, Serialize};
 
 /// Largest plausible accelerometer magnitude per axis, m/s^2 (excluded).
 pub const MAX_ACCEL_MPS2: f64 = 400.0;
 /// Largest plausible gyro magnitude per axis, rad/s (excluded).
 pub const MAX_RATE_RPS: f64 = 70.0;
+/// Largest plausible body-frame speed per axis, m/s (excluded).
+pub const MAX_BODY_SPEED_MPS: f64 = 50.0;
 /// Anchor pairs a [`TdoaGate`] remembers at one time to find repeats;
 /// further pairs of that time are not checked.
 pub const MAX_PAIRS_PER_TIME: usize = 64;
@@ -282,6 +290,118 @@ impl TdoaRefusals {
     }
 }
 
+/// Why a body-velocity measurement's values cannot be a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum InvalidVelocity {
+    /// A value is NaN or infinite.
+    #[error("body velocity {field} is not finite ({value})")]
+    NonFinite {
+        /// `vel_mps` or `sigma_mps`.
+        field: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// A standard deviation is negative, or every one is 0 (nothing measured).
+    #[error("body velocity sigma_mps {sigma:?} m/s: each must be >= 0 and one > 0")]
+    Sigma {
+        /// The standard deviations, m/s.
+        sigma: [f64; 3],
+    },
+    /// A measured axis at or above [`MAX_BODY_SPEED_MPS`] in magnitude.
+    #[error("body velocity axis {axis} is {value} m/s, at or beyond the {limit} m/s limit")]
+    OutOfRange {
+        /// The axis (0 x, 1 y, 2 z).
+        axis: usize,
+        /// The value, m/s.
+        value: f64,
+        /// The limit, m/s.
+        limit: f64,
+    },
+    /// The source is none of `BodyVelocity::SOURCE_*`.
+    #[error("body velocity source {0} is unknown")]
+    Source(u32),
+}
+
+/// Why a [`VelocityGate`] refused a body-velocity measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum VelocityRefusal {
+    /// Its values cannot be a measurement.
+    #[error(transparent)]
+    Invalid(#[from] InvalidVelocity),
+    /// Its time is before the previous accepted measurement's.
+    #[error("body velocity time {time_ns} ns is before the previous measurement's {last_ns} ns")]
+    TimeBackwards {
+        /// Time of the refused measurement, ns.
+        time_ns: u64,
+        /// Time of the previous accepted measurement, ns.
+        last_ns: u64,
+    },
+    /// Its time is the previous accepted measurement's (a repeat).
+    #[error("body velocity time {time_ns} ns repeats the previous measurement's")]
+    TimeRepeated {
+        /// The time of both, ns.
+        time_ns: u64,
+    },
+}
+
+impl VelocityRefusal {
+    /// Whether the measurement was refused for its time, not its values.
+    #[must_use]
+    pub fn is_time(&self) -> bool {
+        !matches!(self, Self::Invalid(_))
+    }
+}
+
+/// Body-velocity measurements refused, by reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct VelocityRefusals {
+    /// A NaN or infinite value ([`InvalidVelocity::NonFinite`]).
+    pub non_finite: u64,
+    /// A negative sigma, or none measured ([`InvalidVelocity::Sigma`]).
+    pub sigma: u64,
+    /// A speed out of range ([`InvalidVelocity::OutOfRange`]).
+    pub out_of_range: u64,
+    /// An unknown source ([`InvalidVelocity::Source`]).
+    pub source: u64,
+    /// A time before the previous measurement's ([`VelocityRefusal::TimeBackwards`]).
+    pub time_backwards: u64,
+    /// The previous measurement's time again ([`VelocityRefusal::TimeRepeated`]).
+    pub time_repeated: u64,
+}
+
+impl VelocityRefusals {
+    /// Counts `r` under its reason.
+    pub fn count(&mut self, r: &VelocityRefusal) {
+        let n = match r {
+            VelocityRefusal::Invalid(InvalidVelocity::NonFinite { .. }) => &mut self.non_finite,
+            VelocityRefusal::Invalid(InvalidVelocity::Sigma { .. }) => &mut self.sigma,
+            VelocityRefusal::Invalid(InvalidVelocity::OutOfRange { .. }) => &mut self.out_of_range,
+            VelocityRefusal::Invalid(InvalidVelocity::Source(_)) => &mut self.source,
+            VelocityRefusal::TimeBackwards { .. } => &mut self.time_backwards,
+            VelocityRefusal::TimeRepeated { .. } => &mut self.time_repeated,
+        };
+        *n += 1;
+    }
+
+    /// Refused for their values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn invalid(&self) -> u64 {
+        self.non_finite + self.sigma + self.out_of_range + self.source
+    }
+
+    /// Refused for their time (`Health::dropped_time`).
+    #[must_use]
+    pub fn time(&self) -> u64 {
+        self.time_backwards + self.time_repeated
+    }
+
+    /// Refused in all.
+    #[must_use]
+    pub fn total(&self) -> u64 {
+        self.invalid() + self.time()
+    }
+}
+
 /// Samples refused, by sample type and reason (what `insuwb eval` reports).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Refusals {
@@ -289,6 +409,41 @@ pub struct Refusals {
     pub imu: ImuRefusals,
     /// TDOA measurements.
     pub tdoa: TdoaRefusals,
+    /// Body-velocity measurements (odometry, flow).
+    #[serde(default)]
+    pub velocity: VelocityRefusals,
+}
+
+/// Checks a body-velocity measurement's values: finite, sigmas >= 0 with
+/// one > 0, each measured axis below [`MAX_BODY_SPEED_MPS`], a known source.
+///
+/// # Errors
+/// The first failed check, in that order.
+pub fn velocity_values(m: &BodyVelocity) -> Result<(), InvalidVelocity> {
+    for (field, values) in [("vel_mps", &m.vel_mps), ("sigma_mps", &m.sigma_mps)] {
+        if let Some(&value) = values.iter().find(|v| !v.is_finite()) {
+            return Err(InvalidVelocity::NonFinite { field, value });
+        }
+    }
+    if m.sigma_mps.iter().any(|&s| s < 0.0) || m.sigma_mps.iter().all(|&s| s == 0.0) {
+        return Err(InvalidVelocity::Sigma { sigma: m.sigma_mps });
+    }
+    for (axis, (&value, &sigma)) in m.vel_mps.iter().zip(&m.sigma_mps).enumerate() {
+        if sigma > 0.0 && value.abs() >= MAX_BODY_SPEED_MPS {
+            return Err(InvalidVelocity::OutOfRange {
+                axis,
+                value,
+                limit: MAX_BODY_SPEED_MPS,
+            });
+        }
+    }
+    if !matches!(
+        m.source,
+        BodyVelocity::SOURCE_ODOMETRY | BodyVelocity::SOURCE_FLOW
+    ) {
+        return Err(InvalidVelocity::Source(m.source));
+    }
+    Ok(())
 }
 
 /// Checks an IMU sample's values: finite, and each axis below
@@ -359,6 +514,17 @@ pub fn tdoa_values(m: &UwbTdoa) -> Result<(), InvalidTdoa> {
     Ok(())
 }
 
+/// The time rule of a stream whose samples each have a time of their own
+/// (IMU, body velocity): strictly after the previous accepted sample's.
+/// `Err(Some(last))`: before it; `Err(None)`: equal to it (a repeat).
+fn strictly_after(last_ns: Option<u64>, time_ns: u64) -> Result<(), Option<u64>> {
+    match last_ns {
+        Some(last) if time_ns < last => Err(Some(last)),
+        Some(last) if time_ns == last => Err(None),
+        _ => Ok(()),
+    }
+}
+
 /// The gate of an IMU stream: values ([`imu_values`]), then a time strictly
 /// after the previous accepted sample's (see the module doc).
 #[derive(Debug, Clone, Default)]
@@ -391,13 +557,10 @@ impl ImuGate {
     fn verdict(&self, s: &ImuSample) -> Result<(), ImuRefusal> {
         imu_values(s)?;
         let time_ns = s.header.meas_time_ns;
-        match self.last_ns {
-            Some(last_ns) if time_ns < last_ns => {
-                Err(ImuRefusal::TimeBackwards { time_ns, last_ns })
-            }
-            Some(last_ns) if time_ns == last_ns => Err(ImuRefusal::TimeRepeated { time_ns }),
-            _ => Ok(()),
-        }
+        strictly_after(self.last_ns, time_ns).map_err(|last| match last {
+            Some(last_ns) => ImuRefusal::TimeBackwards { time_ns, last_ns },
+            None => ImuRefusal::TimeRepeated { time_ns },
+        })
     }
 
     /// The samples refused so far, by reason.
@@ -489,10 +652,96 @@ impl TdoaGate {
     }
 }
 
+/// The gate of a body-velocity stream: values ([`velocity_values`]), then a
+/// time strictly after the previous accepted measurement's.
+#[derive(Debug, Clone, Default)]
+pub struct VelocityGate {
+    last_ns: Option<u64>,
+    refusals: VelocityRefusals,
+}
+
+impl VelocityGate {
+    /// A gate that has seen nothing.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Checks `m`; an accepted measurement's time becomes the one the next
+    /// must follow.
+    ///
+    /// # Errors
+    /// Why `m` is refused (also counted in [`VelocityGate::refusals`]).
+    pub fn check(&mut self, m: &BodyVelocity) -> Result<(), VelocityRefusal> {
+        let r = self.verdict(m);
+        match &r {
+            Ok(()) => self.last_ns = Some(m.header.meas_time_ns),
+            Err(e) => self.refusals.count(e),
+        }
+        r
+    }
+
+    fn verdict(&self, m: &BodyVelocity) -> Result<(), VelocityRefusal> {
+        velocity_values(m)?;
+        let time_ns = m.header.meas_time_ns;
+        strictly_after(self.last_ns, time_ns).map_err(|last| match last {
+            Some(last_ns) => VelocityRefusal::TimeBackwards { time_ns, last_ns },
+            None => VelocityRefusal::TimeRepeated { time_ns },
+        })
+    }
+
+    /// The measurements refused so far, by reason.
+    #[must_use]
+    pub fn refusals(&self) -> &VelocityRefusals {
+        &self.refusals
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::Header;
+
+    fn vel(t_ns: u64, v: [f64; 3], sigma: [f64; 3]) -> BodyVelocity {
+        BodyVelocity {
+            header: Header::new(0, t_ns),
+            vel_mps: v,
+            sigma_mps: sigma,
+            source: BodyVelocity::SOURCE_FLOW,
+            reserved: 0,
+        }
+    }
+
+    #[test]
+    fn velocity_gate_refuses_each_bad_value_and_time_with_its_counter() {
+        let mut g = VelocityGate::new();
+        let s = [0.1, 0.1, 0.0];
+        assert_eq!(g.check(&vel(10, [0.5, -0.2, 0.0], s)), Ok(()));
+        let cases = [
+            vel(20, [f64::NAN, 0.0, 0.0], s),
+            vel(20, [0.0; 3], [-0.1, 0.1, 0.0]),
+            vel(20, [0.0; 3], [0.0; 3]),
+            vel(20, [60.0, 0.0, 0.0], s),
+            BodyVelocity {
+                source: 7,
+                ..vel(20, [0.0; 3], s)
+            },
+            vel(5, [0.0; 3], s),
+            vel(10, [0.0; 3], s),
+        ];
+        for c in &cases {
+            assert!(g.check(c).is_err(), "{c:?}");
+        }
+        // An unmeasured axis may hold anything finite.
+        assert_eq!(g.check(&vel(20, [0.0, 0.0, 99.0], s)), Ok(()));
+        let r = g.refusals();
+        assert_eq!(
+            (r.non_finite, r.sigma, r.out_of_range, r.source),
+            (1, 2, 1, 1)
+        );
+        assert_eq!((r.time_backwards, r.time_repeated), (1, 1));
+        assert_eq!((r.invalid(), r.time(), r.total()), (5, 2, 7));
+    }
 
     fn imu(t_ns: u64) -> ImuSample {
         ImuSample {

@@ -127,6 +127,40 @@ impl UwbTdoa {
     pub const FLAG_CALIBRATED: u32 = 2;
 }
 
+/// A velocity measured in the body frame (topic [`topics::BODY_VEL`]): a
+/// wheeled base's odometry (the twist of `nav_msgs/Odometry`), or optical
+/// flow scaled by the height above the floor (a flow deck).
+///
+/// The frame is the body's, FLU (x forward, y left, z up), the IMU's: a
+/// source whose sensor frame differs rotates into it before publishing. An
+/// axis the sensor does not measure has `sigma_mps` 0 (flow measures x and
+/// y, odometry of a differential drive x alone, or x and y with its
+/// non-holonomic zero).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::BodyVelocity")]
+pub struct BodyVelocity {
+    /// Common header; `meas_time_ns` is the middle of the interval the
+    /// velocity was measured over.
+    pub header: Header,
+    /// Velocity of the body in its own frame, m/s.
+    pub vel_mps: [f64; 3],
+    /// Standard deviation of each axis, m/s; 0: the axis is not measured.
+    pub sigma_mps: [f64; 3],
+    /// What measured it: [`BodyVelocity::SOURCE_ODOMETRY`] or
+    /// [`BodyVelocity::SOURCE_FLOW`].
+    pub source: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+}
+
+impl BodyVelocity {
+    /// Wheel odometry.
+    pub const SOURCE_ODOMETRY: u32 = 1;
+    /// Optical flow with a range finder.
+    pub const SOURCE_FLOW: u32 = 2;
+}
+
 /// A UWB position (and velocity) fix from multilateration (topic [`topics::UWB_FIX`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
 #[repr(C)]
@@ -584,6 +618,8 @@ pub mod topics {
     pub const HEALTH: &str = "health";
     /// Ground truth ([`crate::GroundTruth`]).
     pub const TRUTH: &str = "truth";
+    /// Body-frame velocity measurements ([`crate::BodyVelocity`]).
+    pub const BODY_VEL: &str = "body_vel";
 }
 
 /// Anything carrying a [`Header`].
@@ -605,6 +641,7 @@ macro_rules! impl_has_header {
 impl_has_header!(
     ImuSample,
     UwbTdoa,
+    BodyVelocity,
     UwbFix,
     NavState,
     InsCorrection,

@@ -50,7 +50,7 @@ pub fn for_topic(topic: &str) -> ServiceQos {
             subscriber_max_buffer_size: IMU_HISTORY,
             ..BASE
         },
-        topics::UWB_TDOA => ServiceQos {
+        topics::UWB_TDOA | topics::BODY_VEL => ServiceQos {
             history_size: 1024,
             subscriber_max_buffer_size: 1024,
             ..BASE
@@ -101,6 +101,7 @@ mod tests {
             topics::CORRECTION,
             topics::HEALTH,
             topics::TRUTH,
+            topics::BODY_VEL,
         ] {
             let q = for_topic(t);
             assert!(q.safe_overflow, "{t}");
