@@ -17,8 +17,9 @@ ALL.csv is `insuwb log cat LOG --csv` (every record), FUSED.csv
   the record's meas_time_ns;
 - `rosbags` opens the file as a bag (same counts), registers every type
   from the file's ros2msg schemas (`get_types_from_msg`) and decodes the
-  odometry, IMU and `insuwb_msgs/msg/UwbFix` messages with
-  `deserialize_cdr`, compared with the log.
+  odometry, IMU and `insuwb_msgs/msg/UwbFix` messages, and the
+  `insuwb_msgs/msg/BodyVelocity` ones where the log has body velocities,
+  with `deserialize_cdr`, compared with the log.
 
 Prints one line per check and `OK` at the end; exits 1 on the first
 failure. `--partial` allows a log without every topic (a cut copy).
@@ -46,8 +47,10 @@ TOPICS = {
     "diag": ["/insuwb/diag"],
     "truth": ["/insuwb/truth"],
     "health": ["/diagnostics"],
+    "body_vel": ["/insuwb/body_vel"],
 }
-# Topics a full log of a launched group has.
+# Topics a full log of a launched group has (`body_vel` only where a
+# velocity source publishes: checked when present).
 REQUIRED = ["imu", "uwb_tdoa", "uwb_fix", "nav", "correction", "fused", "diag", "truth", "health"]
 
 
@@ -161,7 +164,8 @@ def main():
     typestore.register(types)
     imu_rows = [r for r in records if r[0] == "imu"]
     fix_rows = [r for r in records if r[0] == "uwb_fix"]
-    decoded = {"/insuwb/odom": [], "/insuwb/imu": [], "/insuwb/uwb_fix": []}
+    vel_rows = [r for r in records if r[0] == "body_vel"]
+    decoded = {"/insuwb/odom": [], "/insuwb/imu": [], "/insuwb/uwb_fix": [], "/insuwb/body_vel": []}
     bag_counts = Counter()
     with BagReader(mcap_path) as bag:
         conns = {c.topic: c for c in bag.connections}
@@ -173,7 +177,8 @@ def main():
     check(bag_counts == want, f"rosbags counts {dict(bag_counts)} != log {dict(want)}")
     for topic, msgtype in [("/insuwb/odom", "nav_msgs/msg/Odometry"),
                            ("/insuwb/imu", "sensor_msgs/msg/Imu"),
-                           ("/insuwb/uwb_fix", "insuwb_msgs/msg/UwbFix")]:
+                           ("/insuwb/uwb_fix", "insuwb_msgs/msg/UwbFix"),
+                           ("/insuwb/body_vel", "insuwb_msgs/msg/BodyVelocity")]:
         check(topic not in conns or conns[topic].msgtype == msgtype,
               f"rosbags: {topic} is a {conns.get(topic)}")
     for m, row in zip(decoded["/insuwb/odom"], fused, strict=True):
@@ -190,9 +195,16 @@ def main():
         check(close(p.x, row[5]) and close(p.y, row[6]) and close(p.z, row[7])
               and m.sample.seq == int(row[1]) and close(m.gdop, row[11]),
               f"rosbags uwb_fix {p} != log {row[5:8]}")
+    for m, row in zip(decoded["/insuwb/body_vel"], vel_rows, strict=True):
+        v, s = m.vel_mps, m.sigma_mps
+        check(all(close(x, y) for x, y in zip([v.x, v.y, v.z, s.x, s.y, s.z], row[5:11]))
+              and m.source == int(row[11]) and m.sample.seq == int(row[1])
+              and stamp_ns(m.header.stamp) == int(row[3]) and m.header.frame_id == "base_link",
+              f"rosbags body_vel {v} {s} != log {row[5:12]}")
     print(f"rosbags: opened as a bag, {len(types)} types registered from the schemas, "
           f"decoded {len(decoded['/insuwb/odom'])} odometry, {len(decoded['/insuwb/imu'])} imu, "
-          f"{len(decoded['/insuwb/uwb_fix'])} insuwb_msgs/msg/UwbFix messages equal to the log")
+          f"{len(decoded['/insuwb/uwb_fix'])} insuwb_msgs/msg/UwbFix, "
+          f"{len(decoded['/insuwb/body_vel'])} insuwb_msgs/msg/BodyVelocity messages equal to the log")
     print("OK")
 
 

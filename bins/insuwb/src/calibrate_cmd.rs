@@ -69,6 +69,11 @@ pub struct CalibrateArgs {
     /// Filters to evaluate with --cross-validate (default: the config's).
     #[arg(long)]
     pub filters: Option<String>,
+    /// Velocity measurements that aid the filters in --cross-validate (as
+    /// `insuwb eval --aiding`); the calibration itself is learnt from the
+    /// TDOA residuals alone.
+    #[arg(long, value_enum, default_value_t = dataset::Aiding::None, requires = "cross_validate")]
+    pub aiding: dataset::Aiding,
     /// Threads (default: the available cores). The output does not depend on it.
     #[arg(long)]
     pub jobs: Option<std::num::NonZeroUsize>,
@@ -209,12 +214,13 @@ struct Flight {
 }
 
 fn load_flight(a: &CalibrateArgs, f: &ManifestFlight) -> Result<Flight> {
-    let loaded = dataset::load(
+    let mut loaded = dataset::load(
         &f.file,
         f.anchors.as_ref(),
         a.config.as_deref(),
         a.ignore_crc,
     )?;
+    loaded.use_aiding(a.aiding, &f.file)?;
     if !loaded.recorded.is_empty() {
         bail!("{}: the log holds no IMU and UWB records", f.file.display());
     }

@@ -115,8 +115,22 @@ pub enum Aiding {
     #[default]
     None,
     /// The optical-flow deck's body velocities (a UTIL log's `estFlow`
-    /// with its `estTOF` ranges).
+    /// with its `estTOF` ranges; a scenario's `[sim.flow]`).
     Flow,
+    /// Wheel odometry (a scenario's `[sim.odometry]`).
+    Odometry,
+}
+
+impl Aiding {
+    /// The body-velocity sources it takes from a scenario's simulation.
+    #[must_use]
+    pub fn scenario_sources(self) -> Vec<u32> {
+        match self {
+            Self::None => Vec::new(),
+            Self::Flow => vec![insuwb_msg::BodyVelocity::SOURCE_FLOW],
+            Self::Odometry => vec![insuwb_msg::BodyVelocity::SOURCE_ODOMETRY],
+        }
+    }
 }
 
 /// What a run overrides of a log's settings (`insuwb eval --vehicle
@@ -137,12 +151,26 @@ impl Loaded {
     pub fn use_aiding(&mut self, aiding: Aiding, path: &Path) -> Result<()> {
         match aiding {
             Aiding::None => self.data.velocity.clear(),
+            Aiding::Odometry => bail!(
+                "{}: --aiding odometry is for a simulated scenario's wheel odometry (--scenario with [sim.odometry]); a log holds none",
+                path.display()
+            ),
             Aiding::Flow => {
-                let Some((v, stats)) = &self.flow else {
+                let flow: Vec<insuwb_msg::BodyVelocity> = self
+                    .velocity
+                    .iter()
+                    .filter(|v| v.source == insuwb_msg::BodyVelocity::SOURCE_FLOW)
+                    .copied()
+                    .collect();
+                if flow.is_empty() {
                     bail!(
-                        "{}: no optical-flow records (estFlow): --aiding flow needs a log of a vehicle with the flow deck",
+                        "{}: no optical-flow velocities (a UTIL log's estFlow records, a project log's body_vel records of a flow source): --aiding flow needs a log of a vehicle with a flow deck",
                         path.display()
                     );
+                }
+                self.data.velocity = flow;
+                let Some(stats) = &self.flow_stats else {
+                    return Ok(());
                 };
                 tracing::info!(
                     "{}: {} flow velocities from {} flow records; refused: {} no range, {} range below {} m, {} above {} m, {} no body rates, {} time backwards",
@@ -157,7 +185,6 @@ impl Loaded {
                     stats.no_gyro,
                     stats.time_backwards
                 );
-                self.data.velocity.clone_from(v);
             }
         }
         Ok(())
@@ -177,9 +204,13 @@ pub struct Loaded {
     pub config: ConfigFile,
     /// Where the config came from, for messages.
     pub config_origin: String,
-    /// The body velocities of the log's flow deck, and what its records
-    /// gave (None: the log holds no flow records).
-    pub flow: Option<(Vec<insuwb_msg::BodyVelocity>, insuwb_data::FlowStats)>,
+    /// The log's body velocities (a project log's `body_vel` records, or
+    /// a UTIL log's flow deck through [`insuwb_data::flow`]): what
+    /// `--aiding` chooses from.
+    pub velocity: Vec<insuwb_msg::BodyVelocity>,
+    /// What a UTIL log's flow records gave (None: no flow records, or a
+    /// project log).
+    pub flow_stats: Option<insuwb_data::FlowStats>,
 }
 
 /// Loads a project log (a file, or a folder of `seg-*.iulog` segments as
@@ -239,8 +270,10 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
         ..Dataset::default()
     };
     let mut recorded = Vec::new();
+    let mut velocity = Vec::new();
     for r in records {
         match r {
+            Record::BodyVel(s) => velocity.push(s),
             Record::Imu(s) => data.imu.push(s),
             Record::Tdoa(s) => data.tdoa.push(s),
             Record::Truth(s) => data.truth.push(s),
@@ -282,7 +315,8 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
         recorded,
         config,
         config_origin: origin,
-        flow: None,
+        velocity,
+        flow_stats: None,
     })
 }
 
@@ -349,9 +383,13 @@ fn load_util(
         .flow
         .validate()
         .with_context(|| format!("{origin}: [flow]"))?;
-    let flow = (!flight.flow.is_empty()).then(|| {
-        insuwb_data::flow_velocities(&flight.flow, &flight.ranges, &flight.imu, &config.flow)
-    });
+    let (velocity, flow_stats) = if flight.flow.is_empty() {
+        (Vec::new(), None)
+    } else {
+        let (v, stats) =
+            insuwb_data::flow_velocities(&flight.flow, &flight.ranges, &flight.imu, &config.flow);
+        (v, Some(stats))
+    };
     let mut data = Dataset {
         name: path.display().to_string(),
         imu: flight.imu,
@@ -366,6 +404,7 @@ fn load_util(
         recorded: Vec::new(),
         config,
         config_origin: origin,
-        flow,
+        velocity,
+        flow_stats,
     })
 }

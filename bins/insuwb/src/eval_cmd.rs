@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use insuwb_eval::metrics::Metrics;
-use insuwb_eval::run::{evaluate, EvalReport};
-use insuwb_eval::scenario::{dataset as scenario_dataset, monte_carlo};
+use insuwb_eval::run::EvalReport;
+use insuwb_eval::scenario::{dataset_with as scenario_dataset, monte_carlo_with, ScenarioOptions};
 use insuwb_fusion::scenario::ScenarioFile;
 use insuwb_log::{LogWriter, Metadata, Record};
 use insuwb_msg::FilterKind;
@@ -48,7 +48,7 @@ pub struct EvalArgs {
     #[arg(long, requires = "flights")]
     pub jobs: Option<std::num::NonZeroUsize>,
     /// Simulate a scenario instead: a built-in name (paper-3.4, paper-4.3-static,
-    /// paper-4.4-dynamic, nlos-long) or a TOML file; `model-true` runs the
+    /// paper-4.4-dynamic, nlos-long, ground-outage) or a TOML file; `model-true` runs the
     /// consistency check on data drawn from the filter's own model.
     #[arg(long, conflicts_with = "file")]
     pub scenario: Option<String>,
@@ -92,15 +92,40 @@ pub struct EvalArgs {
     #[arg(long)]
     pub vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
     /// Velocity measurements that aid the filters (`flow`: a UTIL log's
-    /// optical-flow deck); the solutions keep their names, so the same
-    /// command with and without it compares them. A log without such
-    /// records is an error.
-    #[arg(long, value_enum, default_value_t = dataset::Aiding::None, conflicts_with = "scenario")]
+    /// optical-flow deck or a scenario's `[sim.flow]`; `odometry`: a
+    /// scenario's `[sim.odometry]`); the solutions keep their names, so
+    /// the same command with and without it compares them. A log or
+    /// scenario without such measurements is an error; without the flag
+    /// a scenario's simulated velocities are not used.
+    #[arg(long, value_enum, default_value_t = dataset::Aiding::None)]
     pub aiding: dataset::Aiding,
+    /// With --scenario: evaluate at the ground truth's sample times inside
+    /// START,END (s from the start of the run), each solution interpolated
+    /// there (a filter's coasting states included, where the scenario's
+    /// `[fusion.output]` has them), instead of at the UWB fix epochs of the
+    /// whole run: a UWB outage has no fix epoch.
+    #[arg(long, value_name = "START,END", value_parser = parse_window)]
+    pub window: Option<[f64; 2]>,
+}
+
+/// Parses `--window 30,41`.
+fn parse_window(s: &str) -> Result<[f64; 2], String> {
+    let (a, b) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected START,END in seconds, got {s:?}"))?;
+    let num = |t: &str| t.trim().parse::<f64>().map_err(|e| format!("{t:?}: {e}"));
+    let (a, b) = (num(a)?, num(b)?);
+    if !(a.is_finite() && b.is_finite() && a >= 0.0 && a < b) {
+        return Err(format!("expected 0 <= START < END, got {a},{b}"));
+    }
+    Ok([a, b])
 }
 
 /// Runs `insuwb eval`.
 pub fn eval(a: &EvalArgs) -> Result<()> {
+    if a.window.is_some() && a.scenario.is_none() {
+        bail!("--window is for --scenario: a log is evaluated where its [eval] table says");
+    }
     if a.scenario.as_deref() == Some("model-true") {
         return model_true(a);
     }
@@ -117,10 +142,19 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         }
         let filters = parse_filters(a.filters.as_deref(), &DEFAULT_FILTERS)?;
         let seed = a.seed.unwrap_or(file.sim.seed);
+        let opts = ScenarioOptions {
+            velocity_sources: a.aiding.scenario_sources(),
+            window_s: a.window,
+        };
         if a.plot.is_some() || a.tracks.is_some() {
-            let data = scenario_dataset(&file, seed)?;
+            let data = scenario_dataset(&file, seed, &opts)?;
             let cfg = file.fusion_for_seed(seed)?;
-            let rep = evaluate(&data, &cfg, &filters)?;
+            let epochs = if opts.window_s.is_some() {
+                insuwb_eval::run::Epochs::Truth
+            } else {
+                insuwb_eval::run::Epochs::Fixes
+            };
+            let rep = insuwb_eval::run::evaluate_at(&data, &cfg, &filters, epochs)?;
             if let Some(dir) = &a.plot {
                 write_plots(&rep, &data, dir)?;
             }
@@ -128,15 +162,19 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
                 write_tracks(&rep, &data, path)?;
             }
         }
-        let rows = monte_carlo(&file, &filters, a.runs, seed)?;
-        (
-            rows,
-            format!(
-                "scenario {} ({} run(s) from seed {seed})",
-                file.sim.name,
-                a.runs.max(1)
-            ),
-        )
+        let rows = monte_carlo_with(&file, &filters, a.runs, seed, &opts)?;
+        let mut title = format!(
+            "scenario {} ({} run(s) from seed {seed})",
+            file.sim.name,
+            a.runs.max(1)
+        );
+        if a.aiding != dataset::Aiding::None {
+            title.push_str(&format!(", aided by {:?}", a.aiding).to_lowercase());
+        }
+        if let Some([s0, s1]) = a.window {
+            title.push_str(&format!(", at the truth's times in {s0}..{s1} s"));
+        }
+        (rows, title)
     } else if let Some(path) = &a.file {
         let mut loaded =
             dataset::load(path, a.anchors.as_ref(), a.config.as_deref(), a.ignore_crc)?;
@@ -477,6 +515,7 @@ pub fn sim(a: &SimArgs) -> Result<()> {
             insuwb_sim::SimRecord::Imu(s) => Record::Imu(s),
             insuwb_sim::SimRecord::Tdoa(s) => Record::Tdoa(s),
             insuwb_sim::SimRecord::Truth(s) => Record::Truth(s),
+            insuwb_sim::SimRecord::Velocity(s) => Record::BodyVel(s),
         };
         w.append(&rec)?;
         n += 1;
@@ -616,6 +655,14 @@ pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
         d.tdoa
             .iter()
             .map(|s| (s.header.meas_time_ns, 2, Record::Tdoa(*s))),
+    );
+    // The flow deck's velocities, if the log carries them: what the
+    // vehicle measured, used when a replay or eval asks for the aiding.
+    recs.extend(
+        loaded
+            .velocity
+            .iter()
+            .map(|s| (s.header.meas_time_ns, 3, Record::BodyVel(*s))),
     );
     recs.sort_by_key(|r| (r.0, r.1));
     for (_, _, r) in &recs {

@@ -45,6 +45,7 @@ pub fn inspect(a: &InspectArgs) -> Result<()> {
         probe::<insuwb_msg::InsCorrection>(&stage, topics::CORRECTION)?,
         probe::<Health>(&stage, topics::HEALTH)?,
         probe::<GroundTruth>(&stage, topics::TRUTH)?,
+        probe::<insuwb_msg::BodyVelocity>(&stage, topics::BODY_VEL)?,
     ];
     // The first samples are the publishers' history: let it arrive, then count.
     for _ in 0..3 {

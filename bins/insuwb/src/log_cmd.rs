@@ -18,12 +18,13 @@ pub enum LogCmd {
     Cat {
         /// The log file.
         file: PathBuf,
-        /// Only this topic (imu, uwb_tdoa, uwb_fix, nav, correction, fused, diag, truth, health).
+        /// Only this topic (imu, uwb_tdoa, uwb_fix, nav, correction, fused, diag, truth, health, body_vel).
         #[arg(long)]
         topic: Option<String>,
         /// CSV instead of debug text: topic, seq, generation, meas_time_ns,
         /// pub_time_ns, then the sample's fields (diag: nis, fading, dim, then
-        /// dim each of innovation, innovation variance, outlier weight, R in use).
+        /// dim each of innovation, innovation variance, outlier weight, R in use;
+        /// body_vel: velocity x, y, z, sigma x, y, z, source).
         #[arg(long)]
         csv: bool,
     },
@@ -200,6 +201,7 @@ fn csv_line(rec: &Record) -> String {
             s.received,
             s.published
         ),
+        Record::BodyVel(s) => format!("{head},{},{},{}", f(&s.vel_mps), f(&s.sigma_mps), s.source),
     }
 }
 

@@ -217,6 +217,7 @@ pub const SCENARIOS: &[Builtin] = &[
         "config/scenarios/paper-4.4-dynamic.toml"
     ),
     builtin_file!("nlos-long", "config/scenarios/nlos-long.toml"),
+    builtin_file!("ground-outage", "config/scenarios/ground-outage.toml"),
 ];
 
 /// The built-in presets (`config/*.toml`).

@@ -23,9 +23,11 @@ use serde::{Deserialize, Serialize};
 pub const DEFAULT_BIND: &str = "127.0.0.1:8765";
 
 /// The topics of the live view, under [`FoxgloveConfig::topic_prefix`]
-/// (`truth` and `error` only for a source with ground truth).
-pub const TOPICS: [&str; 10] = [
-    "pose", "tf", "path", "uwb_fix", "truth", "error", "anchors", "robot", "diag", "health",
+/// (`truth` and `error` only for a source with ground truth, `body_vel`
+/// from the first body velocity on).
+pub const TOPICS: [&str; 11] = [
+    "pose", "tf", "path", "uwb_fix", "truth", "error", "anchors", "robot", "diag", "body_vel",
+    "health",
 ];
 
 /// The longest path [`FoxgloveConfig::path_length`] allows.

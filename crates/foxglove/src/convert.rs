@@ -12,8 +12,9 @@
 //!   follows.
 //! - Quaternions: insuwb's `[w, x, y, z]` becomes Foxglove's `x, y, z, w`,
 //!   normalised.
-//! - `diag`, the position error against ground truth and stage health are
-//!   JSON messages with a JSON schema ([`DIAG_SCHEMA`], [`ERROR_SCHEMA`],
+//! - `diag`, the position error against ground truth, body velocities
+//!   (odometry, optical flow) and stage health are JSON messages with a
+//!   JSON schema ([`DIAG_SCHEMA`], [`ERROR_SCHEMA`], [`BODY_VEL_SCHEMA`],
 //!   [`HEALTH_SCHEMA`]): every number is a plottable field.
 //!
 //! ```
@@ -34,8 +35,10 @@ use foxglove::messages::{
     PosesInFrame, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
     Vector3,
 };
+use insuwb_msg::check::{velocity_values, InvalidVelocity};
 use insuwb_msg::{
-    name_str, FilterDiag, FilterKind, FusedState, GroundTruth, Health, StageCounters, UwbFix,
+    name_str, BodyVelocity, FilterDiag, FilterKind, FusedState, GroundTruth, Health, StageCounters,
+    UwbFix,
 };
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::StageCondition;
@@ -55,6 +58,11 @@ pub enum ConvertError {
     /// `FilterDiag::dim` is larger than its arrays.
     #[error("ConvertError::BadDimension: {0} entries, at most 8")]
     BadDimension(u32),
+    /// A body velocity that cannot be a measurement (`insuwb_msg::check`'s
+    /// value check: not finite, no axis measured, a negative sigma, out of
+    /// range, an unknown source).
+    #[error("ConvertError::Velocity: {0}")]
+    Velocity(#[from] InvalidVelocity),
 }
 
 /// One UWB anchor on the map.
@@ -475,6 +483,70 @@ pub fn diag_json(d: &FilterDiag, clock: &ClockOffset) -> Result<DiagJson, Conver
         outlier: d.header.flags & FilterDiag::FLAG_OUTLIER != 0,
         divergence: d.header.flags & FilterDiag::FLAG_DIVERGENCE != 0,
         reset: d.header.flags & FilterDiag::FLAG_RESET != 0,
+    })
+}
+
+/// A body-frame velocity (wheel odometry, optical flow) as plottable
+/// values (topic `body_vel`; schema [`BODY_VEL_SCHEMA`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BodyVelocityJson {
+    /// The measurement's time.
+    pub timestamp: JsonTime,
+    /// The body frame the velocity is in (`child_frame_id`).
+    pub frame_id: String,
+    /// What measured it: `odometry` or `flow`.
+    pub source: &'static str,
+    /// Velocity along body x (forward), y (left) and z (up), m/s; `null`
+    /// for an axis the source does not measure.
+    pub vel_mps: [Option<f64>; 3],
+    /// Standard deviation of each axis, m/s (0: not measured).
+    pub sigma_mps: [f64; 3],
+}
+
+/// The JSON schema of [`BodyVelocityJson`].
+pub const BODY_VEL_SCHEMA: &str = r#"{
+  "title": "insuwb.BodyVelocity",
+  "description": "A velocity measured in the body frame (x forward, y left, z up): wheel odometry or optical flow",
+  "type": "object",
+  "properties": {
+    "timestamp": {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}}},
+    "frame_id": {"type": "string", "description": "the body frame"},
+    "source": {"type": "string", "enum": ["odometry", "flow"]},
+    "vel_mps": {"type": "array", "items": {"type": ["number", "null"]}, "description": "x, y, z in m/s; null: not measured"},
+    "sigma_mps": {"type": "array", "items": {"type": "number"}, "description": "standard deviation of x, y, z in m/s; 0: not measured"}
+  }
+}"#;
+
+/// The name of a body velocity's source (`BodyVelocity::SOURCE_*`).
+#[must_use]
+pub fn velocity_source_name(source: u32) -> &'static str {
+    match source {
+        BodyVelocity::SOURCE_ODOMETRY => "odometry",
+        BodyVelocity::SOURCE_FLOW => "flow",
+        _ => "unknown",
+    }
+}
+
+/// A body velocity as [`BodyVelocityJson`] in `body_frame_id`, after the
+/// value check the gates use ([`velocity_values`]).
+///
+/// # Errors
+/// [`ConvertError::Velocity`] for values that cannot be a measurement,
+/// [`ConvertError::Sample`] for a stamp out of range.
+pub fn body_velocity_json(
+    v: &BodyVelocity,
+    body_frame_id: &str,
+    clock: &ClockOffset,
+) -> Result<BodyVelocityJson, ConvertError> {
+    velocity_values(v)?;
+    let t = stamp_ns(v.header.meas_time_ns, clock)?;
+    let axis = |i: usize| (v.sigma_mps[i] > 0.0).then_some(v.vel_mps[i]);
+    Ok(BodyVelocityJson {
+        timestamp: timestamp(t).into(),
+        frame_id: body_frame_id.to_owned(),
+        source: velocity_source_name(v.source),
+        vel_mps: [axis(0), axis(1), axis(2)],
+        sigma_mps: v.sigma_mps,
     })
 }
 
@@ -967,6 +1039,53 @@ mod tests {
             stages: vec![stage_health("imu", None, false, 0, 1)],
         };
         assert_schema_covers(HEALTH_SCHEMA, &serde_json::to_value(h).unwrap());
+    }
+
+    #[test]
+    fn a_body_velocity_shows_its_measured_axes() {
+        let mut v = BodyVelocity {
+            header: Header::new(4, 2_250_000_000),
+            vel_mps: [0.75, -0.125, 9.0],
+            sigma_mps: [0.05, 0.1, 0.0],
+            source: BodyVelocity::SOURCE_FLOW,
+            reserved: 0,
+        };
+        let j = body_velocity_json(&v, "base_link", &ClockOffset::ZERO).unwrap();
+        assert_eq!((j.timestamp.sec, j.timestamp.nsec), (2, 250_000_000));
+        assert_eq!(j.frame_id, "base_link");
+        assert_eq!(j.source, "flow");
+        assert_eq!(j.vel_mps, [Some(0.75), Some(-0.125), None]);
+        assert_eq!(j.sigma_mps, [0.05, 0.1, 0.0]);
+        let json = serde_json::to_value(&j).unwrap();
+        assert!(json["vel_mps"][2].is_null(), "{json}");
+        assert_schema_covers(BODY_VEL_SCHEMA, &json);
+        v.source = BodyVelocity::SOURCE_ODOMETRY;
+        v.sigma_mps = [0.02, 0.0, 0.0];
+        let j = body_velocity_json(&v, "base_link", &ClockOffset::ZERO).unwrap();
+        assert_eq!(
+            (j.source, j.vel_mps),
+            ("odometry", [Some(0.75), None, None])
+        );
+        // The gates' value check: refused with its reason.
+        v.vel_mps[0] = f64::NAN;
+        assert!(matches!(
+            body_velocity_json(&v, "base_link", &ClockOffset::ZERO),
+            Err(ConvertError::Velocity(InvalidVelocity::NonFinite { .. }))
+        ));
+        v.vel_mps[0] = 0.5;
+        v.sigma_mps = [0.0; 3];
+        assert!(matches!(
+            body_velocity_json(&v, "base_link", &ClockOffset::ZERO),
+            Err(ConvertError::Velocity(InvalidVelocity::Sigma { .. }))
+        ));
+        v.sigma_mps = [0.1, 0.0, 0.0];
+        v.source = 7;
+        let e = body_velocity_json(&v, "base_link", &ClockOffset::ZERO).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "ConvertError::Velocity: body velocity source 7 is unknown"
+        );
+        assert_eq!(velocity_source_name(7), "unknown");
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! The live-view loop: subscribes to `fused`, `uwb_fix`, `uwb_tdoa`,
-//! `diag`, `truth` and `health` over iceoryx2 and serves them to the
+//! `diag`, `truth`, `body_vel` and `health` over iceoryx2 and serves them to the
 //! Foxglove app over the Foxglove WebSocket protocol (the `foxglove` SDK's
 //! server, subprotocol `foxglove.sdk.v1`):
 //!
@@ -14,13 +14,18 @@
 //! | `/anchors` | `foxglove.SceneUpdate` | protobuf | one entity per anchor, each health period |
 //! | `/robot` | `foxglove.SceneUpdate` | protobuf | the robot's model in `base_link`, each health period |
 //! | `/diag` | `insuwb.FilterDiag` | json | each filter update: innovations, outlier weights, fading |
+//! | `/body_vel` | `insuwb.BodyVelocity` | json | each body velocity (odometry, optical flow) in `base_link`, once one came |
 //! | `/health` | `insuwb.GroupHealth` | json | each health period: one entry per stage |
 //!
 //! The anchors are the configured ones ([`LiveSetup::anchors`]) and any
 //! other a TDOA sample names. The channels of truth and error exist where
 //! the source publishes truth ([`LiveSetup::truth`]): every channel is
 //! made before the server starts, so that each client gets them all in its
-//! first advertisement. Timestamps and log times: see [`crate::convert`].
+//! first advertisement. The one exception is `body_vel`: no setting says
+//! whether a velocity source publishes, so its channel is made (and
+//! advertised to the clients connected then) at the first body velocity,
+//! and a group without one shows no empty channel. Timestamps and log
+//! times: see [`crate::convert`].
 //!
 //! The loop ([`insuwb_report::report_loop`], the ROS 2 bridge's) sleeps in
 //! the stage's `Waiter`: it wakes for each fused state, drains every other
@@ -44,8 +49,8 @@ use std::time::Duration;
 use foxglove::messages::{FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate};
 use foxglove::{Channel, Context, PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
 use insuwb_msg::{
-    topics, FilterDiag, FoxgloveCounters, FusedState, GroundTruth, Health, StageCounters, UwbFix,
-    UwbTdoa,
+    topics, BodyVelocity, FilterDiag, FoxgloveCounters, FusedState, GroundTruth, Health,
+    StageCounters, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
@@ -128,6 +133,8 @@ pub struct LiveStats {
     pub errors: u64,
     /// Filter diagnostics.
     pub diags: u64,
+    /// Body velocities.
+    pub velocities: u64,
     /// Health messages.
     pub health: u64,
     /// Samples no conversion accepted.
@@ -161,11 +168,22 @@ struct Inputs {
     tdoa: Sub<UwbTdoa>,
     diag: Sub<FilterDiag>,
     truth: Sub<GroundTruth>,
+    body_vel: Sub<BodyVelocity>,
     health: Sub<Health>,
 }
 
 /// A channel of JSON messages with a JSON schema.
 struct JsonChannel(Arc<RawChannel>);
+
+/// A channel made at its first message (`body_vel`).
+enum LazyChannel {
+    /// No message yet.
+    NotYet,
+    /// Made.
+    Open(JsonChannel),
+    /// Making it failed (said once): its messages are not shown.
+    Failed,
+}
 
 /// The Foxglove side: channels, server, runtime, what was logged.
 struct Outputs {
@@ -189,6 +207,8 @@ struct Outputs {
     robot: Channel<SceneUpdate>,
     diag: JsonChannel,
     health: JsonChannel,
+    /// Body velocities, from the first one on.
+    body_vel: LazyChannel,
     /// Truth and position error, where the source has truth.
     truth: Option<(Channel<PoseInFrame>, JsonChannel)>,
     // Dropped in order: the server before its runtime.
@@ -252,6 +272,7 @@ impl LiveView {
             tdoa: stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?,
             diag: stage.subscriber::<FilterDiag>(topics::DIAG)?,
             truth: stage.subscriber::<GroundTruth>(topics::TRUTH)?,
+            body_vel: stage.subscriber::<BodyVelocity>(topics::BODY_VEL)?,
             health: stage.subscriber::<Health>(topics::HEALTH)?,
         };
         let health = stage.health_reporter()?;
@@ -331,6 +352,7 @@ impl LiveView {
                 robot,
                 diag,
                 health: health_ch,
+                body_vel: LazyChannel::NotYet,
                 truth,
                 server: Some(server),
                 runtime: Some(runtime),
@@ -459,6 +481,32 @@ impl ReportOutputs for Outputs {
             }
         })?;
         self.anchors_changed |= changed;
+        let Self {
+            stats,
+            body_vel,
+            _ctx: ctx,
+            setup,
+            ..
+        } = self;
+        let body_frame = setup.foxglove.child_frame_id.as_str();
+        inputs.body_vel.drain(|v| {
+            if v.header.pub_time_ns < opened_ns {
+                stats.old += 1;
+                return;
+            }
+            match convert::body_velocity_json(&v, body_frame, clock) {
+                Ok(j) => {
+                    let t =
+                        u64::from(j.timestamp.sec) * 1_000_000_000 + u64::from(j.timestamp.nsec);
+                    if let Some(ch) = body_vel.get(ctx, &setup.foxglove) {
+                        if ch.log(&j, t) {
+                            stats.velocities += 1;
+                        }
+                    }
+                }
+                Err(e) => invalid(stats, "body velocity", v.header.seq, &e),
+            }
+        })?;
         let now = monotonic_ns();
         inputs.health.drain(|h| group.note_heartbeat(h, now))?;
         Ok(())
@@ -503,12 +551,13 @@ impl ReportOutputs for Outputs {
             inputs.tdoa.stats(),
             inputs.diag.stats(),
             inputs.truth.stats(),
+            inputs.body_vel.stats(),
             inputs.health.stats(),
         ] {
             c.add_sub(&st);
         }
         let s = &self.stats;
-        c.published = s.poses + s.fixes + s.truth + s.errors + s.diags + s.health;
+        c.published = s.poses + s.fixes + s.truth + s.errors + s.diags + s.velocities + s.health;
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
         let clients = self.server.as_ref().map_or(0, |h| h.client_count());
@@ -519,6 +568,33 @@ impl ReportOutputs for Outputs {
             clients: clients as u64,
         });
         c
+    }
+}
+
+impl LazyChannel {
+    /// The channel, made now if this is its first message; `None` when
+    /// making it failed (said once, as a warning).
+    fn get(&mut self, ctx: &Arc<Context>, c: &FoxgloveConfig) -> Option<&JsonChannel> {
+        if matches!(self, Self::NotYet) {
+            let topic = "body_vel";
+            debug_assert!(TOPICS.contains(&topic), "{topic} missing in TOPICS");
+            *self = match json_channel(
+                ctx,
+                c.topic(topic),
+                "insuwb.BodyVelocity",
+                convert::BODY_VEL_SCHEMA,
+            ) {
+                Ok(ch) => Self::Open(ch),
+                Err(e) => {
+                    tracing::warn!("body velocities not shown: {e}");
+                    Self::Failed
+                }
+            };
+        }
+        match self {
+            Self::Open(ch) => Some(ch),
+            Self::NotYet | Self::Failed => None,
+        }
     }
 }
 

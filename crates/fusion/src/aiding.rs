@@ -4,8 +4,8 @@
 //! A velocity sensor reads its speed with a scale error: wheel odometry
 //! through the wheel radius, tyre wear and slip; optical flow through the
 //! lens model and the floor's texture (on the UTIL flights the Flow deck
-//! reads 0.74-0.92 of the motion capture's body velocity, a different
-//! factor on each flight: `docs/REAL_FLIGHTS.md`). Fused as if exact, such a
+//! reads 0.77-1.06 of the motion capture's body velocity, a different
+//! factor on each flight: `tools/util_flow_check.py`). Fused as if exact, such a
 //! sensor pulls the velocity, then the position, away from the UWB for as
 //! long as the vehicle moves. [`ScaleEstimator`] estimates the factor `s`
 //! of `measured = s · true` online, one per source, with a scalar Kalman
@@ -20,13 +20,29 @@
 use serde::{Deserialize, Serialize};
 
 /// Settings of the velocity updates, per source (`[fusion.aiding]`).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AidingConfig {
+    /// Longest a body velocity waits for the UWB stream to reach its time,
+    /// s: the engine applies it once a UWB measurement at or after its
+    /// time has arrived (the order `insuwb eval` applies them in, whichever
+    /// process delivers first), or, while UWB is silent, once the INS is
+    /// this far past it. Default 0.25.
+    pub wait_s: f64,
     /// Optical flow's scale factor estimate.
     pub flow: ScaleConfig,
     /// Wheel odometry's scale factor estimate.
     pub odometry: ScaleConfig,
+}
+
+impl Default for AidingConfig {
+    fn default() -> Self {
+        Self {
+            wait_s: 0.25,
+            flow: ScaleConfig::default(),
+            odometry: ScaleConfig::default(),
+        }
+    }
 }
 
 /// The scale factor of one velocity source and the weight of its updates.
@@ -61,6 +77,9 @@ impl Default for ScaleConfig {
 /// An [`AidingConfig`] value out of range.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum AidingConfigError {
+    /// The wait is negative, not finite or above 5 s.
+    #[error("aiding.wait_s must be finite and within [0, 5] s, got {0}")]
+    Wait(f64),
     /// A value is out of its range.
     #[error("aiding.{source_name}.{key} must be {range}, got {value}")]
     Value {
@@ -81,6 +100,9 @@ impl AidingConfig {
     /// # Errors
     /// [`AidingConfigError::Value`].
     pub fn validate(&self) -> Result<(), AidingConfigError> {
+        if !(self.wait_s.is_finite() && (0.0..=5.0).contains(&self.wait_s)) {
+            return Err(AidingConfigError::Wait(self.wait_s));
+        }
         for (source_name, c) in [("flow", &self.flow), ("odometry", &self.odometry)] {
             for (key, value, ok, range) in [
                 (
@@ -125,6 +147,39 @@ impl AidingConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// The scale factors of both sources, as an estimator holds them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VelocityScales {
+    /// Optical flow's.
+    pub flow: ScaleEstimator,
+    /// Wheel odometry's.
+    pub odometry: ScaleEstimator,
+}
+
+impl VelocityScales {
+    /// Each at its prior in `aiding`.
+    #[must_use]
+    pub fn new(aiding: &AidingConfig) -> Self {
+        Self {
+            flow: ScaleEstimator::new(aiding.flow.clone()),
+            odometry: ScaleEstimator::new(aiding.odometry.clone()),
+        }
+    }
+
+    /// The flow's and the odometry's factors (`measured / true`) and their
+    /// standard deviations.
+    #[must_use]
+    pub fn scales(&self) -> [(f64, f64); 2] {
+        [self.flow.scale(), self.odometry.scale()]
+    }
+}
+
+impl Default for VelocityScales {
+    fn default() -> Self {
+        Self::new(&AidingConfig::default())
     }
 }
 

@@ -194,6 +194,7 @@ pub fn build_estimator(
         PaperEstimator::new(f, cfg.loose.clone(), cfg.setup.p0())
             .with_gravity(cfg.ins.ins.gravity_mps2)
             .with_vibration(cfg.vibration.clone())
-            .with_vehicle(&vehicle),
+            .with_vehicle(&vehicle)
+            .with_aiding(&cfg.aiding),
     ))
 }

@@ -229,8 +229,9 @@ pub enum Measurement {
     Tdoa(UwbTdoa),
     /// A body-frame velocity (odometry, flow): an aiding update of the
     /// filters that take one ([`Estimator::update_velocity`]). In tight
-    /// coupling its correction goes out with its epoch's; it neither
-    /// initialises nor resets the filter.
+    /// coupling its correction goes out with its epoch's; a loose filter
+    /// publishes nothing for it, its correction goes out with the next
+    /// fix's. It neither initialises nor resets the filter.
     Velocity(BodyVelocity),
 }
 
@@ -296,6 +297,12 @@ pub struct FusionEngine {
     reset_unreported: bool,
     /// Where the tight coupling's correction epochs start ([`FusionEngine::align_to`]).
     epoch_phase_ns: u64,
+    /// Time of the newest UWB measurement received of the stream the
+    /// estimator updates from (TDOA differences tight, fixes loose), ns.
+    uwb_newest_ns: Option<u64>,
+    /// How long a body velocity waits for the UWB stream, ns
+    /// ([`FusionEngine::with_velocity_wait`]).
+    velocity_wait_ns: u64,
 }
 
 /// An empty queue with room for `n` items whose memory was written once
@@ -338,7 +345,22 @@ impl FusionEngine {
             monitor,
             reset_unreported: false,
             epoch_phase_ns: 0,
+            uwb_newest_ns: None,
+            velocity_wait_ns: 250_000_000,
         }
+    }
+
+    /// How long a body velocity waits for the UWB stream to reach its time,
+    /// s (`[fusion.aiding] wait_s`, default 0.25): it is applied once a UWB
+    /// measurement at or after its time has arrived, or once the INS is
+    /// this far past it. The filters then see the measurements in time
+    /// order whichever process delivers first, as in `insuwb eval`.
+    #[must_use]
+    pub fn with_velocity_wait(mut self, wait_s: f64) -> Self {
+        if wait_s.is_finite() && wait_s >= 0.0 {
+            self.velocity_wait_ns = (wait_s * 1e9) as u64;
+        }
+        self
     }
 
     /// Records one update at `t_ns` in the divergence monitor: its NIS, or
@@ -457,9 +479,12 @@ impl FusionEngine {
         self.correction_id = self.correction_id.max(id);
     }
 
-    /// A fused state built on the newest INS state alone (INS-only
-    /// coasting), flagged [`FusedState::FLAG_DEGRADED`]; when to publish it
-    /// is [`crate::output::OutputPolicy`]'s call.
+    /// A fused state built on the newest INS state (coasting), corrected
+    /// by the estimate the filter holds and has not sent yet
+    /// ([`Estimator::pending_correction`]: a loose filter's body-velocity
+    /// updates and vehicle constraints since the last fix; zero for the
+    /// INS alone), flagged [`FusedState::FLAG_DEGRADED`]; when to publish
+    /// it is [`crate::output::OutputPolicy`]'s call.
     #[must_use]
     pub fn coasting_state(&mut self) -> Option<FusedState> {
         let n = *self.latest_nav()?;
@@ -469,7 +494,13 @@ impl FusionEngine {
             vel_mps: n.vel_mps,
             quat: n.quat,
         };
-        let mut f = self.fused_from(&ins, &Delta::default(), &n);
+        let pending = self.est.pending_correction();
+        let delta = if pending.is_finite() {
+            pending
+        } else {
+            Delta::default()
+        };
+        let mut f = self.fused_from(&ins, &delta, &n);
         f.header.flags |= FusedState::FLAG_DEGRADED;
         Some(f)
     }
@@ -595,6 +626,17 @@ impl FusionEngine {
             return;
         }
         let t = m.time();
+        // The UWB stream the estimator updates from: TDOA differences for
+        // the tight filter (a fix is published before the differences that
+        // completed it, so its time runs ahead of them), fixes for a loose one.
+        let uwb = match m {
+            Measurement::Tdoa(_) => self.est.is_tight(),
+            Measurement::Fix(_) => !self.est.is_tight(),
+            Measurement::Velocity(_) => false,
+        };
+        if uwb {
+            self.uwb_newest_ns = Some(self.uwb_newest_ns.map_or(t, |u| u.max(t)));
+        }
         // Keep `pending` sorted by time (stable for equal times).
         let idx = self.pending.partition_point(|p| p.time() <= t);
         self.pending.insert(idx, m);
@@ -641,6 +683,15 @@ impl FusionEngine {
     fn process(&mut self, out: &mut Outputs) {
         while let Some(m) = self.pending.front().copied() {
             let t_m = m.time();
+            // A body velocity waits for the UWB stream to pass its time.
+            if matches!(m, Measurement::Velocity(_))
+                && self.uwb_newest_ns.is_none_or(|u| u < t_m)
+                && !self.latest_nav().is_some_and(|n| {
+                    n.header.meas_time_ns >= t_m.saturating_add(self.velocity_wait_ns)
+                })
+            {
+                return;
+            }
             // Tight coupling: close the previous epoch before touching the next one.
             if let Some((epoch, _, _)) = self.dirty {
                 if self.epoch_of(t_m) != epoch {
@@ -806,9 +857,13 @@ impl FusionEngine {
             if m.header().flags & UwbTdoa::FLAG_EPOCH_END != 0 {
                 self.emit_epoch(out);
             }
-        } else {
+        } else if !matches!(m, Measurement::Velocity(_)) {
             self.emit(&m, &ins, out);
         }
+        // A loose filter's body-velocity update publishes nothing: the
+        // estimate it leaves is propagated by the filter, goes out with the
+        // next fix's correction and shows in the coasting state meanwhile
+        // (`Estimator::pending_correction`).
     }
 
     fn emit_epoch(&mut self, out: &mut Outputs) {
@@ -1310,6 +1365,63 @@ mod tests {
         e.on_measurement(Measurement::Fix(fix(5_000_000, [1.0, 2.0, 0.0])), &mut out);
         assert_eq!(e.counters().meas_late, 1);
         assert_eq!(e.counters().meas_before_ins, 0);
+    }
+
+    /// A loose filter's body-velocity update publishes neither a fused
+    /// state nor a correction: its estimate waits in the filter, shows in
+    /// the coasting state, and goes out with the next fix's correction.
+    #[test]
+    fn a_loose_velocity_update_goes_out_with_the_next_fix() {
+        let (mut e, mut out) = kf_from_first_fix();
+        for k in 0..=10 {
+            e.on_nav(&nav(k), &mut out);
+        }
+        e.on_measurement(Measurement::Fix(fix(10_000_000, [0.0; 3])), &mut out);
+        assert_eq!(e.counters().resets, 1);
+        let id = e.correction_id();
+        out.clear();
+        // The INS stands still facing east; the wheels read 0.5 m/s forward.
+        let v = BodyVelocity {
+            header: Header::new(0, 15_000_000),
+            vel_mps: [0.5, 0.0, 0.0],
+            sigma_mps: [0.01, 0.0, 0.0],
+            source: BodyVelocity::SOURCE_ODOMETRY,
+            reserved: 0,
+        };
+        e.on_measurement(Measurement::Velocity(v), &mut out);
+        // The INS goes on (far enough past the velocity for it to be used
+        // without a UWB measurement after it).
+        for k in 11..=400 {
+            let n = NavState {
+                correction_id: id,
+                ..nav(k)
+            };
+            e.on_nav(&n, &mut out);
+        }
+        assert_eq!(e.counters().updates, 1, "{:?}", e.counters());
+        assert!(
+            out.fused.is_empty() && out.corrections.is_empty(),
+            "{out:?}"
+        );
+        assert_eq!(out.diag.len(), 1);
+        assert_eq!(e.correction_id(), id);
+        // INS minus truth: about -0.5 m/s east, held by the filter.
+        let pending = e.estimator().pending_correction();
+        assert!((pending.d_vel_mps[0] + 0.5).abs() < 0.01, "{pending:?}");
+        let coast = e.coasting_state().unwrap();
+        assert!((coast.vel_mps[0] - 0.5).abs() < 0.01, "{coast:?}");
+        // The next fix sends it with its own.
+        out.clear();
+        e.on_measurement(
+            Measurement::Fix(fix(400_000_000, [0.2, 0.0, 0.0])),
+            &mut out,
+        );
+        assert_eq!(e.counters().updates, 2, "{:?}", e.counters());
+        assert_eq!(out.fused.len(), 1);
+        let c = out.corrections.first().unwrap();
+        assert!(c.d_vel_mps[0] < -0.3, "{c:?}");
+        assert!(out.fused[0].vel_mps[0] > 0.3, "{:?}", out.fused[0]);
+        assert!(e.estimator().pending_correction().is_zero());
     }
 
     /// A measurement from before the INS's first state (the alignment

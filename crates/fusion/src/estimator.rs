@@ -3,6 +3,7 @@
 //! with UWB fixes, and the tightly coupled 15-state error-state filter fed
 //! with each TDOA measurement.
 
+use crate::aiding::{AidingConfig, ScaleEstimator, VelocityScales};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbTdoa};
 
@@ -109,6 +110,23 @@ pub trait Estimator: std::fmt::Debug + Send {
     }
     /// Returns the navigation error estimate and zeroes it (closed loop).
     fn take_correction(&mut self) -> Delta;
+    /// The navigation error estimate not taken yet, left in place: what
+    /// [`Estimator::take_correction`] would return now. A loose filter's
+    /// body-velocity updates and vehicle constraints move its estimate
+    /// between fixes without a correction going out (it goes out with the
+    /// next fix's); an output built on the INS meanwhile (the coasting
+    /// state) applies this. Default zero: every correction goes out with
+    /// its update.
+    fn pending_correction(&self) -> Delta {
+        Delta::default()
+    }
+    /// The online scale factor estimates (`measured / true`) and their
+    /// standard deviations of the velocity sources, `[flow, odometry]`
+    /// ([`crate::aiding::ScaleEstimator`]); `None` when the estimator has
+    /// none (default).
+    fn aiding_scales(&self) -> Option<[(f64, f64); 2]> {
+        None
+    }
     /// Covariance of `[pe, pn, pu, ve, vn, vu]`.
     fn pos_vel_cov(&self) -> [[f64; 6]; 6];
     /// Whether the estimator asks to be reset because it broke down
@@ -165,6 +183,22 @@ pub struct LooseConfig {
     /// attitude. The arm's velocity (rotation rate x arm) is neglected: the
     /// velocity of a fix is a regression over about a second. Default zero.
     pub lever_arm_m: [f64; 3],
+    /// Body-velocity updates (odometry, flow: [`Estimator::update_velocity`]),
+    /// one per measured axis: an axis whose innovation is beyond this many
+    /// standard deviations of its prediction is weighted down by
+    /// `velocity_kappa / ratio` (its noise inflated by the square of the
+    /// inverse), as the tight filter's `eskf.kappa`. Default 3.
+    pub velocity_kappa: f64,
+    /// Body-velocity updates: an axis beyond this many standard deviations
+    /// is rejected, as the tight filter's `eskf.hard_gate_sigma`. Default 8.
+    pub velocity_gate_sigma: f64,
+    /// The scale factor of a velocity source (`[fusion.aiding]`) is
+    /// observed on baselines: the distance its samples integrate to between
+    /// two UWB fixes at least this far apart (m) against the distance
+    /// between the fixes. The filter's own velocity is no observation of
+    /// it: the source's updates pull that velocity to the source's reading
+    /// over the current factor, whatever the factor. Default 2.
+    pub scale_baseline_m: f64,
 }
 
 impl Default for LooseConfig {
@@ -174,6 +208,9 @@ impl Default for LooseConfig {
             accel_feedback: AccelFeedback::Bias,
             vertical_bandwidth_rps: 0.0,
             lever_arm_m: [0.0; 3],
+            velocity_kappa: 3.0,
+            velocity_gate_sigma: 8.0,
+            scale_baseline_m: 2.0,
         }
     }
 }
@@ -219,6 +256,22 @@ pub enum LooseConfigError {
         /// Its value.
         value: f64,
     },
+    /// `velocity_kappa` is not finite and within (0, 100].
+    #[error("loose.velocity_kappa must be in (0, 100], got {0}")]
+    VelocityKappa(f64),
+    /// `velocity_gate_sigma` is not finite, above `velocity_kappa` and at most 1000.
+    #[error(
+        "loose.velocity_gate_sigma must be > velocity_kappa ({kappa}) and <= 1000, got {value}"
+    )]
+    VelocityGate {
+        /// Its value.
+        value: f64,
+        /// `velocity_kappa`.
+        kappa: f64,
+    },
+    /// `scale_baseline_m` is not finite and within (0, 1000] m.
+    #[error("loose.scale_baseline_m must be in (0, 1000] m, got {0}")]
+    ScaleBaseline(f64),
 }
 
 impl LooseConfig {
@@ -236,8 +289,141 @@ impl LooseConfig {
         if !(w.is_finite() && (0.0..=10.0).contains(&w)) {
             return Err(LooseConfigError::VerticalBandwidth(w));
         }
+        let kappa = self.velocity_kappa;
+        if !(kappa.is_finite() && kappa > 0.0 && kappa <= 100.0) {
+            return Err(LooseConfigError::VelocityKappa(kappa));
+        }
+        let gate = self.velocity_gate_sigma;
+        if !(gate.is_finite() && gate > kappa && gate <= 1000.0) {
+            return Err(LooseConfigError::VelocityGate { value: gate, kappa });
+        }
+        let b = self.scale_baseline_m;
+        if !(b.is_finite() && b > 0.0 && b <= 1000.0) {
+            return Err(LooseConfigError::ScaleBaseline(b));
+        }
         Ok(())
     }
+}
+
+/// Longest interval between two samples of a velocity source (and from
+/// the last one to a fix) that a baseline integrates across, ns.
+const BASELINE_MAX_GAP_NS: u64 = 500_000_000;
+
+/// The displacement a velocity source's samples integrate to since the UWB
+/// fix that opened the baseline ([`LooseConfig::scale_baseline_m`]), for
+/// the source's scale factor.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Baseline {
+    /// The fix that opened it: horizontal position of the body (the
+    /// antenna less its lever arm), m, and its covariance, m^2.
+    start: Option<([f64; 2], [[f64; 2]; 2])>,
+    /// Displacement from the raw measurements, ENU, m.
+    disp_m: [f64; 2],
+    /// Its variance from the samples' noise, m^2.
+    var_m2: f64,
+    /// Time up to which it is integrated (ns), the last sample's
+    /// horizontal velocity (ENU, m/s) and its largest standard deviation.
+    last: Option<(u64, [f64; 2], f64)>,
+}
+
+impl Baseline {
+    /// Integrates a sample at `t_ns` (trapezoid from the previous one); a
+    /// gap longer than [`BASELINE_MAX_GAP_NS`] breaks the baseline.
+    fn push(&mut self, t_ns: u64, vel_en: [f64; 2], sigma: f64) {
+        match self.last {
+            Some((t0, v0, s0)) if t_ns >= t0 && t_ns - t0 <= BASELINE_MAX_GAP_NS => {
+                let dt = (t_ns - t0) as f64 * 1e-9;
+                for (d, (a, b)) in self.disp_m.iter_mut().zip(v0.iter().zip(&vel_en)) {
+                    *d += 0.5 * (a + b) * dt;
+                }
+                let s = 0.5 * (s0 + sigma);
+                self.var_m2 += s * s * dt * dt;
+            }
+            Some((t0, ..)) if t_ns < t0 => return,
+            _ => self.start = None,
+        }
+        self.last = Some((t_ns, vel_en, sigma));
+    }
+
+    /// At a fix at `t_ns`: the baseline's displacement and variance up to
+    /// it, the last sample held (None when the source has not been heard
+    /// from within [`BASELINE_MAX_GAP_NS`]: the baseline is broken).
+    fn extend_to(&mut self, t_ns: u64) -> Option<([f64; 2], f64)> {
+        let Some((t0, v, sigma)) = self.last else {
+            self.start = None;
+            return None;
+        };
+        if t_ns < t0 || t_ns - t0 > BASELINE_MAX_GAP_NS {
+            self.start = None;
+            return None;
+        }
+        let dt = (t_ns - t0) as f64 * 1e-9;
+        for (d, a) in self.disp_m.iter_mut().zip(&v) {
+            *d += a * dt;
+        }
+        self.var_m2 += sigma * sigma * dt * dt;
+        self.last = Some((t_ns, v, sigma));
+        Some((self.disp_m, self.var_m2))
+    }
+
+    /// Opens a baseline at a fix.
+    fn open(&mut self, body_pos: [f64; 2], cov: [[f64; 2]; 2]) {
+        self.start = Some((body_pos, cov));
+        self.disp_m = [0.0; 2];
+        self.var_m2 = 0.0;
+    }
+}
+
+/// At a UWB fix (`body_pos`, horizontal, with covariance `cov`) at `t_ns`:
+/// closes the source's baseline when it is `min_m` long, as an observation
+/// of its scale factor (the distance its samples integrate to against the
+/// distance between the fixes along it), and opens the next one.
+fn close_baseline(
+    base: &mut Baseline,
+    scale: &mut ScaleEstimator,
+    t_ns: u64,
+    body_pos: [f64; 2],
+    cov: [[f64; 2]; 2],
+    min_m: f64,
+) {
+    let Some((disp, var)) = base.extend_to(t_ns) else {
+        return;
+    };
+    let Some((p0, c0)) = base.start else {
+        base.open(body_pos, cov);
+        return;
+    };
+    let dist = disp[0].hypot(disp[1]);
+    if dist < min_m {
+        return;
+    }
+    let u = [disp[0] / dist, disp[1] / dist];
+    let fixes = u[0] * (body_pos[0] - p0[0]) + u[1] * (body_pos[1] - p0[1]);
+    let mut fixes_var = 0.0;
+    for r in 0..2 {
+        for c in 0..2 {
+            fixes_var += u[r] * u[c] * (c0[r][c] + cov[r][c]);
+        }
+    }
+    scale.advance(t_ns);
+    let _ = scale.observe(dist, var.sqrt(), fixes, fixes_var);
+    base.open(body_pos, cov);
+}
+
+/// The measurement `measured` (standard deviation `sigma`) corrected for
+/// the factor of `scale`, and its standard deviation grown by what the
+/// factor is not known to at the predicted value `predicted`: what
+/// [`ScaleEstimator::observe`] returns, without observing.
+fn scale_corrected(
+    scale: &ScaleEstimator,
+    measured: f64,
+    sigma: f64,
+    predicted: f64,
+) -> (f64, f64) {
+    let (s, sd) = scale.scale();
+    let sigma = sigma * scale.config().sigma_factor;
+    let var = sigma * sigma + predicted * predicted * sd * sd;
+    (measured / s, var.sqrt() / s)
 }
 
 /// The paper's filters (KF, SHAF, STF, IAKF) as an [`Estimator`].
@@ -249,6 +435,13 @@ impl LooseConfig {
 /// error state is zeroed (the AR states too: the fitted AR(3) of a MEMS sensor
 /// is nearly white (erratum 19), so their estimate decorrelates within a few
 /// samples and is not worth a protocol field).
+///
+/// Body velocities (odometry, flow) update the error state between fixes
+/// ([`Estimator::update_velocity`]) without a correction of their own: the
+/// state they leave is propagated with the model like any other
+/// (`x <- Phi x` in each prediction, the next update's innovation taken
+/// against `H x`), fed back with the next fix's correction, and shown
+/// meanwhile by [`Estimator::pending_correction`].
 #[derive(Debug)]
 pub struct PaperEstimator {
     filter: Box<dyn insuwb_filter::ErrorFilter>,
@@ -282,6 +475,16 @@ pub struct PaperEstimator {
     ground: Option<(crate::vehicle::GroundConfig, f64)>,
     /// Constraint updates refused by the filter.
     constraint_errors: u64,
+    /// The online scale factors of flow and odometry ([`crate::aiding`])
+    /// and the baselines they are observed on.
+    scales: VelocityScales,
+    flow_baseline: Baseline,
+    odometry_baseline: Baseline,
+    /// Body-velocity components applied (weighted down included), rejected
+    /// by the gate, and refused by the filter.
+    velocity_applied: u64,
+    velocity_rejected: u64,
+    velocity_errors: u64,
 }
 
 impl PaperEstimator {
@@ -307,6 +510,12 @@ impl PaperEstimator {
             mech: insuwb_nav::vehicle::Mechanisation::Free,
             ground: None,
             constraint_errors: 0,
+            scales: VelocityScales::default(),
+            flow_baseline: Baseline::default(),
+            odometry_baseline: Baseline::default(),
+            velocity_applied: 0,
+            velocity_rejected: 0,
+            velocity_errors: 0,
             filter,
             cfg,
             p0,
@@ -425,6 +634,63 @@ impl PaperEstimator {
     #[must_use]
     pub fn constraint_errors(&self) -> u64 {
         self.constraint_errors
+    }
+
+    /// Uses the velocity aiding's settings `aiding`: each source's scale
+    /// factor starts at its prior.
+    #[must_use]
+    pub fn with_aiding(mut self, aiding: &AidingConfig) -> Self {
+        self.scales = VelocityScales::new(aiding);
+        self
+    }
+
+    /// Body-velocity components applied (weighted down included), rejected
+    /// by the gate (`loose.velocity_gate_sigma`), and refused by the filter.
+    #[must_use]
+    pub fn velocity_counts(&self) -> (u64, u64, u64) {
+        (
+            self.velocity_applied,
+            self.velocity_rejected,
+            self.velocity_errors,
+        )
+    }
+
+    /// At a UWB fix: each velocity source's baseline that is long enough
+    /// is an observation of its scale factor ([`LooseConfig::scale_baseline_m`]).
+    fn observe_scales(&mut self, ins: &InsAt, antenna: &InsAt, fix: &UwbFix) {
+        // The body's position: the fix less the lever arm (rotated).
+        let body = [
+            fix.pos_m[0] - (antenna.pos_m[0] - ins.pos_m[0]),
+            fix.pos_m[1] - (antenna.pos_m[1] - ins.pos_m[1]),
+        ];
+        let c = fix.pos_cov_m2;
+        let r = self.filter.r();
+        let cov = if [c[0][0], c[1][1]].iter().all(|v| v.is_finite() && *v > 0.0)
+            && c[0][1].is_finite()
+            && c[1][0].is_finite()
+        {
+            [[c[0][0], c[0][1]], [c[1][0], c[1][1]]]
+        } else {
+            [[r[(0, 0)], 0.0], [0.0, r[(1, 1)]]]
+        };
+        let t = fix.header.meas_time_ns;
+        let min_m = self.cfg.scale_baseline_m;
+        close_baseline(
+            &mut self.odometry_baseline,
+            &mut self.scales.odometry,
+            t,
+            body,
+            cov,
+            min_m,
+        );
+        close_baseline(
+            &mut self.flow_baseline,
+            &mut self.scales.flow,
+            t,
+            body,
+            cov,
+            min_m,
+        );
     }
 
     /// The ground robot's zero lateral velocity: with yaw `psi` (INS minus
@@ -566,11 +832,15 @@ impl Estimator for PaperEstimator {
             return;
         }
         let _ = self.scratch.predict(self.step_s, 0.0, 0.0);
+        // `H x`: a zero innovation also when velocity updates or
+        // constraints left the state away from zero.
+        let x = *self.scratch.state();
         let rep = if self.last_update_vel {
-            self.scratch.update(&nalgebra::SVector::<f64, 4>::zeros())
+            self.scratch
+                .update(&nalgebra::SVector::<f64, 4>::new(x[0], x[1], x[2], x[3]))
         } else {
             self.scratch
-                .update_pos(&nalgebra::SVector::<f64, 2>::zeros())
+                .update_pos(&nalgebra::SVector::<f64, 2>::new(x[0], x[1]))
         };
         if let Ok(r) = rep {
             std::hint::black_box(report_to_info(&r));
@@ -582,6 +852,7 @@ impl Estimator for PaperEstimator {
 
     fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo> {
         let antenna = self.antenna(ins);
+        self.observe_scales(ins, &antenna, fix);
         let ins = &antenna;
         self.vertical = self.vertical_correction(ins, fix);
         let dp = [ins.pos_m[0] - fix.pos_m[0], ins.pos_m[1] - fix.pos_m[1]];
@@ -612,10 +883,129 @@ impl Estimator for PaperEstimator {
         None
     }
 
+    /// Each measured axis `i` of the body velocity, the unit vector `u =
+    /// C e_i` (ENU) of the INS attitude, as a scalar measurement of the
+    /// planar error state: the INS's velocity along the axis, `u . v`,
+    /// minus the measurement corrected for its source's scale factor
+    /// ([`ScaleEstimator::observe`], against the filter's own estimate `u .
+    /// v - H x` and its variance `H P H^T`), with `H` = `u_e` on `δv_e`,
+    /// `u_n` on `δv_n` and `-u_n v_e + u_e v_n` on `δψ` (the axis turned
+    /// by the heading error; the ground constraint's `H` for the lateral
+    /// axis). Weighted down beyond `loose.velocity_kappa` and rejected
+    /// beyond `loose.velocity_gate_sigma`; a plain Kalman update otherwise
+    /// (the adaptive estimators of the fix updates untouched). An axis
+    /// within 60 deg of the vertical is left out: the filter is planar.
+    fn update_velocity(&mut self, ins: &InsAt, m: &BodyVelocity) -> Option<UpdateInfo> {
+        use insuwb_filter::model::{idx, Vec14};
+        let (scale, baseline) = match m.source {
+            BodyVelocity::SOURCE_ODOMETRY => {
+                (&mut self.scales.odometry, &mut self.odometry_baseline)
+            }
+            BodyVelocity::SOURCE_FLOW => (&mut self.scales.flow, &mut self.flow_baseline),
+            _ => return None,
+        };
+        let t_ns = m.header.meas_time_ns;
+        scale.advance(t_ns);
+        let q = ins.quat;
+        let att = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[0], q[1], q[2], q[3],
+        ));
+        // The raw measurement in the navigation frame, for the baseline.
+        let mut body = nalgebra::Vector3::zeros();
+        let mut sigma_max: f64 = 0.0;
+        for (i, (&value, &sigma)) in m.vel_mps.iter().zip(&m.sigma_mps).enumerate() {
+            if sigma > 0.0 {
+                body[i] = value;
+                sigma_max = sigma_max.max(sigma);
+            }
+        }
+        let nav = att * body;
+        baseline.push(t_ns, [nav.x, nav.y], sigma_max);
+        let [ve, vn, vu] = ins.vel_mps;
+        let (kappa, gate) = (self.cfg.velocity_kappa, self.cfg.velocity_gate_sigma);
+        let mut info = UpdateInfo {
+            fading: 1.0,
+            ..UpdateInfo::default()
+        };
+        let mut measured = 0usize;
+        for (i, (&value, &sigma)) in m.vel_mps.iter().zip(&m.sigma_mps).enumerate() {
+            if sigma.is_nan() || sigma <= 0.0 {
+                continue;
+            }
+            let u = att * nalgebra::Vector3::ith(i, 1.0);
+            if u.x * u.x + u.y * u.y < 0.25 {
+                continue;
+            }
+            let mut h = Vec14::zeros();
+            h[idx::VE] = u.x;
+            h[idx::VN] = u.y;
+            h[idx::THETA] = -u.y * ve + u.x * vn;
+            let ins_axis = u.x * ve + u.y * vn + u.z * vu;
+            let x = self.filter.state();
+            let hx = h.dot(x);
+            let hph = h.dot(&(self.filter.covariance() * h)).max(0.0);
+            let (corrected, sd) = scale_corrected(scale, value, sigma, ins_axis - hx);
+            // INS minus measured: `H x` plus the noise.
+            let z = ins_axis - corrected;
+            let r = sd * sd;
+            let v = z - hx;
+            let s = hph + r;
+            let ratio = if s > 0.0 {
+                (v * v / s).sqrt()
+            } else {
+                f64::INFINITY
+            };
+            let k = measured;
+            measured += 1;
+            if let Some(slot) = info.innovation.get_mut(k) {
+                *slot = v;
+            }
+            if let Some(slot) = info.innovation_var.get_mut(k) {
+                *slot = s;
+            }
+            if let Some(slot) = info.r_diag.get_mut(k) {
+                *slot = r;
+            }
+            if ratio.is_nan() || ratio > gate {
+                self.velocity_rejected += 1;
+                info.outlier = true;
+                continue;
+            }
+            let lambda = if ratio > kappa { kappa / ratio } else { 1.0 };
+            if lambda < 1.0 {
+                info.outlier = true;
+            }
+            match self.filter.update_constraint(&h, z, r / (lambda * lambda)) {
+                Ok(_) => {
+                    self.velocity_applied += 1;
+                    if let Some(slot) = info.lambda.get_mut(k) {
+                        *slot = lambda;
+                    }
+                    info.nis += v * v / s;
+                    info.dim += 1;
+                }
+                Err(_) => self.velocity_errors += 1,
+            }
+        }
+        if measured == 0 {
+            return None;
+        }
+        info.rejected = info.dim == 0;
+        Some(info)
+    }
+
     fn take_correction(&mut self) -> Delta {
         let x = self.filter.take_correction();
         let v = self.vertical.take().unwrap_or((0.0, 0.0));
         self.delta_from(&x, v)
+    }
+
+    fn pending_correction(&self) -> Delta {
+        self.delta_from(self.filter.state(), self.vertical.unwrap_or((0.0, 0.0)))
+    }
+
+    fn aiding_scales(&self) -> Option<[(f64, f64); 2]> {
+        Some(self.scales.scales())
     }
 
     fn pos_vel_cov(&self) -> [[f64; 6]; 6] {
@@ -641,6 +1031,8 @@ impl Estimator for PaperEstimator {
         let _ = self.filter.take_correction();
         let _ = self.filter.reset(&self.p0);
         self.vertical = None;
+        self.odometry_baseline = Baseline::default();
+        self.flow_baseline = Baseline::default();
         self.acc_dt = 0.0;
         self.acc_ae = 0.0;
         self.acc_an = 0.0;
@@ -825,6 +1217,116 @@ mod tests {
         assert_eq!(off.take_correction().d_pos_m[2], 0.0);
     }
 
+    fn odometry(t_ns: u64, vel_mps: [f64; 3], sigma_mps: [f64; 3]) -> BodyVelocity {
+        BodyVelocity {
+            header: Header::new(0, t_ns),
+            vel_mps,
+            sigma_mps,
+            source: BodyVelocity::SOURCE_ODOMETRY,
+            reserved: 0,
+        }
+    }
+
+    /// A KF with the odometry's factor fixed at 1 (no scale uncertainty).
+    fn kf_fixed_scale() -> PaperEstimator {
+        let mut cfg = FusionConfig::default();
+        cfg.aiding.odometry.prior_sigma = 0.0;
+        let model = insuwb_filter::PaperModel::new(cfg.model.clone()).unwrap();
+        let f = insuwb_filter::build(FilterKind::Kf, model, &cfg.filter, &cfg.setup).unwrap();
+        PaperEstimator::new(f, LooseConfig::default(), cfg.setup.p0()).with_aiding(&cfg.aiding)
+    }
+
+    /// Facing north, the INS 1 m/s north and 0.2 m/s east; the wheels read
+    /// 0.9 m/s forward and zero to the left (west): the INS is 0.1 m/s too
+    /// fast north and 0.2 m/s east (the heading, far better known than the
+    /// velocity, takes little of it). The estimate is held (pending) until
+    /// taken, and an axis off by far more than its noise is rejected.
+    #[test]
+    fn a_body_velocity_updates_the_planar_error_state() {
+        use insuwb_filter::model::idx;
+        let yaw90 =
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, core::f64::consts::FRAC_PI_2));
+        let ins = InsAt {
+            t_ns: 1_000_000_000,
+            pos_m: [0.0; 3],
+            vel_mps: [0.2, 1.0, 0.0],
+            quat: [yaw90.w, yaw90.i, yaw90.j, yaw90.k],
+        };
+        let mut e = kf_fixed_scale();
+        let p_ve = e.filter().covariance()[(idx::VE, idx::VE)];
+        let info = e
+            .update_velocity(
+                &ins,
+                &odometry(1_000_000_000, [0.9, 0.0, 0.0], [0.01, 0.01, 0.0]),
+            )
+            .unwrap();
+        assert_eq!(info.dim, 2);
+        assert!(!info.rejected && !info.outlier, "{info:?}");
+        // Innovations: forward 1.0 - 0.9, lateral (west) -0.2 - 0 (less
+        // what the forward update moved).
+        assert!((info.innovation[0] - 0.1).abs() < 1e-12, "{info:?}");
+        assert!((info.innovation[1] + 0.2).abs() < 1e-3, "{info:?}");
+        let gain = p_ve / (p_ve + 1e-4);
+        let x = *e.filter().state();
+        assert!((x[idx::VN] - 0.1 * gain).abs() < 3e-3, "{x:?}");
+        assert!((x[idx::VE] - 0.2 * gain).abs() < 3e-3, "{x:?}");
+        let pending = e.pending_correction();
+        assert_eq!(pending.d_vel_mps[..2], [x[idx::VE], x[idx::VN]]);
+        assert_eq!(e.take_correction(), pending);
+        assert!(e.pending_correction().is_zero());
+        // 100 m/s off: beyond the gate, nothing changes.
+        let info = e
+            .update_velocity(
+                &ins,
+                &odometry(1_010_000_000, [-99.0, 0.0, 0.0], [0.01, 0.0, 0.0]),
+            )
+            .unwrap();
+        assert!(info.rejected && info.outlier && info.dim == 0, "{info:?}");
+        assert!(e.pending_correction().is_zero());
+        assert_eq!(e.velocity_counts(), (2, 1, 0));
+        // The vertical axis alone: nothing this planar filter can use.
+        assert!(e
+            .update_velocity(&ins, &odometry(1_020_000_000, [0.0; 3], [0.0, 0.0, 0.1]))
+            .is_none());
+    }
+
+    /// Driving east at 1 m/s with wheels that read 1.1: the odometry's
+    /// displacement between fixes 2 m apart against the fixes' gives the
+    /// factor, from a prior of 1 +- 0.1.
+    #[test]
+    fn the_odometry_scale_is_observed_on_baselines_between_fixes() {
+        let mut cfg = FusionConfig::default();
+        cfg.loose.use_velocity = false;
+        let mut e = build_estimator(FilterKind::Kf, &cfg).unwrap();
+        assert_eq!(e.aiding_scales().unwrap()[1], (1.0, 0.1));
+        for k in 0..=1000u64 {
+            // 100 Hz: odometry every sample, a fix every 10.
+            let t_ns = k * 10_000_000;
+            let x = k as f64 * 0.01;
+            let ins = InsAt {
+                t_ns,
+                pos_m: [x, 0.0, 0.0],
+                vel_mps: [1.0, 0.0, 0.0],
+                quat: [1.0, 0.0, 0.0, 0.0],
+            };
+            let _ = e.update_velocity(&ins, &odometry(t_ns, [1.1, 0.0, 0.0], [0.01, 0.0, 0.0]));
+            if k % 10 == 0 {
+                let f = UwbFix {
+                    header: Header::new(k, t_ns),
+                    pos_m: [x, 0.0, 0.0],
+                    pos_cov_m2: [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 1e-4]],
+                    ..UwbFix::default()
+                };
+                let _ = e.update_fix(&ins, &f);
+            }
+            let _ = e.take_correction();
+        }
+        let [flow, (scale, sigma)] = e.aiding_scales().unwrap();
+        assert_eq!(flow, (1.0, 0.1));
+        assert!((scale - 1.1).abs() < 0.005, "{scale} +- {sigma}");
+        assert!(sigma < 0.01, "{sigma}");
+    }
+
     #[test]
     fn loose_config_validation_names_the_key() {
         let bad = LooseConfig {
@@ -844,5 +1346,31 @@ mod tests {
         let c: LooseConfig = toml::from_str("accel_feedback = \"tilt\"").unwrap();
         assert_eq!(c.accel_feedback, AccelFeedback::Tilt);
         assert!(c.use_velocity);
+        for (c, key) in [
+            (
+                LooseConfig {
+                    velocity_kappa: 0.0,
+                    ..LooseConfig::default()
+                },
+                "loose.velocity_kappa",
+            ),
+            (
+                LooseConfig {
+                    velocity_gate_sigma: 2.0,
+                    ..LooseConfig::default()
+                },
+                "loose.velocity_gate_sigma",
+            ),
+            (
+                LooseConfig {
+                    scale_baseline_m: f64::NAN,
+                    ..LooseConfig::default()
+                },
+                "loose.scale_baseline_m",
+            ),
+        ] {
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.starts_with(key), "{e}");
+        }
     }
 }

@@ -185,7 +185,8 @@ impl Runner {
             ins: InsEngine::new(cfg.ins_engine_config())?,
             fixb: FixBuilder::new(cfg.fix.clone())?.with_calibration(cfg.calibration.clone()),
             tight: est.is_tight(),
-            fusion: FusionEngine::new(cfg.engine.clone(), est),
+            fusion: FusionEngine::new(cfg.engine.clone(), est)
+                .with_velocity_wait(cfg.aiding.wait_s),
             policy_cfg: cfg.output.clone(),
             policy: None,
             newest_nav_ns: None,

@@ -11,7 +11,7 @@
 //! the engine's monitor finds from each update's NIS as for every filter
 //! (and [`Estimator::needs_reset`] when the covariance stops being finite).
 
-use crate::aiding::{AidingConfig, ScaleConfig, ScaleEstimator};
+use crate::aiding::{AidingConfig, VelocityScales};
 use crate::vehicle::{DragMeasurement, DragMeter, GroundConfig, VehicleSettings};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_eskf::{
@@ -146,8 +146,7 @@ pub struct TightEstimator {
     pseudo_applied: u64,
     pseudo_rejected: u64,
     /// The scale factors of flow and odometry.
-    flow_scale: ScaleEstimator,
-    odometry_scale: ScaleEstimator,
+    scales: VelocityScales,
     /// Velocity components (odometry, flow) applied and gated out.
     velocity_applied: u64,
     velocity_rejected: u64,
@@ -189,8 +188,7 @@ impl TightEstimator {
             acc_vel: [0.0; 3],
             pseudo_applied: 0,
             pseudo_rejected: 0,
-            flow_scale: ScaleEstimator::new(ScaleConfig::default()),
-            odometry_scale: ScaleEstimator::new(ScaleConfig::default()),
+            scales: VelocityScales::default(),
             velocity_applied: 0,
             velocity_rejected: 0,
             predict_errors: 0,
@@ -238,16 +236,8 @@ impl TightEstimator {
     /// factor starts at its prior.
     #[must_use]
     pub fn with_aiding(mut self, aiding: &AidingConfig) -> Self {
-        self.flow_scale = ScaleEstimator::new(aiding.flow.clone());
-        self.odometry_scale = ScaleEstimator::new(aiding.odometry.clone());
+        self.scales = VelocityScales::new(aiding);
         self
-    }
-
-    /// The flow's and the odometry's scale factor estimates (`measured /
-    /// true`) and their standard deviations.
-    #[must_use]
-    pub fn velocity_scales(&self) -> [(f64, f64); 2] {
-        [self.flow_scale.scale(), self.odometry_scale.scale()]
     }
 
     /// Body-velocity components (odometry, flow) applied and gated out.
@@ -531,9 +521,9 @@ impl Estimator for TightEstimator {
             ..UpdateInfo::default()
         };
         let scale = if m.source == BodyVelocity::SOURCE_ODOMETRY {
-            &mut self.odometry_scale
+            &mut self.scales.odometry
         } else {
-            &mut self.flow_scale
+            &mut self.scales.flow
         };
         scale.advance(m.header.meas_time_ns);
         let pv = self.eskf.position_velocity_cov();
@@ -586,6 +576,10 @@ impl Estimator for TightEstimator {
         info.rejected = info.dim == 0;
         info.divergence = self.eskf.needs_reset();
         Some(info)
+    }
+
+    fn aiding_scales(&self) -> Option<[(f64, f64); 2]> {
+        Some(self.scales.scales())
     }
 
     fn take_correction(&mut self) -> Delta {

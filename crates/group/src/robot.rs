@@ -205,6 +205,33 @@ pub struct FusionProcessConfig {
     /// covariance prediction on the fix-to-fused path. Negative: off.
     /// Ignored at `speed = "max"` (the drivers run ahead there).
     pub eager_lag_s: f64,
+    /// The velocity sources whose body velocities (topic `body_vel`) aid
+    /// the filter: `flow` (an optical-flow deck, e.g. a replayed UTIL
+    /// flight's) and `odometry` (a wheeled base); empty (default): none,
+    /// the stage does not subscribe. Their weights and scale factors are
+    /// the estimator settings' `[fusion.aiding]`.
+    pub aiding_sources: Vec<AidingSource>,
+}
+
+/// A velocity source the fusion process may use (`[fusion] aiding_sources`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AidingSource {
+    /// Optical flow with a range finder (`BodyVelocity::SOURCE_FLOW`).
+    Flow,
+    /// Wheel odometry (`BodyVelocity::SOURCE_ODOMETRY`).
+    Odometry,
+}
+
+impl AidingSource {
+    /// The `BodyVelocity::source` code of its samples.
+    #[must_use]
+    pub const fn code(self) -> u32 {
+        match self {
+            Self::Flow => insuwb_msg::BodyVelocity::SOURCE_FLOW,
+            Self::Odometry => insuwb_msg::BodyVelocity::SOURCE_ODOMETRY,
+        }
+    }
 }
 
 impl Default for FusionProcessConfig {
@@ -214,6 +241,7 @@ impl Default for FusionProcessConfig {
             config: String::new(),
             checkpoint_period_s: 0.5,
             eager_lag_s: 0.005,
+            aiding_sources: Vec::new(),
         }
     }
 }
@@ -715,7 +743,7 @@ impl DeviceConfig {
 
 /// The keys of the estimator's settings (`insuwb_fusion::config::FusionConfig`'s
 /// tables and values), which robot.toml's `[fusion]` does not hold.
-const ESTIMATOR_KEYS: [&str; 14] = [
+const ESTIMATOR_KEYS: [&str; 15] = [
     "ins",
     "fix",
     "engine",
@@ -730,6 +758,7 @@ const ESTIMATOR_KEYS: [&str; 14] = [
     "multirotor",
     "ground",
     "output",
+    "aiding",
 ];
 
 /// robot.toml's `[fusion]` is the fusion process's table: one of the
@@ -752,7 +781,7 @@ fn check_fusion_keys(text: &str, origin: &str) -> Result<(), ConfigError> {
             return Err(invalid(
                 origin,
                 &format!("fusion.{key}"),
-                "an estimator setting, not the fusion process's: write it in the [fusion] table of the file that `fusion.config` names (e.g. config/util.toml; left empty, the scenario's or the replayed log's own are used); robot.toml's [fusion] holds filter (a name), config, checkpoint_period_s and eager_lag_s",
+                "an estimator setting, not the fusion process's: write it in the [fusion] table of the file that `fusion.config` names (e.g. config/util.toml; left empty, the scenario's or the replayed log's own are used); robot.toml's [fusion] holds filter (a name), config, checkpoint_period_s, eager_lag_s and aiding_sources",
             ));
         }
     }

@@ -1,8 +1,8 @@
 //! The [`Record`] enum: one variant per topic, the payload of every log frame.
 
 use insuwb_msg::{
-    topics, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample, InsCorrection,
-    NavState, UwbFix, UwbTdoa,
+    topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample,
+    InsCorrection, NavState, UwbFix, UwbTdoa,
 };
 use serde::{Deserialize, Serialize};
 
@@ -11,7 +11,8 @@ use serde::{Deserialize, Serialize};
 /// The postcard encoding starts with the variant index (a varint); the
 /// indices are part of the format and frozen: `Imu` = 0, `Tdoa` = 1,
 /// `Fix` = 2, `Nav` = 3, `Correction` = 4, `Fused` = 5, `Diag` = 6,
-/// `Truth` = 7, `Health` = 8. New variants are only ever appended.
+/// `Truth` = 7, `Health` = 8, `BodyVel` = 9. New variants are only ever
+/// appended, so a log written before a variant existed reads unchanged.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum Record {
     /// Raw IMU sample ([`topics::IMU`]).
@@ -32,11 +33,13 @@ pub enum Record {
     Truth(GroundTruth),
     /// Stage health ([`topics::HEALTH`]).
     Health(Health),
+    /// Body-frame velocity: odometry or optical flow ([`topics::BODY_VEL`]).
+    BodyVel(BodyVelocity),
 }
 
 impl Record {
     /// Every topic a record can carry, in variant-index order.
-    pub const TOPICS: [&'static str; 9] = [
+    pub const TOPICS: [&'static str; 10] = [
         topics::IMU,
         topics::UWB_TDOA,
         topics::UWB_FIX,
@@ -46,6 +49,7 @@ impl Record {
         topics::DIAG,
         topics::TRUTH,
         topics::HEALTH,
+        topics::BODY_VEL,
     ];
 
     /// The topic name of this record (from [`insuwb_msg::topics`]).
@@ -61,6 +65,7 @@ impl Record {
             Self::Diag(_) => topics::DIAG,
             Self::Truth(_) => topics::TRUTH,
             Self::Health(_) => topics::HEALTH,
+            Self::BodyVel(_) => topics::BODY_VEL,
         }
     }
 
@@ -77,6 +82,7 @@ impl Record {
             Self::Diag(s) => &s.header,
             Self::Truth(s) => &s.header,
             Self::Health(s) => &s.header,
+            Self::BodyVel(s) => &s.header,
         }
     }
 
@@ -92,6 +98,7 @@ impl Record {
             Self::Diag(s) => &mut s.header,
             Self::Truth(s) => &mut s.header,
             Self::Health(s) => &mut s.header,
+            Self::BodyVel(s) => &mut s.header,
         }
     }
 }
@@ -112,5 +119,6 @@ impl_from_sample!(
     FusedState => Fused,
     FilterDiag => Diag,
     GroundTruth => Truth,
-    Health => Health
+    Health => Health,
+    BodyVelocity => BodyVel
 );

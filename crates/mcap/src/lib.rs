@@ -77,6 +77,8 @@ pub const TOPIC_CORRECTION: &str = "/insuwb/correction";
 pub const TOPIC_DIAG: &str = "/insuwb/diag";
 /// MCAP topic of `truth` as `insuwb_msgs/msg/GroundTruth`.
 pub const TOPIC_TRUTH: &str = "/insuwb/truth";
+/// MCAP topic of `body_vel` as `insuwb_msgs/msg/BodyVelocity`.
+pub const TOPIC_BODY_VEL: &str = "/insuwb/body_vel";
 
 /// The MCAP topics each insuwb topic is written to: one message on each
 /// per record (a record a ROS conversion refuses is counted in
@@ -93,6 +95,7 @@ pub fn mcap_topics(insuwb_topic: &str) -> &'static [&'static str] {
         topics::DIAG => &[TOPIC_DIAG],
         topics::TRUTH => &[TOPIC_TRUTH],
         topics::HEALTH => &[TOPIC_DIAGNOSTICS],
+        topics::BODY_VEL => &[TOPIC_BODY_VEL],
         _ => &[],
     }
 }
@@ -111,7 +114,7 @@ pub const METADATA_NAME: &str = "insuwb_log";
 pub struct ExportOptions {
     /// Frame ids (defaults `map`, `base_link`, `base_link`, as the bridge's
     /// `[ros2]` defaults); the `insuwb_msgs` messages with positions use
-    /// `frame_id` too.
+    /// `frame_id` too, the body velocities `child_frame_id`.
     pub frames: Frames,
     /// `hardware_id` of the diagnostics (default `insuwb`).
     pub hardware_id: String,
@@ -429,6 +432,11 @@ impl<W: Write + Seek> RecordWriter<W> {
             Record::Truth(s) => self.put(
                 TOPIC_TRUTH,
                 &msgs::GroundTruth::from_sample(s, stamp, frame),
+                &h,
+            )?,
+            Record::BodyVel(s) => self.put(
+                TOPIC_BODY_VEL,
+                &msgs::BodyVelocity::from_sample(s, stamp, &frames.child_frame_id),
                 &h,
             )?,
         }

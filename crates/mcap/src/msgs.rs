@@ -1,6 +1,6 @@
 //! The `insuwb_msgs` package: ROS 2 message definitions of the insuwb
 //! samples that have no standard ROS type (`uwb_tdoa`, `uwb_fix`, `nav`,
-//! `correction`, `diag`, `truth`) and of the whole fused state, as serde
+//! `correction`, `diag`, `truth`, `body_vel`) and of the whole fused state, as serde
 //! structs in `.msg` field order, so that CDR encodes them as a ROS 2 node
 //! would and every channel of an export has a `ros2msg` schema.
 //!
@@ -241,6 +241,22 @@ pub struct GroundTruth {
     pub quat: Quaternion,
 }
 
+/// `insuwb_msgs/BodyVelocity`: a velocity measured in the body frame
+/// (`body_vel`: wheel odometry, optical flow).
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct BodyVelocity {
+    /// Stamp and the body frame (`base_link`).
+    pub header: Header,
+    /// The insuwb header.
+    pub sample: SampleHeader,
+    /// Velocity of the body in its own frame (FLU), m/s.
+    pub vel_mps: Vector3,
+    /// Standard deviation of each axis, m/s; 0: the axis is not measured.
+    pub sigma_mps: Vector3,
+    /// What measured it: 1 wheel odometry, 2 optical flow.
+    pub source: u32,
+}
+
 /// `insuwb_msgs/SampleHeader`.
 pub static SAMPLE_HEADER: MsgDef = MsgDef {
     package: PACKAGE,
@@ -343,6 +359,15 @@ pub static GROUND_TRUTH: MsgDef = MsgDef {
     ],
 };
 
+/// `insuwb_msgs/BodyVelocity`.
+pub static BODY_VELOCITY: MsgDef = MsgDef {
+    package: PACKAGE,
+    name: "BodyVelocity",
+    text: "std_msgs/Header header\nSampleHeader sample\ngeometry_msgs/Vector3 vel_mps\n\
+           geometry_msgs/Vector3 sigma_mps\nuint32 source\n",
+    uses: &[&ros::HEADER, &SAMPLE_HEADER, &ros::VECTOR3],
+};
+
 macro_rules! ros_message {
     ($($ty:ident => $def:ident),* $(,)?) => {$(
         impl RosMessage for $ty {
@@ -359,6 +384,7 @@ ros_message!(
     FusedState => FUSED_STATE,
     FilterDiag => FILTER_DIAG,
     GroundTruth => GROUND_TRUTH,
+    BodyVelocity => BODY_VELOCITY,
 );
 
 fn point(v: &[f64; 3]) -> Point {
@@ -544,6 +570,20 @@ impl GroundTruth {
     }
 }
 
+impl BodyVelocity {
+    /// The message of a sample, with its stamp and the body frame.
+    #[must_use]
+    pub fn from_sample(s: &m::BodyVelocity, stamp: Time, body_frame_id: &str) -> Self {
+        Self {
+            header: header(stamp, body_frame_id),
+            sample: (&s.header).into(),
+            vel_mps: vector3(&s.vel_mps),
+            sigma_mps: vector3(&s.sigma_mps),
+            source: s.source,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -558,6 +598,7 @@ mod tests {
             (FusedState::type_name(), FusedState::schema()),
             (FilterDiag::type_name(), FilterDiag::schema()),
             (GroundTruth::type_name(), GroundTruth::schema()),
+            (BodyVelocity::type_name(), BodyVelocity::schema()),
         ] {
             assert!(name.starts_with("insuwb_msgs/msg/"), "{name}");
             assert!(schema.starts_with("std_msgs/Header header\nSampleHeader sample\n"));

@@ -70,6 +70,13 @@ fn one_of_each(t_ns: u64) -> Vec<Record> {
             pid: 7,
             ..Default::default()
         }),
+        Record::BodyVel(m::BodyVelocity {
+            header: hdr(10, t_ns),
+            vel_mps: [0.5, -0.25, 0.0],
+            sigma_mps: [0.05, 0.05, 0.0],
+            source: m::BodyVelocity::SOURCE_FLOW,
+            reserved: 0,
+        }),
     ]
 }
 
@@ -126,6 +133,7 @@ fn every_topic_gets_its_channel_and_schema() {
         (TOPIC_DIAG, "insuwb_msgs/msg/FilterDiag"),
         (TOPIC_TRUTH, "insuwb_msgs/msg/GroundTruth"),
         (TOPIC_DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray"),
+        (TOPIC_BODY_VEL, "insuwb_msgs/msg/BodyVelocity"),
     ];
     assert_eq!(got.len(), want.len());
     for (topic, ty) in want {
@@ -144,7 +152,25 @@ fn every_topic_gets_its_channel_and_schema() {
         }
     }
     assert!(stats.skipped.is_empty());
-    assert_eq!(stats.total_messages(), 11);
+    assert_eq!(stats.total_messages(), 12);
+}
+
+#[test]
+fn a_body_velocity_is_its_sample_in_the_body_frame() {
+    let recs = one_of_each(3_000_000_007);
+    let (bytes, _) = export_to_vec(&recs);
+    let got = read(&bytes);
+    let Some(Record::BodyVel(v)) = recs.last() else {
+        panic!()
+    };
+    let stamp = Time { sec: 3, nanosec: 7 };
+    let want = msgs::BodyVelocity::from_sample(v, stamp, "base_link");
+    assert_eq!(want.header.frame_id, "base_link");
+    assert_eq!((want.vel_mps.x, want.vel_mps.y), (0.5, -0.25));
+    assert_eq!((want.sigma_mps.x, want.sigma_mps.z), (0.05, 0.0));
+    assert_eq!(want.source, m::BodyVelocity::SOURCE_FLOW);
+    assert_eq!(want.sample.seq, 10);
+    assert_eq!(got[TOPIC_BODY_VEL][0].3, cdr::encode(&want, "x").unwrap());
 }
 
 #[test]
@@ -286,9 +312,11 @@ fn a_cut_log_exports_its_whole_records_and_says_where_it_stopped() {
     assert_eq!(s.stats.total_records(), 19);
     let got = read(&std::fs::read(&out).unwrap());
     let n: usize = got.values().map(Vec::len).sum();
-    // 19 records = two rounds (2 x 11 messages) and the first record of the third.
+    // 19 records = the first round (10 records, 12 messages) and the
+    // second but its body velocity (9 records, 11 messages).
     assert_eq!(n, 23);
-    assert_eq!(got[TOPIC_IMU].len(), 3);
+    assert_eq!(got[TOPIC_IMU].len(), 2);
+    assert_eq!(got[TOPIC_BODY_VEL].len(), 1);
 }
 
 #[test]
@@ -309,7 +337,7 @@ fn a_run_directory_exports_every_segment_in_order_past_a_cut() {
     assert_eq!(s.cuts.len(), 2);
     assert_eq!(s.cuts[0].records, 4);
     assert_eq!(s.cuts[1].report.last_good_offset, 0);
-    assert_eq!(s.stats.total_records(), 4 + 18);
+    assert_eq!(s.stats.total_records(), 4 + 2 * Record::TOPICS.len() as u64);
     let got = read(&std::fs::read(&out).unwrap());
     assert_eq!(got[TOPIC_IMU].len(), 3);
     let times: Vec<u64> = got[TOPIC_IMU].iter().map(|m| m.4).collect();

@@ -175,7 +175,7 @@ pub(crate) fn cleanup_dead_nodes_of(iox: &Config) -> Result<usize, CleanupError>
 }
 
 /// The topics whose sample type this crate knows (for port counts).
-const KNOWN_TOPICS: [&str; 9] = [
+const KNOWN_TOPICS: [&str; 10] = [
     topics::IMU,
     topics::UWB_TDOA,
     topics::UWB_FIX,
@@ -185,6 +185,7 @@ const KNOWN_TOPICS: [&str; 9] = [
     topics::CORRECTION,
     topics::HEALTH,
     topics::TRUTH,
+    topics::BODY_VEL,
 ];
 
 fn pubsub_counts(node: &Node<crate::service::Ipc>, topic: &str) -> Option<(usize, usize)> {
@@ -207,6 +208,7 @@ fn pubsub_counts(node: &Node<crate::service::Ipc>, topic: &str) -> Option<(usize
         topics::CORRECTION => counts::<InsCorrection>(node, topic),
         topics::HEALTH => counts::<Health>(node, topic),
         topics::TRUTH => counts::<GroundTruth>(node, topic),
+        topics::BODY_VEL => counts::<BodyVelocity>(node, topic),
         _ => None,
     }
 }

@@ -1,10 +1,12 @@
 //! Deterministic simulator: trajectories, IMU errors, UWB TDOA with noise and
-//! NLOS outlier bursts.
+//! NLOS outlier bursts, wheel odometry and optical flow.
 //!
 //! A [`Scenario`] (the `[sim]` table of a scenario file) and a seed give,
 //! through [`simulate`], bit-identical [`insuwb_msg::ImuSample`],
-//! [`insuwb_msg::UwbTdoa`] and [`insuwb_msg::GroundTruth`] streams (times in
-//! ns from 0, `seq` from 0 per stream). The randomness comes from one
+//! [`insuwb_msg::UwbTdoa`], [`insuwb_msg::GroundTruth`] and, when the
+//! scenario has `[sim.odometry]` or `[sim.flow]`,
+//! [`insuwb_msg::BodyVelocity`] streams (times in ns from 0, `seq` from 0
+//! per stream). The randomness comes from one
 //! seeded generator of the rand family, one stream per random quantity
 //! ([`rng`]).
 //!
@@ -33,8 +35,9 @@ pub use run::{
     simulate, ImuErrorRealisation, InitialState, SimError, SimOutput, SimRecord, TdoaTruth,
 };
 pub use scenario::{
-    Anchor, AnchorSet, Dimension, Dropout, ImuErrors, InitialError, NoiseModel, OutlierBurst,
-    PairMode, RandomNlos, Scenario, ScenarioConfigError, ScenarioError, UwbConfig,
+    Anchor, AnchorSet, Dimension, Dropout, FlowConfig, ImuErrors, InitialError, NoiseModel,
+    OdometryConfig, OutlierBurst, PairMode, RandomNlos, Scenario, ScenarioConfigError,
+    ScenarioError, UwbConfig,
 };
 pub use trajectory::{
     CirclePath, Figure8Path, Kinematics, LissajousPath, StaticPose, Trajectory, TrajectoryError,
@@ -42,7 +45,7 @@ pub use trajectory::{
 };
 
 /// The built-in scenarios: `(name, TOML text)`; the files live in `config/scenarios/`.
-const BUILTINS: [(&str, &str); 4] = [
+const BUILTINS: [(&str, &str); 5] = [
     (
         "paper-3.4",
         include_str!("../../../config/scenarios/paper-3.4.toml"),
@@ -59,10 +62,20 @@ const BUILTINS: [(&str, &str); 4] = [
         "nlos-long",
         include_str!("../../../config/scenarios/nlos-long.toml"),
     ),
+    (
+        "ground-outage",
+        include_str!("../../../config/scenarios/ground-outage.toml"),
+    ),
 ];
 
 /// Names of the built-in scenarios (the file names without `.toml`).
-const BUILTIN_NAMES: [&str; 4] = [BUILTINS[0].0, BUILTINS[1].0, BUILTINS[2].0, BUILTINS[3].0];
+const BUILTIN_NAMES: [&str; 5] = [
+    BUILTINS[0].0,
+    BUILTINS[1].0,
+    BUILTINS[2].0,
+    BUILTINS[3].0,
+    BUILTINS[4].0,
+];
 
 /// The TOML text of a built-in scenario, by name (e.g. `"paper-3.4"`).
 #[must_use]

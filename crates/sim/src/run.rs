@@ -1,16 +1,19 @@
 //! The simulation run: samples the trajectory into ground truth and ideal
-//! IMU readings, adds the IMU errors, and measures UWB TDOA differences with
-//! noise, anchor biases, NLOS excess paths and dropouts.
+//! IMU readings, adds the IMU errors, measures UWB TDOA differences with
+//! noise, anchor biases, NLOS excess paths and dropouts, and, when the
+//! scenario has them, body velocities from wheel odometry and optical flow.
 //!
 //! Every random quantity draws from its own stream of the seed
 //! ([`crate::rng::stream`]); the output is a pure function of the
 //! scenario and the seed.
 
-use insuwb_msg::{GroundTruth, Header, ImuSample, UwbTdoa};
+use insuwb_msg::{BodyVelocity, GroundTruth, Header, ImuSample, UwbTdoa};
 use thiserror::Error;
 
 use crate::rng::{self, Noise};
-use crate::scenario::{sample_count, NoiseModel, Scenario, ScenarioConfigError};
+use crate::scenario::{
+    sample_count, velocity_times, Dropout, NoiseModel, Scenario, ScenarioConfigError,
+};
 use crate::trajectory::{TrajectoryError, TrajectoryModel};
 
 /// Random stream of the IMU bias signs.
@@ -25,6 +28,10 @@ const STREAM_OUTLIERS: u64 = 4;
 const STREAM_RANDOM_NLOS: u64 = 5;
 /// Random stream of the initial INS errors.
 const STREAM_INITIAL: u64 = 6;
+/// Random stream of the wheel odometry's noise.
+const STREAM_ODOMETRY: u64 = 7;
+/// Random stream of the optical flow's noise.
+const STREAM_FLOW: u64 = 8;
 
 /// Degrees to radians.
 const DEG: f64 = core::f64::consts::PI / 180.0;
@@ -87,6 +94,13 @@ pub struct SimOutput {
     pub truth: Vec<GroundTruth>,
     /// Decomposition of each entry of `tdoa` (same index).
     pub tdoa_truth: Vec<TdoaTruth>,
+    /// Body-frame velocities of the wheel odometry
+    /// ([`BodyVelocity::SOURCE_ODOMETRY`]) and the optical flow
+    /// ([`BodyVelocity::SOURCE_FLOW`]) when the scenario has them, merged
+    /// by time (no two at one time: the scenario's validation sees to
+    /// it), `seq` counting from 0 over the merged stream. Empty without
+    /// `[sim.odometry]` and `[sim.flow]`.
+    pub velocity: Vec<BodyVelocity>,
     /// The IMU biases drawn for this run.
     pub imu_errors: ImuErrorRealisation,
 }
@@ -100,6 +114,8 @@ pub enum SimRecord {
     Imu(ImuSample),
     /// TDOA difference.
     Tdoa(UwbTdoa),
+    /// Body-frame velocity (odometry, flow).
+    Velocity(BodyVelocity),
 }
 
 impl SimRecord {
@@ -110,35 +126,42 @@ impl SimRecord {
             Self::Truth(s) => s.header.meas_time_ns,
             Self::Imu(s) => s.header.meas_time_ns,
             Self::Tdoa(s) => s.header.meas_time_ns,
+            Self::Velocity(s) => s.header.meas_time_ns,
         }
     }
 
-    /// Tie-break rank at equal times: truth 0, IMU 1, UWB 2.
+    /// Tie-break rank at equal times: truth 0, IMU 1, UWB 2, velocity 3.
     fn rank(&self) -> u8 {
         match self {
             Self::Truth(_) => 0,
             Self::Imu(_) => 1,
             Self::Tdoa(_) => 2,
+            Self::Velocity(_) => 3,
         }
     }
 }
 
 impl SimOutput {
     /// All samples in one stream ordered by measurement time; at equal times
-    /// truth comes first, then IMU, then UWB (each stream keeps its own order).
+    /// truth comes first, then IMU, then UWB, then body velocities (each
+    /// stream keeps its own order).
     #[must_use]
     pub fn merged(&self) -> Vec<SimRecord> {
-        let mut out = Vec::with_capacity(self.imu.len() + self.tdoa.len() + self.truth.len());
-        let (mut t, mut i, mut u) = (
+        let mut out = Vec::with_capacity(
+            self.imu.len() + self.tdoa.len() + self.truth.len() + self.velocity.len(),
+        );
+        let (mut t, mut i, mut u, mut v) = (
             self.truth.iter().peekable(),
             self.imu.iter().peekable(),
             self.tdoa.iter().peekable(),
+            self.velocity.iter().peekable(),
         );
         loop {
             let cands = [
                 t.peek().map(|s| SimRecord::Truth(**s)),
                 i.peek().map(|s| SimRecord::Imu(**s)),
                 u.peek().map(|s| SimRecord::Tdoa(**s)),
+                v.peek().map(|s| SimRecord::Velocity(**s)),
             ];
             let best = cands
                 .iter()
@@ -155,6 +178,9 @@ impl SimOutput {
                 }
                 SimRecord::Tdoa(_) => {
                     u.next();
+                }
+                SimRecord::Velocity(_) => {
+                    v.next();
                 }
             }
             out.push(rec);
@@ -236,13 +262,123 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Result<SimOutput, SimError> {
         })?;
     let (imu, truth, imu_errors) = simulate_imu(scenario, &model, seed)?;
     let (tdoa, tdoa_truth) = simulate_uwb(scenario, &model, seed)?;
+    let velocity = simulate_velocity(scenario, &model, seed)?;
     Ok(SimOutput {
         imu,
         tdoa,
         truth,
         tdoa_truth,
+        velocity,
         imu_errors,
     })
+}
+
+/// Whether `t_ns` falls inside one of the dropouts.
+fn dropped(dropouts: &[Dropout], t_ns: u64) -> bool {
+    dropouts
+        .iter()
+        .any(|d| to_ns(d.start_s) <= t_ns && t_ns < to_ns(d.start_s + d.duration_s))
+}
+
+/// One body-velocity sensor of the scenario, as the simulation needs it.
+struct VelocitySensor<'a> {
+    source: u32,
+    rate_hz: f64,
+    offset_s: f64,
+    dropouts: &'a [Dropout],
+    stream: u64,
+    /// Scale factor per body axis.
+    scale: [f64; 3],
+    /// Standard deviation per body axis; 0: not measured (reported 0).
+    sigma: [f64; 3],
+    /// Which axes report the true velocity (the others report zero plus
+    /// their noise: the odometry's lateral axis).
+    measures: [bool; 3],
+}
+
+/// The odometry and flow samples of the run, merged by time.
+fn simulate_velocity(
+    sc: &Scenario,
+    model: &TrajectoryModel,
+    seed: u64,
+) -> Result<Vec<BodyVelocity>, SimError> {
+    let mut sensors = Vec::new();
+    if let Some(o) = &sc.odometry {
+        sensors.push(VelocitySensor {
+            source: BodyVelocity::SOURCE_ODOMETRY,
+            rate_hz: o.rate_hz,
+            offset_s: o.offset_s,
+            dropouts: &o.dropouts,
+            stream: STREAM_ODOMETRY,
+            scale: [o.scale, 1.0, 1.0],
+            sigma: [o.sigma_mps, o.lateral_sigma_mps, 0.0],
+            measures: [true, false, false],
+        });
+    }
+    if let Some(f) = &sc.flow {
+        sensors.push(VelocitySensor {
+            source: BodyVelocity::SOURCE_FLOW,
+            rate_hz: f.rate_hz,
+            offset_s: f.offset_s,
+            dropouts: &f.dropouts,
+            stream: STREAM_FLOW,
+            scale: [f.scale, f.scale, 1.0],
+            sigma: [f.sigma_mps, f.sigma_mps, 0.0],
+            measures: [true, true, false],
+        });
+    }
+    let mut out: Vec<BodyVelocity> = Vec::new();
+    for s in &sensors {
+        let mut rng = rng::stream(seed, s.stream);
+        let mut samples = Vec::new();
+        for t_ns in velocity_times(sc.duration_s, s.rate_hz, s.offset_s) {
+            if dropped(s.dropouts, t_ns) {
+                continue;
+            }
+            let t_s = t_ns as f64 * 1e-9;
+            let kin = model
+                .eval(t_s)
+                .map_err(|source| SimError::Trajectory { t_s, error: source })?;
+            // Body frame (pure yaw): R^T v.
+            let (sn, cs) = kin.yaw_rad.sin_cos();
+            let [ve, vn, vu] = kin.vel_mps;
+            let body = [cs * ve + sn * vn, -sn * ve + cs * vn, vu];
+            let mut vel = [0.0; 3];
+            for a in 0..3 {
+                let truth = if s.measures[a] {
+                    s.scale[a] * body[a]
+                } else {
+                    0.0
+                };
+                vel[a] = truth + rng.normal(s.sigma[a]);
+            }
+            samples.push(BodyVelocity {
+                header: Header::new(0, t_ns),
+                vel_mps: vel,
+                sigma_mps: s.sigma,
+                source: s.source,
+                reserved: 0,
+            });
+        }
+        // Merge with what is there (both sorted by time; validation keeps
+        // their times apart).
+        let mut merged = Vec::with_capacity(out.len() + samples.len());
+        let (mut a, mut b) = (out.into_iter().peekable(), samples.into_iter().peekable());
+        loop {
+            let take_a = match (a.peek(), b.peek()) {
+                (Some(x), Some(y)) => x.header.meas_time_ns <= y.header.meas_time_ns,
+                (Some(_), None) => true,
+                (None, Some(_)) => false,
+                (None, None) => break,
+            };
+            merged.extend(if take_a { a.next() } else { b.next() });
+        }
+        out = merged;
+    }
+    for (k, m) in out.iter_mut().enumerate() {
+        m.header.seq = k as u64;
+    }
+    Ok(out)
 }
 
 type ImuRun = (Vec<ImuSample>, Vec<GroundTruth>, ImuErrorRealisation);

@@ -1,6 +1,7 @@
 //! The scenario: everything the simulator needs (duration, rates, trajectory,
-//! IMU errors, UWB anchors, noise, NLOS outliers, dropouts, initial INS
-//! errors), its TOML form, and its validation.
+//! IMU errors, UWB anchors, noise, NLOS outliers, dropouts, the optional
+//! wheel odometry and optical flow, initial INS errors), its TOML form, and
+//! its validation.
 //!
 //! A scenario file keeps the simulator's part in a `[sim]` table; other
 //! top-level tables (a filter preset, evaluation settings) belong to other
@@ -61,6 +62,10 @@ pub struct Scenario {
     pub uwb: UwbConfig,
     /// Initial INS errors (default: 1 m and 1 m/s per axis, paper section 3.4).
     pub initial_error: InitialError,
+    /// Wheel odometry (`[sim.odometry]`; default none).
+    pub odometry: Option<OdometryConfig>,
+    /// Optical flow (`[sim.flow]`; default none).
+    pub flow: Option<FlowConfig>,
 }
 
 impl Default for Scenario {
@@ -78,6 +83,8 @@ impl Default for Scenario {
             imu: ImuErrors::default(),
             uwb: UwbConfig::default(),
             initial_error: InitialError::default(),
+            odometry: None,
+            flow: None,
         }
     }
 }
@@ -302,13 +309,14 @@ impl Default for RandomNlos {
     }
 }
 
-/// An interval without any UWB epoch.
+/// An interval without samples of a sensor: UWB epochs (`[[sim.uwb.dropouts]]`),
+/// odometry or flow samples (`[[sim.odometry.dropouts]]`, `[[sim.flow.dropouts]]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Dropout {
     /// Start, s.
     pub start_s: f64,
-    /// Length, s (epochs with `start_s <= t < start_s + duration_s` are dropped).
+    /// Length, s (samples with `start_s <= t < start_s + duration_s` are dropped).
     pub duration_s: f64,
 }
 
@@ -408,6 +416,90 @@ impl Default for InitialError {
     }
 }
 
+/// Wheel odometry of a wheeled base (`[sim.odometry]`): the body-frame
+/// forward velocity (x) as the wheels read it, `scale * v_x + noise`, and
+/// the lateral velocity (y) reported as zero, the non-holonomic constraint
+/// of a wheeled base, with the wheels' slip as white noise of
+/// `lateral_sigma_mps` about it (the simulated robot has no lateral
+/// velocity: its body x axis follows the path). The vertical axis is not
+/// measured. Samples are taken at `offset_s + k / rate_hz` for times
+/// before `duration_s` and outside the dropouts, each stating the standard
+/// deviations it was drawn with ([`insuwb_msg::BodyVelocity::sigma_mps`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OdometryConfig {
+    /// Sample rate, Hz (default 50).
+    pub rate_hz: f64,
+    /// Time of the first sample, s (default 0).
+    pub offset_s: f64,
+    /// Scale factor of the forward velocity, measured / true: a wheel
+    /// radius off by 5 % reads 1.05 (default 1).
+    pub scale: f64,
+    /// White noise of the forward velocity, m/s; > 0 (default 0.02).
+    pub sigma_mps: f64,
+    /// White noise (the slip) of the lateral velocity about its reported
+    /// zero, m/s; 0 leaves the lateral axis out (default 0.05).
+    pub lateral_sigma_mps: f64,
+    /// Intervals without odometry (default none).
+    pub dropouts: Vec<Dropout>,
+}
+
+impl Default for OdometryConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 50.0,
+            offset_s: 0.0,
+            scale: 1.0,
+            sigma_mps: 0.02,
+            lateral_sigma_mps: 0.05,
+            dropouts: Vec::new(),
+        }
+    }
+}
+
+/// Optical flow with a range finder (`[sim.flow]`): the body-frame x and y
+/// velocity, `scale * v + noise` on each, the vertical axis not measured.
+/// Samples are taken at `offset_s + k / rate_hz` for times before
+/// `duration_s` and outside the dropouts.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FlowConfig {
+    /// Sample rate, Hz (default 50).
+    pub rate_hz: f64,
+    /// Time of the first sample, s (default 0).
+    pub offset_s: f64,
+    /// Scale factor of the x and y velocity, measured / true (default 1).
+    pub scale: f64,
+    /// White noise of each axis, m/s; > 0 (default 0.05).
+    pub sigma_mps: f64,
+    /// Intervals without flow (default none).
+    pub dropouts: Vec<Dropout>,
+}
+
+impl Default for FlowConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 50.0,
+            offset_s: 0.0,
+            scale: 1.0,
+            sigma_mps: 0.05,
+            dropouts: Vec::new(),
+        }
+    }
+}
+
+/// The sample times of a body-velocity sensor, ns: `offset + k / rate`
+/// (rounded to the nanosecond) for `k / rate < duration - offset`.
+pub(crate) fn velocity_times(
+    duration_s: f64,
+    rate_hz: f64,
+    offset_s: f64,
+) -> impl Iterator<Item = u64> {
+    let n = sample_count(duration_s - offset_s, rate_hz);
+    let offset_ns = (offset_s * 1e9).round().max(0.0) as u64;
+    (0..n).map(move |k| offset_ns + (k as f64 * 1e9 / rate_hz).round() as u64)
+}
+
 /// A scenario value that is not acceptable; each variant names the key.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum ScenarioConfigError {
@@ -492,6 +584,15 @@ pub enum ScenarioConfigError {
         key: String,
         /// Why.
         reason: String,
+    },
+    /// Two velocity sensors would measure at the same time: the fusion's
+    /// velocity input takes one sample per time.
+    #[error("{key}: a flow sample at {time_s} s has the time of an odometry sample; give the sensors different offset_s or rates")]
+    VelocityTimeShared {
+        /// Key path (`sim.flow.offset_s`).
+        key: String,
+        /// The first shared time, s.
+        time_s: f64,
     },
 }
 
@@ -636,6 +737,89 @@ impl Scenario {
         non_negative(&format!("{P}.initial_error.pos_m"), ie.pos_m)?;
         non_negative(&format!("{P}.initial_error.vel_mps"), ie.vel_mps)?;
         non_negative(&format!("{P}.initial_error.yaw_rad"), ie.yaw_rad)?;
+        self.validate_velocity()?;
+        Ok(())
+    }
+
+    /// Number of odometry and flow samples before dropouts (0 for a sensor
+    /// that is not configured).
+    #[must_use]
+    pub fn velocity_sample_counts(&self) -> [u64; 2] {
+        let n = |rate: f64, offset: f64| sample_count(self.duration_s - offset, rate);
+        [
+            self.odometry
+                .as_ref()
+                .map_or(0, |o| n(o.rate_hz, o.offset_s)),
+            self.flow.as_ref().map_or(0, |f| n(f.rate_hz, f.offset_s)),
+        ]
+    }
+
+    fn validate_velocity(&self) -> Result<(), ScenarioConfigError> {
+        let sensor = |name: &str,
+                      rate: f64,
+                      offset: f64,
+                      scale: f64,
+                      sigma: f64,
+                      dropouts: &[Dropout]|
+         -> Result<(), ScenarioConfigError> {
+            let key = |f: &str| format!("{P}.{name}.{f}");
+            positive(&key("rate_hz"), rate)?;
+            if rate > MAX_RATE_HZ {
+                return Err(out_of_range(&key("rate_hz"), "<= 100000", rate));
+            }
+            let samples = self.duration_s * rate;
+            if samples > MAX_SAMPLES as f64 {
+                return Err(ScenarioConfigError::TooManySamples {
+                    key: key("rate_hz"),
+                    samples,
+                    max: MAX_SAMPLES,
+                });
+            }
+            non_negative(&key("offset_s"), offset)?;
+            positive(&key("scale"), scale)?;
+            if scale > 10.0 {
+                return Err(out_of_range(&key("scale"), "<= 10", scale));
+            }
+            positive(&key("sigma_mps"), sigma)?;
+            validate_dropouts(&key("dropouts"), dropouts)
+        };
+        if let Some(o) = &self.odometry {
+            sensor(
+                "odometry",
+                o.rate_hz,
+                o.offset_s,
+                o.scale,
+                o.sigma_mps,
+                &o.dropouts,
+            )?;
+            non_negative(
+                &format!("{P}.odometry.lateral_sigma_mps"),
+                o.lateral_sigma_mps,
+            )?;
+        }
+        if let Some(f) = &self.flow {
+            sensor(
+                "flow",
+                f.rate_hz,
+                f.offset_s,
+                f.scale,
+                f.sigma_mps,
+                &f.dropouts,
+            )?;
+        }
+        if let (Some(o), Some(f)) = (&self.odometry, &self.flow) {
+            // Both sorted: walk them together for a common time.
+            let mut odo = velocity_times(self.duration_s, o.rate_hz, o.offset_s).peekable();
+            for t in velocity_times(self.duration_s, f.rate_hz, f.offset_s) {
+                while odo.next_if(|&u| u < t).is_some() {}
+                if odo.peek() == Some(&t) {
+                    return Err(ScenarioConfigError::VelocityTimeShared {
+                        key: format!("{P}.flow.offset_s"),
+                        time_s: t as f64 * 1e-9,
+                    });
+                }
+            }
+        }
         Ok(())
     }
 
@@ -760,17 +944,12 @@ impl Scenario {
             }
         }
         non_negative(&format!("{P}.uwb.tdoa_sigma_m"), u.tdoa_sigma_m)?;
-        for (list, len) in [
-            ("outliers", u.outliers.len()),
-            ("dropouts", u.dropouts.len()),
-        ] {
-            if len > MAX_INTERVALS {
-                return Err(ScenarioConfigError::TooMany {
-                    key: format!("{P}.uwb.{list}"),
-                    max: MAX_INTERVALS,
-                    got: len,
-                });
-            }
+        if u.outliers.len() > MAX_INTERVALS {
+            return Err(ScenarioConfigError::TooMany {
+                key: format!("{P}.uwb.outliers"),
+                max: MAX_INTERVALS,
+                got: u.outliers.len(),
+            });
         }
         for (i, o) in u.outliers.iter().enumerate() {
             let k = |f: &str| format!("{P}.uwb.outliers[{i}].{f}");
@@ -799,12 +978,24 @@ impl Scenario {
                 ));
             }
         }
-        for (i, d) in u.dropouts.iter().enumerate() {
-            non_negative(&format!("{P}.uwb.dropouts[{i}].start_s"), d.start_s)?;
-            positive(&format!("{P}.uwb.dropouts[{i}].duration_s"), d.duration_s)?;
-        }
-        Ok(())
+        validate_dropouts(&format!("{P}.uwb.dropouts"), &u.dropouts)
     }
+}
+
+/// Each dropout of the list under `key` (at most [`MAX_INTERVALS`]).
+fn validate_dropouts(key: &str, dropouts: &[Dropout]) -> Result<(), ScenarioConfigError> {
+    if dropouts.len() > MAX_INTERVALS {
+        return Err(ScenarioConfigError::TooMany {
+            key: key.to_owned(),
+            max: MAX_INTERVALS,
+            got: dropouts.len(),
+        });
+    }
+    for (i, d) in dropouts.iter().enumerate() {
+        non_negative(&format!("{key}[{i}].start_s"), d.start_s)?;
+        positive(&format!("{key}[{i}].duration_s"), d.duration_s)?;
+    }
+    Ok(())
 }
 
 /// Samples at `k / rate` for `k / rate < duration` (a tiny tolerance keeps

@@ -13,8 +13,8 @@ use insuwb_fusion::config::{build_estimator, FusionConfig};
 use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
 use insuwb_fusion::output::{OutputPolicy, OutputPolicyConfig};
 use insuwb_msg::{
-    topics, FilterDiag, FusedState, FusionCounters, HealthState, InsCorrection, NavState,
-    StageCounters, StageRole, UwbFix, UwbTdoa,
+    topics, BodyVelocity, FilterDiag, FusedState, FusionCounters, HealthState, InsCorrection,
+    NavState, StageCounters, StageRole, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
@@ -76,7 +76,7 @@ fn engine_for(cfg: &RobotConfig, fcfg: &FusionConfig, epoch_ns: u64) -> Result<F
     let est = build_estimator(cfg.filter_kind(), fcfg)?;
     let mut ecfg = fcfg.engine.clone();
     ecfg.eager_lag_s = eager_lag_s(cfg);
-    let mut engine = FusionEngine::new(ecfg, est);
+    let mut engine = FusionEngine::new(ecfg, est).with_velocity_wait(fcfg.aiding.wait_s);
     engine.align_to(epoch_ns);
     Ok(engine)
 }
@@ -166,6 +166,13 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     } else {
         None
     };
+    // Body velocities only from the sources the robot config names.
+    let vel_codes: Vec<u32> = cfg.fusion.aiding_sources.iter().map(|s| s.code()).collect();
+    let vel_sub = if vel_codes.is_empty() {
+        None
+    } else {
+        Some(stage.subscriber::<BodyVelocity>(topics::BODY_VEL)?)
+    };
     let mut fused_pub = stage.publisher::<FusedState>(topics::FUSED)?;
     let mut diag_pub = stage.publisher::<FilterDiag>(topics::DIAG)?;
     let mut corr_pub = stage.publisher::<InsCorrection>(topics::CORRECTION)?;
@@ -174,6 +181,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     let nav_a = waiter.attach(&nav_sub)?;
     let fix_a = waiter.attach(&fix_sub)?;
     let tdoa_a = tdoa_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
+    let vel_a = vel_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
     let tick_period = Duration::from_secs_f64((0.5 / policy_cfg.coast_rate_hz).min(0.05));
     let tick = waiter.attach_interval(tick_period)?;
     let tick_ns = u64::try_from(tick_period.as_nanos()).unwrap_or(u64::MAX);
@@ -186,6 +194,9 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     out.diag.reserve(64);
     out.corrections.reserve(64);
     let mut uwb_only: Vec<FusedState> = Vec::with_capacity(64);
+    // One drain of INS states: at most the subscriber's buffer.
+    let mut navs: Vec<NavState> =
+        Vec::with_capacity(insuwb_msg::qos::for_topic(topics::NAV).subscriber_max_buffer_size);
     let ckpt_ns = (cfg.fusion.checkpoint_period_s * 1e9) as u64;
     let mut policy = OutputPolicy::new(&policy_cfg, tick_ns, monotonic_ns())
         .map_err(|e| anyhow::anyhow!("fusion.output.{e}"))?;
@@ -210,9 +221,19 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
         if f.contains(&nav_a)
             || f.contains(&fix_a)
             || tdoa_a.as_ref().is_some_and(|a| f.contains(a))
+            || vel_a.as_ref().is_some_and(|a| f.contains(a))
         {
-            // Fixes before the TDOA measurements that completed them, then INS states.
+            // The INS states are taken first and handed over last: a
+            // measurement published before an INS state is then always
+            // handled before it (the IMU driver's body velocities race the
+            // INS states their IMU samples make). Fixes before the TDOA
+            // measurements that completed them.
             let fresh = |pub_ns: u64| pub_ns >= started_ns;
+            nav_sub.drain(|n| {
+                if fresh(n.header.pub_time_ns) {
+                    navs.push(n);
+                }
+            })?;
             fix_sub.drain(|m| {
                 next_fix.observe(m.header.meas_time_ns, m.header.pub_time_ns);
                 if fresh(m.header.pub_time_ns) {
@@ -230,11 +251,16 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
                     }
                 })?;
             }
-            nav_sub.drain(|n| {
-                if fresh(n.header.pub_time_ns) {
-                    engine.on_nav(&n, &mut out);
-                }
-            })?;
+            if let Some(vel_sub) = &vel_sub {
+                vel_sub.drain(|v| {
+                    if fresh(v.header.pub_time_ns) && vel_codes.contains(&v.source) {
+                        engine.on_measurement(Measurement::Velocity(v), &mut out);
+                    }
+                })?;
+            }
+            for n in navs.drain(..) {
+                engine.on_nav(&n, &mut out);
+            }
             // The fused state first, straight after the compute: publishing
             // the correction first wakes the INS, which would delay it. The correction protocol does not depend on when a
             // correction arrives, so the order changes no result.
@@ -277,6 +303,9 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
             counters = HealthCounters::default();
             counters.add_sub(&nav_sub.stats());
             counters.add_sub(&fix_sub.stats());
+            if let Some(v) = &vel_sub {
+                counters.add_sub(&v.stats());
+            }
             counters.published = fused_pub.published();
             counters.dropped_invalid = c.dropped_invalid;
             counters.dropped_time = c.meas_late;

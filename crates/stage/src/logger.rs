@@ -28,8 +28,8 @@ use anyhow::{bail, Context, Result};
 use crossbeam_channel::{bounded, RecvTimeoutError, TryRecvError, TrySendError};
 use insuwb_log::{Metadata, Record, SegmentWriter};
 use insuwb_msg::{
-    topics, FilterDiag, FusedState, GroundTruth, Health, HealthState, ImuSample, InsCorrection,
-    LoggerCounters, NavState, StageCounters, StageRole, UwbFix, UwbTdoa,
+    topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Health, HealthState, ImuSample,
+    InsCorrection, LoggerCounters, NavState, StageCounters, StageRole, UwbFix, UwbTdoa,
 };
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage};
@@ -165,6 +165,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let diag = stage.subscriber::<FilterDiag>(topics::DIAG)?;
     let truth = stage.subscriber::<GroundTruth>(topics::TRUTH)?;
     let hsub = stage.subscriber::<Health>(topics::HEALTH)?;
+    let body_vel = stage.subscriber::<BodyVelocity>(topics::BODY_VEL)?;
     let mut health = stage.health_reporter()?;
     let waiter = stage.waiter()?;
     // Fused states wake the logger at once (the fusion -> logger hop stays
@@ -208,6 +209,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             diag.drain(|s| send(Record::Diag(s)))?;
             truth.drain(|s| send(Record::Truth(s)))?;
             hsub.drain(|s| send(Record::Health(s)))?;
+            body_vel.drain(|s| send(Record::BodyVel(s)))?;
             bulk.drained(monotonic_ns());
             // Full: a kick is pending already.
             let _ = kick_tx.try_send(());

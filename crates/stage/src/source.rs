@@ -8,7 +8,7 @@
 use anyhow::{bail, Context, Result};
 use insuwb_group::sources;
 use insuwb_log::Record;
-use insuwb_msg::{GroundTruth, ImuSample, UwbTdoa};
+use insuwb_msg::{BodyVelocity, GroundTruth, ImuSample, UwbTdoa};
 
 /// One sample from a source.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -19,6 +19,8 @@ pub enum Item {
     Tdoa(UwbTdoa),
     /// Ground truth (simulation and replay only; fusion never reads it).
     Truth(GroundTruth),
+    /// A body-frame velocity (odometry, flow), from the IMU driver.
+    Velocity(BodyVelocity),
 }
 
 impl Item {
@@ -29,6 +31,7 @@ impl Item {
             Self::Imu(s) => s.header.meas_time_ns,
             Self::Tdoa(s) => s.header.meas_time_ns,
             Self::Truth(s) => s.header.meas_time_ns,
+            Self::Velocity(s) => s.header.meas_time_ns,
         }
     }
 }
@@ -36,7 +39,7 @@ impl Item {
 /// Which samples a driver wants.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Want {
-    /// IMU and ground truth (the IMU driver).
+    /// IMU, body velocities and ground truth (the IMU driver).
     Imu,
     /// TDOA (the UWB driver).
     Uwb,
@@ -69,20 +72,22 @@ pub struct Recorded {
 }
 
 impl Recorded {
-    /// The streams of `items` (IMU, TDOA, truth) merged by time, each kept
-    /// in its given order: a sample recorded with a time before its
-    /// predecessor's stays behind it, so the driver drops and counts it as
-    /// it would from a live sensor. At equal times sensor samples go before
-    /// ground truth (truth is for evaluation: it must not delay a sensor
-    /// sample).
+    /// The streams of `items` (IMU, TDOA, body velocity, truth) merged by
+    /// time, each kept in its given order: a sample recorded with a time
+    /// before its predecessor's stays behind it, so the driver drops and
+    /// counts it as it would from a live sensor. At equal times IMU and TDOA
+    /// go before body velocities (the order `insuwb eval` feeds them), and
+    /// sensor samples before ground truth (truth is for evaluation: it must
+    /// not delay a sensor sample).
     #[must_use]
     pub fn new(items: Vec<Item>) -> Self {
         let kind = |i: &Item| match i {
             Item::Imu(_) => 0usize,
             Item::Tdoa(_) => 1,
-            Item::Truth(_) => 2,
+            Item::Velocity(_) => 2,
+            Item::Truth(_) => 3,
         };
-        let mut streams: [Vec<Item>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+        let mut streams: [Vec<Item>; 4] = Default::default();
         for i in items {
             if let Some(s) = streams.get_mut(kind(&i)) {
                 s.push(i);
@@ -90,9 +95,9 @@ impl Recorded {
         }
         let total = streams.iter().map(Vec::len).sum();
         let mut merged = Vec::with_capacity(total);
-        let mut heads = [0usize; 3];
+        let mut heads = [0usize; 4];
         loop {
-            let next = (0..3)
+            let next = (0..4)
                 .filter_map(|k| {
                     let item = streams.get(k)?.get(*heads.get(k)?)?;
                     Some((item.time_ns(), k))
@@ -123,6 +128,12 @@ impl Recorded {
             self.next += 1;
         }
         self.next - start
+    }
+
+    /// Whether it holds body velocities (odometry, flow).
+    #[must_use]
+    pub fn has_velocity(&self) -> bool {
+        self.items.iter().any(|i| matches!(i, Item::Velocity(_)))
     }
 
     /// Time of the last sample.
@@ -162,6 +173,7 @@ pub fn open(source: &sources::Source, scenario: &str, seed: u64, want: Want) -> 
             Want::Imu => {
                 items.extend(out.truth.iter().map(|s| Item::Truth(*s)));
                 items.extend(out.imu.iter().map(|s| Item::Imu(*s)));
+                items.extend(out.velocity.iter().map(|s| Item::Velocity(*s)));
             }
             Want::Uwb => items.extend(out.tdoa.iter().map(|s| Item::Tdoa(*s))),
         }
@@ -175,6 +187,7 @@ pub fn open(source: &sources::Source, scenario: &str, seed: u64, want: Want) -> 
             match (want, r) {
                 (Want::Imu, Record::Imu(s)) => items.push(Item::Imu(s)),
                 (Want::Imu, Record::Truth(s)) => items.push(Item::Truth(s)),
+                (Want::Imu, Record::BodyVel(s)) => items.push(Item::Velocity(s)),
                 (Want::Uwb, Record::Tdoa(s)) => items.push(Item::Tdoa(s)),
                 _ => {}
             }

@@ -216,12 +216,23 @@ pub fn assert_same_fused(piped: &[insuwb_msg::FusedState], eval: &[insuwb_msg::F
 /// A project log through `insuwb eval`'s in-process code path, with the
 /// fusion settings the log carries and filter `kind`.
 pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::runner::RunOutput {
+    offline_run_aided(log, kind, false)
+}
+
+/// [`offline_run`], aided by the log's body velocities when `aided`
+/// (`insuwb eval --aiding`).
+pub fn offline_run_aided(
+    log: &Path,
+    kind: insuwb_msg::FilterKind,
+    aided: bool,
+) -> insuwb_fusion::runner::RunOutput {
     let (recs, _, header) = insuwb_log::read_all(log).unwrap();
-    let (mut imu, mut tdoa) = (Vec::new(), Vec::new());
+    let (mut imu, mut tdoa, mut vel) = (Vec::new(), Vec::new(), Vec::new());
     for r in recs {
         match r {
             Record::Imu(s) => imu.push(s),
             Record::Tdoa(s) => tdoa.push(s),
+            Record::BodyVel(s) if aided => vel.push(s),
             _ => {}
         }
     }
@@ -233,7 +244,8 @@ pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::r
     let mut only = toml::Table::new();
     only.insert("fusion".into(), table["fusion"].clone());
     let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
-    insuwb_fusion::runner::run(&imu, &tdoa, &w.fusion, kind).unwrap()
+    let est = insuwb_fusion::config::build_estimator(kind, &w.fusion).unwrap();
+    insuwb_fusion::runner::run_aided(&imu, &tdoa, &vel, &w.fusion, est).unwrap()
 }
 
 /// The child processes of `parent`: `(pid, command name)` (the stages of a

@@ -426,3 +426,55 @@ fn a_program_that_is_not_built_is_named_with_the_command_that_builds_it() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// A scenario's simulated wheel odometry aids the filters only with
+/// `--aiding odometry` (without it the figures are those of IMU and UWB
+/// alone); a scenario without `[sim.odometry]`, a log, and a bad
+/// `--window` are refused with the reason; `--window` evaluates inside a
+/// UWB outage, where there is no fix epoch.
+#[test]
+fn a_scenario_s_odometry_aids_only_when_asked() {
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "eval",
+            "--scenario",
+            "ground-outage",
+            "--runs",
+            "2",
+            "--filters",
+            "kf",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        json(&insuwb(&args))
+    };
+    let alone = run(&[]);
+    assert_eq!(alone, run(&["--aiding", "none"]));
+    let aided = run(&["--aiding", "odometry"]);
+    let (a, b) = (
+        num(&alone, "kf", "rmse_horizontal"),
+        num(&aided, "kf", "rmse_horizontal"),
+    );
+    assert!(b < a, "aided {b} against {a}");
+    // Through the outage: the INS alone and the filter's coasting states.
+    let window = run(&["--window", "30,40", "--aiding", "odometry"]);
+    assert!(num(&window, "kf", "epochs") >= 2000.0, "{window}");
+    assert!(num(&window, "kf", "rmse_horizontal") < 0.1, "{window}");
+
+    let err = |args: &[&str]| {
+        let out = insuwb(args);
+        assert!(!out.status.success(), "{args:?} accepted");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let e = err(&["eval", "--scenario", "paper-3.4", "--aiding", "odometry"]);
+    assert!(e.contains("[sim.odometry]"), "{e}");
+    let e = err(&["eval", "--scenario", "ground-outage", "--window", "40,30"]);
+    assert!(e.contains("--window"), "{e}");
+    let d = tmp("odometry");
+    let log = simulated_log(&d, "1");
+    let e = err(&["eval", log.to_str().unwrap(), "--aiding", "odometry"]);
+    assert!(e.contains("--aiding odometry"), "{e}");
+    let e = err(&["eval", log.to_str().unwrap(), "--window", "1,2"]);
+    assert!(e.contains("--scenario"), "{e}");
+    let _ = std::fs::remove_dir_all(&d);
+}

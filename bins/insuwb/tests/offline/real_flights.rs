@@ -44,11 +44,21 @@ fn data_dir() -> Option<PathBuf> {
 
 /// Runs the batch under a watchdog; its JSON output.
 fn run_batch(manifest: &std::path::Path) -> Value {
-    let tmp = std::env::temp_dir().join(format!("insuwb-real-flights-{}", std::process::id()));
+    run_batch_with(manifest, &[])
+}
+
+/// [`run_batch`] with more arguments for `insuwb eval --flights`.
+fn run_batch_with(manifest: &std::path::Path, extra: &[&str]) -> Value {
+    // One folder per call: the tests of this file run in parallel.
+    static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let tmp =
+        std::env::temp_dir().join(format!("insuwb-real-flights-{}-{call}", std::process::id()));
     std::fs::create_dir_all(&tmp).unwrap();
     let (out_path, err_path) = (tmp.join("stdout.json"), tmp.join("stderr.txt"));
     let mut child = Command::new(env!("CARGO_BIN_EXE_insuwb"))
         .args(["eval", "--flights", manifest.to_str().unwrap(), "--json"])
+        .args(extra)
         // The tables only, not each flight's messages.
         .env("RUST_LOG", "warn")
         .stdout(Stdio::from(std::fs::File::create(&out_path).unwrap()))
@@ -138,11 +148,16 @@ fn failures(v: &Value) -> Vec<String> {
 
 /// The failures against `b`, one line each.
 fn failures_against(v: &Value, b: &Bounds) -> Vec<String> {
+    failures_of(v, b, FLIGHTS)
+}
+
+/// The failures against `b` of a batch of `expected` flights, one line each.
+fn failures_of(v: &Value, b: &Bounds, expected: usize) -> Vec<String> {
     let mut fails = Vec::new();
     let flights = v["flights"].as_array().map_or(&[][..], Vec::as_slice);
-    if flights.len() != FLIGHTS {
+    if flights.len() != expected {
         fails.push(format!(
-            "{} flights evaluated, {FLIGHTS} expected",
+            "{} flights evaluated, {expected} expected",
             flights.len()
         ));
     }
@@ -244,6 +259,99 @@ fn every_shared_flight_holds_todays_figures() {
     assert!(
         fails.is_empty(),
         "{} bound(s) not met over the shared UTIL flights:\n{}",
+        fails.len(),
+        fails.join("\n")
+    );
+}
+
+/// The shared flights whose logs carry the flow deck's records (`estFlow`,
+/// `estTOF`; the dataset README).
+const FLOW_FLIGHTS: [&str; 16] = [
+    "cfBolt-log00",
+    "test-log00",
+    "flight-0b43c456",
+    "flight-1229e2e7",
+    "flight-1b00dbb0",
+    "flight-4459574a",
+    "flight-4f5069f6",
+    "flight-660e0959",
+    "flight-6f78492c",
+    "flight-7ce32570",
+    "flight-9268362f",
+    "flight-a92f4787",
+    "flight-ced064fb",
+    "flight-d59a9998",
+    "flight-daf31394",
+    "flight-f4653ac3",
+];
+
+/// What the flights with flow give today aided by it (`insuwb eval
+/// --flights ... --aiding flow`, docs/REAL_FLIGHTS.md), with margin: the
+/// tight filter median 0.84, worst 1.15, `max_dist` 0.82 m, NEES median
+/// 5.1 and worst 16.7.
+const TODAY_FLOW: Bounds = Bounds {
+    tight: 1.3,
+    tight_median: 0.9,
+    iakf: 1.2,
+    uwb: 1.05,
+    iakf_vs_kf: false,
+    max_dist_m: 1.0,
+    nees: 20.0,
+    nees_median: (2.0, 8.0),
+};
+
+fn tight_median(v: &Value) -> f64 {
+    let flights = v["flights"].as_array().map_or(&[][..], Vec::as_slice);
+    median(
+        flights
+            .iter()
+            .filter_map(|f| {
+                Some(f["iakf_tdoa"]["rmse_horizontal"].as_f64()? / f[REFERENCE].as_f64()?)
+            })
+            .collect(),
+    )
+}
+
+/// The flights with flow, aided by it: today's figures with margin, and a
+/// median at least 0.05 below the same flights' unaided (today 0.84
+/// against 0.95).
+#[test]
+fn flow_aided_flights_hold_todays_figures_and_beat_the_unaided() {
+    let Some(dir) = data_dir() else {
+        return;
+    };
+    let tmp = std::env::temp_dir().join(format!("insuwb-flow-flights-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp).unwrap();
+    let text = std::fs::read_to_string(dir.join(MANIFEST)).unwrap();
+    let mut lines = text.lines();
+    let mut manifest = format!("{}\n", lines.next().unwrap());
+    for line in lines {
+        let mut cols: Vec<String> = line.split(',').map(str::to_owned).collect();
+        if !FLOW_FLIGHTS.contains(&cols[0].as_str()) {
+            continue;
+        }
+        // Absolute paths: the manifest is read from elsewhere.
+        for c in cols.iter_mut().take(2) {
+            *c = dir.join(&*c).display().to_string();
+        }
+        manifest.push_str(&cols.join(","));
+        manifest.push('\n');
+    }
+    let path = tmp.join("flow.csv");
+    std::fs::write(&path, manifest).unwrap();
+    let aided = run_batch_with(&path, &["--aiding", "flow"]);
+    let plain = run_batch(&path);
+    let _ = std::fs::remove_dir_all(&tmp);
+    let mut fails = failures_of(&aided, &TODAY_FLOW, FLOW_FLIGHTS.len());
+    let (a, p) = (tight_median(&aided), tight_median(&plain));
+    if a.is_nan() || a > p - 0.05 {
+        fails.push(format!(
+            "iakf_tdoa: aided median ratio {a:.3}, unaided {p:.3}: not 0.05 better"
+        ));
+    }
+    assert!(
+        fails.is_empty(),
+        "{} bound(s) not met over the flights with flow:\n{}",
         fails.len(),
         fails.join("\n")
     );

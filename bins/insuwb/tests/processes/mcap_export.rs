@@ -8,7 +8,10 @@
 //! (opened as a bag, types registered from the file's `ros2msg` schemas,
 //! odometry, IMU and `insuwb_msgs/msg/UwbFix` decoded and compared with the
 //! log). A copy of a segment cut mid-record exports its whole records and
-//! says where it stopped.
+//! says where it stopped. No stage of the simulated group publishes body
+//! velocities, so a log written here carries them: exported on
+//! `/insuwb/body_vel` and decoded by `rosbags` as
+//! `insuwb_msgs/msg/BodyVelocity`, each equal to its record.
 //!
 //! The Python environment is `target/pyenv` (or `INSUWB_PYENV`), installed
 //! by `.ci/run`; where it is missing the test says so and skips, unless
@@ -25,7 +28,8 @@ use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
 use common::{insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
-use insuwb_log::LogReader;
+use insuwb_log::{LogReader, LogWriter, Metadata, Record};
+use insuwb_msg::{BodyVelocity, Header, ImuSample};
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1";
 /// Seconds the group runs.
@@ -203,6 +207,61 @@ fn a_group_log_exports_to_mcap_that_foreign_readers_decode() {
     let seg_lines = cat_csv(&seg, None, &g.dir.join("seg.csv"));
     assert_eq!(cut_lines.len(), whole);
     assert_eq!(cut_lines[..], seg_lines[..whole]);
+}
+
+#[test]
+fn body_velocities_export_to_mcap_that_foreign_readers_decode() {
+    let Some(py) = python() else {
+        skip_or_fail(&format!(
+            "no Python environment with mcap, mcap-ros2-support and rosbags (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install {PACKAGES})"
+        ));
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("insuwb-mcap-vel-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("vel.iulog");
+    let mut w = LogWriter::create(&log, &Metadata::new("body velocities"), 0).unwrap();
+    const N: u64 = 40;
+    for k in 0..N {
+        let t = 1_000_000_000 + k * 10_000_000;
+        w.append(&Record::Imu(ImuSample {
+            header: Header::new(k, t),
+            accel_mps2: [0.0, 0.0, 9.81],
+            gyro_rps: [0.0, 0.0, 0.1],
+        }))
+        .unwrap();
+        let (source, sigma_mps) = if k % 2 == 0 {
+            (BodyVelocity::SOURCE_ODOMETRY, [0.02, 0.0, 0.0])
+        } else {
+            (BodyVelocity::SOURCE_FLOW, [0.05, 0.05, 0.0])
+        };
+        w.append(&Record::BodyVel(BodyVelocity {
+            header: Header::new(k, t + 5_000_000),
+            vel_mps: [0.5 + 0.01 * k as f64, -0.25, 0.0],
+            sigma_mps,
+            source,
+            reserved: 0,
+        }))
+        .unwrap();
+    }
+    w.finish().unwrap();
+    let mcap = dir.join("vel.mcap");
+    let (stdout, stderr) = export(&log, &mcap);
+    assert!(!stderr.contains("warning"), "{stderr}");
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.contains("/insuwb/body_vel") && l.ends_with(&format!(" {N} messages"))),
+        "{stdout}"
+    );
+    assert_eq!(info_counts(&log).get("body_vel"), Some(&N));
+    let lines = check(&py, &dir, "vel", &log, &mcap, true);
+    assert_eq!(
+        lines.iter().filter(|l| l.starts_with("body_vel,")).count() as u64,
+        N
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

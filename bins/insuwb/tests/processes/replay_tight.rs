@@ -1,8 +1,11 @@
 //! The real-flight default through the processes: a UTIL flight imported
-//! with `insuwb import util`, replayed through the five stages with the
-//! tight filter (`iakf_tdoa`, 1 kHz IMU), gives the fused states of
-//! `insuwb eval`'s in-process code path, epoch by epoch, within 1 mm, when
-//! the fusion stage drops no TDOA difference as late (a busy machine can
+//! with `insuwb import util` (IMU, TDOA and the flow deck's body
+//! velocities), replayed through the five stages with the tight filter
+//! (`iakf_tdoa`, 1 kHz IMU) aided by the flow (`aiding_sources =
+//! ["flow"]`: the IMU driver publishes the velocities, the fusion stage
+//! fuses them, the logger records them), gives the fused states of `insuwb
+//! eval --aiding flow`'s in-process code path, epoch by epoch, within 1 mm,
+//! when the fusion stage drops no measurement as late (a busy machine can
 //! make it drop a few: then their share and the accuracy are checked).
 //!
 //! Needs the shared UTIL data (`INSUWB_UTIL_DIR`, else
@@ -13,7 +16,8 @@
 use crate::common;
 
 use common::{
-    f, offline_run, one_at_a_time, run, succeeded, undegraded_fused, util_data_dir, uwb_only, Group,
+    f, offline_run_aided, one_at_a_time, run, succeeded, undegraded_fused, util_data_dir, uwb_only,
+    Group,
 };
 
 #[test]
@@ -26,6 +30,19 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp).unwrap();
     let log = tmp.join("cf.iulog");
+    // The preset, with the body velocities waiting for the UWB stream as
+    // long as a busy machine can hold the UWB driver at 10x (2 s of
+    // recording, 0.2 s of wall time): applied in time order, as in eval.
+    let preset = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/util.toml"),
+    )
+    .unwrap();
+    let config = tmp.join("util-wait.toml");
+    std::fs::write(
+        &config,
+        format!("{preset}\n[fusion.aiding]\nwait_s = 2.0\n"),
+    )
+    .unwrap();
     succeeded(&run(&[
         "import",
         "util",
@@ -34,6 +51,8 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
         data.join("anchors-const3.txt").to_str().unwrap(),
         "--out",
         log.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
     ]));
     // Predicting lazily (`eager_lag_s < 0`), as `insuwb eval` does: the
     // eager path drops a measurement that comes later than its lag behind
@@ -45,7 +64,7 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
             "imu = \"replay:{0}\"\nuwb = \"replay:{0}\"\nspeed = 10.0",
             log.display()
         ),
-        "filter = \"iakf_tdoa\"\neager_lag_s = -1.0\n",
+        "filter = \"iakf_tdoa\"\neager_lag_s = -1.0\naiding_sources = [\"flow\"]\n",
         "",
     );
     // 51 s of data at 10x, and the start.
@@ -59,7 +78,15 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
     assert!(dropped < 0.05 * published, "{report}");
     let piped = undegraded_fused(&g.log_dir());
     // The same log through the in-process code path of `insuwb eval`.
-    let mut out = offline_run(&log, insuwb_msg::FilterKind::IakfTdoa);
+    let mut out = offline_run_aided(&log, insuwb_msg::FilterKind::IakfTdoa, true);
+    // The flow reached the fusion stage and the log.
+    let recorded = insuwb_log::read_segments(g.log_dir())
+        .unwrap()
+        .records
+        .iter()
+        .filter(|r| matches!(r, insuwb_log::Record::BodyVel(_)))
+        .count();
+    assert!(recorded > 2000, "{recorded} body velocities recorded");
     out.fused.retain(|s| !uwb_only(s));
     assert!(
         out.fused.len() > 400,

@@ -5,6 +5,7 @@
 // Test helpers outside `#[test]` functions may unwrap and panic too.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod aiding;
 mod eager;
 mod faults;
 mod vehicle;

@@ -11,7 +11,7 @@ use insuwb_nav::vehicle::VehicleKind;
 /// RMS of the fused velocity across the fused heading (m/s), over the
 /// states after `from_s`, and the RMS horizontal position error against
 /// the simulated truth at the fused states' times (m).
-fn lateral_rms(fused: &[FusedState], from_ns: u64) -> f64 {
+pub(crate) fn lateral_rms(fused: &[FusedState], from_ns: u64) -> f64 {
     let lat: Vec<f64> = fused
         .iter()
         .filter(|s| s.header.meas_time_ns >= from_ns)

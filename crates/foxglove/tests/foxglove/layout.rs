@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use insuwb_foxglove::config::TOPICS;
-use insuwb_foxglove::convert::{DIAG_SCHEMA, ERROR_SCHEMA, HEALTH_SCHEMA};
+use insuwb_foxglove::convert::{BODY_VEL_SCHEMA, DIAG_SCHEMA, ERROR_SCHEMA, HEALTH_SCHEMA};
 use insuwb_foxglove::FoxgloveConfig;
 use serde_json::Value;
 
@@ -16,6 +16,7 @@ fn json_properties(topic: &str) -> Option<Value> {
     let schema = match topic {
         "diag" => DIAG_SCHEMA,
         "error" => ERROR_SCHEMA,
+        "body_vel" => BODY_VEL_SCHEMA,
         "health" => HEALTH_SCHEMA,
         _ => return None,
     };

@@ -11,7 +11,7 @@ use insuwb_log::{
     encode_header, is_log, read_all, CreateError, HeaderError, LogReader, LogWriter, Metadata,
     OpenError, Record, RecordEncoder, FIXED_HEADER_LEN, MAX_RECORD_LEN,
 };
-use insuwb_msg::{topics, FusedState, Header, ImuSample};
+use insuwb_msg::{topics, BodyVelocity, FusedState, Header, ImuSample};
 
 fn hex(s: &str) -> Vec<u8> {
     s.split_whitespace()
@@ -100,7 +100,8 @@ fn every_record_type_round_trips_through_a_file() {
     for r in &recs {
         w.append(r).unwrap();
     }
-    assert_eq!(w.records_written(), 18);
+    let kinds = Record::TOPICS.len();
+    assert_eq!(w.records_written(), 2 * kinds as u64);
     w.sync().unwrap();
     w.finish().unwrap();
     let (back, tail, header) = read_all(&path).unwrap();
@@ -109,14 +110,64 @@ fn every_record_type_round_trips_through_a_file() {
     assert_eq!(header.meta, meta);
     assert_eq!(header.created_ns, 99);
     // Topics and headers come back per variant.
-    let topics: Vec<_> = back.iter().take(9).map(Record::topic).collect();
+    let topics: Vec<_> = back.iter().take(kinds).map(Record::topic).collect();
     assert_eq!(topics, Record::TOPICS);
     assert_eq!(back[0].topic(), topics::IMU);
     assert_eq!(back[5].topic(), topics::FUSED);
-    for r in &back[..9] {
+    assert_eq!(back[9].topic(), topics::BODY_VEL);
+    for r in &back[..kinds] {
         assert_eq!(r.header().seq, 5);
         assert_eq!(r.header().source_id, 0x1234);
     }
+}
+
+#[test]
+fn variant_indices_are_frozen() {
+    // The payload's first byte is the variant index (a one-byte varint):
+    // the order of `Record::TOPICS`, as docs/LOG_FORMAT.md lists it. A new
+    // topic is appended; these never move.
+    let want = [
+        (topics::IMU, 0u8),
+        (topics::UWB_TDOA, 1),
+        (topics::UWB_FIX, 2),
+        (topics::NAV, 3),
+        (topics::CORRECTION, 4),
+        (topics::FUSED, 5),
+        (topics::DIAG, 6),
+        (topics::TRUTH, 7),
+        (topics::HEALTH, 8),
+        (topics::BODY_VEL, 9),
+    ];
+    let mut enc = RecordEncoder::new();
+    let recs = one_of_each(1);
+    assert_eq!(recs.len(), want.len());
+    assert_eq!(Record::TOPICS.len(), want.len());
+    for (r, (topic, index)) in recs.iter().zip(want) {
+        assert_eq!(r.topic(), topic);
+        assert_eq!(enc.encode(r).unwrap()[8], index, "{topic}");
+        assert_eq!(Record::TOPICS[usize::from(index)], topic);
+    }
+}
+
+#[test]
+fn a_body_velocity_is_its_fields_after_the_tag() {
+    let v = BodyVelocity {
+        header: Header::new(1, 2),
+        vel_mps: [0.5, -0.25, 0.0],
+        sigma_mps: [0.1, 0.1, 0.0],
+        source: BodyVelocity::SOURCE_ODOMETRY,
+        reserved: 0,
+    };
+    let mut enc = RecordEncoder::new();
+    let frame = enc.encode(&Record::BodyVel(v)).unwrap().to_vec();
+    // 1 (tag) + 8 one-byte header varints + 6 * 8 (f64) + 2 one-byte varints.
+    assert_eq!(frame.len(), 8 + 59);
+    let p = &frame[8..];
+    assert_eq!(p[0], 9);
+    assert_eq!(&p[1..9], &[2, 0, 0, 0, 0, 1, 2, 0]);
+    assert_eq!(&p[9..17], &0.5f64.to_le_bytes());
+    assert_eq!(&p[33..41], &0.1f64.to_le_bytes());
+    assert_eq!(&p[57..], &[1, 0]);
 }
 
 #[test]

@@ -11,8 +11,8 @@ use insuwb_log::{
     TailReason, TailReport, MAX_RECORD_LEN,
 };
 use insuwb_msg::{
-    CounterBlock, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample, InsCorrection,
-    NavState, StateCode, UwbFix, UwbTdoa,
+    BodyVelocity, CounterBlock, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample,
+    InsCorrection, NavState, StateCode, UwbFix, UwbTdoa,
 };
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
@@ -124,7 +124,7 @@ fn take<const N: usize>(it: &mut impl Iterator<Item = f64>) -> [f64; N] {
 /// Any record: a type, a header, a pool of floats and integers for the fields.
 fn arb_record() -> impl Strategy<Value = Record> {
     (
-        0u8..9,
+        0u8..10,
         arb_header(),
         proptest::collection::vec(finite(), 48),
         any::<[u64; 10]>(),
@@ -220,7 +220,7 @@ fn arb_record() -> impl Strategy<Value = Record> {
                     vel_mps: take(f),
                     quat: take(f),
                 }),
-                _ => Record::Health(Health {
+                8 => Record::Health(Health {
                     header,
                     stage: name,
                     pid: u32_(0),
@@ -236,6 +236,13 @@ fn arb_record() -> impl Strategy<Value = Record> {
                         u32_(2) % 16,
                         [ints[8], ints[9], ints[0], ints[1], ints[2], ints[3]],
                     ),
+                }),
+                _ => Record::BodyVel(BodyVelocity {
+                    header,
+                    vel_mps: take(f),
+                    sigma_mps: take(f),
+                    source: u32_(0),
+                    reserved: u32_(1),
                 }),
             }
         })
@@ -382,8 +389,9 @@ fn impossible_lengths_are_refused_without_reading_the_payload() {
 
 #[test]
 fn a_valid_crc_over_a_bad_payload_is_a_decode_report() {
-    // Variant index 9 does not exist (an unknown future topic).
-    let payload = [9u8, 0, 0];
+    // The first variant index past the last (an unknown future topic).
+    let unknown = u8::try_from(Record::TOPICS.len()).unwrap();
+    let payload = [unknown, 0, 0];
     let (mut bytes, h) = with_frame(3, crc32fast::hash(&payload), 0);
     bytes.extend_from_slice(&payload);
     let (_, tail) = read(&bytes).unwrap();

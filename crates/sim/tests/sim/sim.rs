@@ -145,6 +145,7 @@ fn merged_stream_is_time_ordered_with_truth_then_imu_then_uwb() {
         SimRecord::Truth(_) => 0,
         SimRecord::Imu(_) => 1,
         SimRecord::Tdoa(_) => 2,
+        SimRecord::Velocity(_) => 3,
     };
     for w in m.windows(2) {
         let (a, b) = (&w[0], &w[1]);
@@ -562,7 +563,8 @@ fn builtins_parse_validate_and_run() {
             "paper-3.4",
             "paper-4.3-static",
             "paper-4.4-dynamic",
-            "nlos-long"
+            "nlos-long",
+            "ground-outage"
         ]
     );
     for name in builtin_names() {

@@ -2,8 +2,8 @@
 //! `truth` (simulation and replay only).
 
 use anyhow::Result;
-use insuwb_msg::check::ImuGate;
-use insuwb_msg::{topics, GroundTruth, ImuSample};
+use insuwb_msg::check::{ImuGate, VelocityGate};
+use insuwb_msg::{topics, BodyVelocity, GroundTruth, ImuSample};
 use insuwb_runtime::{HealthCounters, Pub, Stage};
 
 use super::pacing::{self, Paced, Progress};
@@ -19,6 +19,10 @@ const LEAD_NS: u64 = 250_000_000;
 struct ImuDriver {
     imu: Pub<ImuSample>,
     truth: Pub<GroundTruth>,
+    /// Body velocities of the recording (a flow deck, odometry): a
+    /// publisher only when it holds some.
+    velocity: Option<Pub<BodyVelocity>>,
+    vel_gate: VelocityGate,
     generation: u32,
     source_id: u16,
     /// Values and time order ([`insuwb_msg::check`]), as `insuwb eval`.
@@ -55,6 +59,18 @@ impl Paced for ImuDriver {
                 self.imu.publish_raw(s)?;
                 self.counters.published += 1;
             }
+            Item::Velocity(mut s) => {
+                s.header.meas_time_ns = t_ns;
+                s.header.generation = self.generation;
+                s.header.source_id = self.source_id;
+                // Refused and counted by its gate, as `insuwb eval` does.
+                if self.vel_gate.check(&s).is_err() {
+                    return Ok(());
+                }
+                if let Some(p) = self.velocity.as_mut() {
+                    p.publish_raw(s)?;
+                }
+            }
             Item::Tdoa(_) => {}
         }
         Ok(())
@@ -62,10 +78,14 @@ impl Paced for ImuDriver {
 
     fn heartbeat(&mut self) -> Result<HealthCounters> {
         let refused = self.gate.refusals();
-        self.counters.dropped_invalid = refused.invalid();
-        self.counters.dropped_time = refused.time();
+        let vel = self.vel_gate.refusals();
+        self.counters.dropped_invalid = refused.invalid() + vel.invalid();
+        self.counters.dropped_time = refused.time() + vel.time();
         // Late subscribers get history only when the publisher acts.
         self.imu.update_connections()?;
+        if let Some(p) = self.velocity.as_mut() {
+            p.update_connections()?;
+        }
         Ok(self.counters)
     }
 
@@ -87,6 +107,12 @@ pub fn run(cfg: &RobotConfig, source: &Source, speed: f64, epoch_ns: u64) -> Res
     let mut driver = ImuDriver {
         imu: stage.publisher(topics::IMU)?,
         truth: stage.publisher(topics::TRUTH)?,
+        velocity: if src.has_velocity() {
+            Some(stage.publisher(topics::BODY_VEL)?)
+        } else {
+            None
+        },
+        vel_gate: VelocityGate::new(),
         generation: stage.generation(),
         source_id: stage.source_id(),
         gate: ImuGate::new(),

@@ -6,8 +6,8 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use insuwb_log::Record;
 use insuwb_msg::{
-    fixed_name, DeviceCounters, FilterDiag, FusedState, GroundTruth, Header, Health, HealthState,
-    ImuSample, InsCorrection, NavState, StageCounters, UwbFix, UwbTdoa,
+    fixed_name, BodyVelocity, DeviceCounters, FilterDiag, FusedState, GroundTruth, Header, Health,
+    HealthState, ImuSample, InsCorrection, NavState, StageCounters, UwbFix, UwbTdoa,
 };
 
 /// A scratch directory under the system temp dir, removed on drop.
@@ -62,7 +62,8 @@ pub fn ramp<const N: usize>(base: f64) -> [f64; N] {
     a
 }
 
-/// One record of each of the nine types, every field set to a distinct value.
+/// One record of each type, in variant-index order, every field set to a
+/// distinct value.
 pub fn one_of_each(seq: u64) -> Vec<Record> {
     let h = header(seq);
     vec![
@@ -178,12 +179,20 @@ pub fn one_of_each(seq: u64) -> Vec<Record> {
             })
             .into(),
         }),
+        Record::BodyVel(BodyVelocity {
+            header: h,
+            vel_mps: [0.75, -0.125, 0.0],
+            sigma_mps: [0.05, 0.0625, 0.0],
+            source: BodyVelocity::SOURCE_FLOW,
+            reserved: 0,
+        }),
     ]
 }
 
-/// `n` records cycling through the nine types.
+/// `n` records cycling through every type.
 pub fn mixed(n: usize) -> Vec<Record> {
-    (0..n).map(|i| one_of_each(i as u64)[i % 9]).collect()
+    let kinds = Record::TOPICS.len();
+    (0..n).map(|i| one_of_each(i as u64)[i % kinds]).collect()
 }
 
 /// `n` IMU records with increasing sequence numbers.
