@@ -328,7 +328,12 @@ fn check_poses(got: &Value, fused: &[FusedState]) {
         "pose receive rate {rx_rate} Hz"
     );
     assert_eq!(u(&first[0]["attachment"], "seq"), 0, "a run starts at 0");
-    assert_eq!(u(&runs[1][0]["attachment"], "seq"), 0, "a run starts at 0");
+    // A restarted bridge counts from 0 again; its first puts can leave
+    // before its new session has reached the subscriber (Zenoh's peer
+    // connection, a few tens of ms), so the second run is seen from one of
+    // its first poses.
+    let second = u(&runs[1][0]["attachment"], "seq");
+    assert!(second <= 5, "the second run is seen from seq {second}");
 }
 
 /// The health: one entry per stage, about once a second, the bridge's own
