@@ -292,12 +292,7 @@ const FLOW_FLIGHTS: [&str; 16] = [
 const TODAY_FLOW: Bounds = Bounds {
     tight: 1.3,
     tight_median: 0.9,
-    iakf: 1.2,
-    uwb: 1.05,
-    iakf_vs_kf: false,
-    max_dist_m: 1.0,
-    nees: 20.0,
-    nees_median: (2.0, 8.0),
+    ..TODAY
 };
 
 fn tight_median(v: &Value) -> f64 {
