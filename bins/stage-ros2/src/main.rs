@@ -1,6 +1,7 @@
 //! The insuwb ROS 2 bridge stage (`insuwb-stage-ros2`): reads the robot config,
 //! takes the `ros2` role's lock, and runs `insuwb_ros2::bridge` (iceoryx2
-//! `fused`, `imu`, `health` in; ROS 2 topics out over DDS) until
+//! `fused`, `imu`, `health` in; ROS 2 topics out over DDS; with `[ros2]
+//! odometry_in`, a base's odometry in over DDS and `body_vel` out) until
 //! SIGINT/SIGTERM. Normally started by `insuwb launch` when `stages` lists
 //! `ros2`.
 
@@ -18,7 +19,7 @@ use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 #[derive(Debug, Parser)]
 #[command(
     version,
-    about = "The insuwb ROS 2 bridge stage: fused pose, TF, IMU and diagnostics as ROS 2 topics (normally started by `insuwb launch`)."
+    about = "The insuwb ROS 2 bridge stage: fused pose, TF, IMU and diagnostics as ROS 2 topics, and a base's odometry from ROS as body velocities (normally started by `insuwb launch`)."
 )]
 struct Args {
     /// The robot group configuration (config/robot.toml) with its `[ros2]` table.
@@ -56,14 +57,18 @@ fn run(args: &Args) -> Result<()> {
     let bridge = Bridge::open(setup).context("opening the ROS 2 bridge")?;
     let stats = bridge.run().context("the ROS 2 bridge")?;
     tracing::info!(
-        "ros2: published {} odometry, {} tf, {} imu, {} diagnostics; {} invalid samples, {} too old, {} failed writes",
+        "ros2: published {} odometry, {} tf, {} imu, {} diagnostics; {} invalid samples, {} too old, {} failed writes; odometry in: {} body velocities, {} refused, {} in another frame, {} failed reads",
         stats.odometry,
         stats.tf,
         stats.imu,
         stats.diagnostics,
         stats.invalid,
         stats.old,
-        stats.write_failures
+        stats.write_failures,
+        stats.velocities,
+        stats.velocities_refused,
+        stats.velocities_other_frame,
+        stats.odometry_in_read_failures
     );
     Ok(())
 }

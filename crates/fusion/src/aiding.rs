@@ -10,13 +10,22 @@
 //! long as the vehicle moves. [`ScaleEstimator`] estimates the factor `s`
 //! of `measured = s · true` online, one per source, with a scalar Kalman
 //! filter beside the navigation filter (a random walk from the configured
-//! prior): each measured axis `m` against the filter's predicted body
-//! velocity `p` is an observation `m = s p + noise`, with the noise of the
-//! sensor and of `p` (its variance from the filter's covariance). The
-//! velocity update then uses `m / s` and a variance grown by what `s` is not
-//! known to (`p² var(s)`). The factor is observable only while the vehicle
+//! prior). It is observed on baselines (`close_baseline`): the distance
+//! the source's raw samples integrate to between two UWB fixes at least
+//! `loose.scale_baseline_m` apart, against the distance between the fixes
+//! along it (with their covariances). The fixes are the UWB alone, which
+//! the velocity source does not drive; the filter's own velocity is no
+//! such reference, since the source itself pulls it: observed against it,
+//! the factor and the velocity confirm each other and run away together
+//! (the tight filter on `ground-outage` with odometry: metres of error).
+//! Loose and tight filters observe the factor the same way. Each velocity
+//! update then uses `m / s` and a variance grown by what `s` is not known
+//! to (`p² var(s)` at the filter's predicted body velocity `p`:
+//! `scale_corrected`). The factor is observable only while the vehicle
 //! moves; at rest it keeps its prior or its last estimate.
 
+use insuwb_msg::BodyVelocity;
+use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Settings of the velocity updates, per source (`[fusion.aiding]`).
@@ -157,6 +166,9 @@ pub struct VelocityScales {
     pub flow: ScaleEstimator,
     /// Wheel odometry's.
     pub odometry: ScaleEstimator,
+    /// The baselines each is observed on.
+    flow_baseline: Baseline,
+    odometry_baseline: Baseline,
 }
 
 impl VelocityScales {
@@ -166,7 +178,57 @@ impl VelocityScales {
         Self {
             flow: ScaleEstimator::new(aiding.flow.clone()),
             odometry: ScaleEstimator::new(aiding.odometry.clone()),
+            flow_baseline: Baseline::default(),
+            odometry_baseline: Baseline::default(),
         }
+    }
+
+    /// A body velocity of the INS attitude `att` (body to ENU): its
+    /// source's factor is advanced to its time and its raw horizontal
+    /// velocity added to the source's baseline. Returns the source's
+    /// factor, `None` for a source with none.
+    pub fn on_sample(
+        &mut self,
+        m: &BodyVelocity,
+        att: &UnitQuaternion<f64>,
+    ) -> Option<&mut ScaleEstimator> {
+        let (scale, baseline) = match m.source {
+            BodyVelocity::SOURCE_ODOMETRY => (&mut self.odometry, &mut self.odometry_baseline),
+            BodyVelocity::SOURCE_FLOW => (&mut self.flow, &mut self.flow_baseline),
+            _ => return None,
+        };
+        let t_ns = m.header.meas_time_ns;
+        scale.advance(t_ns);
+        let mut body = Vector3::zeros();
+        let mut sigma_max: f64 = 0.0;
+        for (i, (&value, &sigma)) in m.vel_mps.iter().zip(&m.sigma_mps).enumerate() {
+            if sigma > 0.0 {
+                body[i] = value;
+                sigma_max = sigma_max.max(sigma);
+            }
+        }
+        let nav = att * body;
+        baseline.push(t_ns, [nav.x, nav.y], sigma_max);
+        Some(scale)
+    }
+
+    /// At a UWB fix at `t_ns` (the body's horizontal position `body_pos`,
+    /// ENU, with covariance `cov`): each source's baseline at least
+    /// `min_m` long is an observation of its factor, and the next one
+    /// opens.
+    pub fn on_fix(&mut self, t_ns: u64, body_pos: [f64; 2], cov: [[f64; 2]; 2], min_m: f64) {
+        for (base, scale) in [
+            (&mut self.odometry_baseline, &mut self.odometry),
+            (&mut self.flow_baseline, &mut self.flow),
+        ] {
+            close_baseline(base, scale, t_ns, body_pos, cov, min_m);
+        }
+    }
+
+    /// Breaks both baselines (after a reset of the filter).
+    pub fn break_baselines(&mut self) {
+        self.flow_baseline = Baseline::default();
+        self.odometry_baseline = Baseline::default();
     }
 
     /// The flow's and the odometry's factors (`measured / true`) and their
@@ -236,26 +298,28 @@ impl ScaleEstimator {
         self.last_ns = Some(self.last_ns.map_or(t_ns, |l| l.max(t_ns)));
     }
 
-    /// One axis: `measured` (m/s, standard deviation `sigma`) against the
-    /// filter's `predicted` body velocity (variance `predicted_var`).
-    /// Returns the measurement corrected for the factor and its standard
-    /// deviation, for the filter's update.
+    /// One observation `measured = s · reference + noise`: `measured`
+    /// (standard deviation `sigma`, before `sigma_factor`) against
+    /// `reference` (variance `reference_var`), e.g. the distance a
+    /// source's samples integrate to against the distance between two
+    /// fixes (`close_baseline`). Returns the measurement corrected for
+    /// the factor and its standard deviation.
     pub fn observe(
         &mut self,
         measured: f64,
         sigma: f64,
-        predicted: f64,
-        predicted_var: f64,
+        reference: f64,
+        reference_var: f64,
     ) -> (f64, f64) {
         let sigma = sigma * self.cfg.sigma_factor;
         if self.cfg.prior_sigma > 0.0 {
-            let r = sigma * sigma + self.scale * self.scale * predicted_var.max(0.0);
-            let s = predicted * predicted * self.var + r;
-            let y = measured - self.scale * predicted;
+            let r = sigma * sigma + self.scale * self.scale * reference_var.max(0.0);
+            let s = reference * reference * self.var + r;
+            let y = measured - self.scale * reference;
             if s > 0.0 && y * y <= self.cfg.gate_sigma * self.cfg.gate_sigma * s {
-                let k = self.var * predicted / s;
+                let k = self.var * reference / s;
                 self.scale += k * y;
-                self.var = (self.var - k * predicted * self.var).max(0.0);
+                self.var = (self.var - k * reference * self.var).max(0.0);
                 // The factor stays physical whatever the data.
                 self.scale = self.scale.clamp(0.2, 5.0);
                 self.used += 1;
@@ -264,9 +328,130 @@ impl ScaleEstimator {
             }
         }
         let corrected = measured / self.scale;
-        let var = (sigma * sigma + predicted * predicted * self.var) / (self.scale * self.scale);
+        let var = (sigma * sigma + reference * reference * self.var) / (self.scale * self.scale);
         (corrected, var.sqrt())
     }
+}
+
+/// Longest interval between two samples of a velocity source (and from
+/// the last one to a fix) that a baseline integrates across, ns.
+const BASELINE_MAX_GAP_NS: u64 = 500_000_000;
+
+/// The displacement a velocity source's samples integrate to since the UWB
+/// fix that opened the baseline (`loose.scale_baseline_m`), for
+/// the source's scale factor.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Baseline {
+    /// The fix that opened it: horizontal position of the body (the
+    /// antenna less its lever arm), m, and its covariance, m^2.
+    start: Option<([f64; 2], [[f64; 2]; 2])>,
+    /// Displacement from the raw measurements, ENU, m.
+    disp_m: [f64; 2],
+    /// Its variance from the samples' noise, m^2.
+    var_m2: f64,
+    /// Time up to which it is integrated (ns), the last sample's
+    /// horizontal velocity (ENU, m/s) and its largest standard deviation.
+    last: Option<(u64, [f64; 2], f64)>,
+}
+
+impl Baseline {
+    /// Integrates a sample at `t_ns` (trapezoid from the previous one); a
+    /// gap longer than [`BASELINE_MAX_GAP_NS`] breaks the baseline.
+    fn push(&mut self, t_ns: u64, vel_en: [f64; 2], sigma: f64) {
+        match self.last {
+            Some((t0, v0, s0)) if t_ns >= t0 && t_ns - t0 <= BASELINE_MAX_GAP_NS => {
+                let dt = (t_ns - t0) as f64 * 1e-9;
+                for (d, (a, b)) in self.disp_m.iter_mut().zip(v0.iter().zip(&vel_en)) {
+                    *d += 0.5 * (a + b) * dt;
+                }
+                let s = 0.5 * (s0 + sigma);
+                self.var_m2 += s * s * dt * dt;
+            }
+            Some((t0, ..)) if t_ns < t0 => return,
+            _ => self.start = None,
+        }
+        self.last = Some((t_ns, vel_en, sigma));
+    }
+
+    /// At a fix at `t_ns`: the baseline's displacement and variance up to
+    /// it, the last sample held (None when the source has not been heard
+    /// from within [`BASELINE_MAX_GAP_NS`]: the baseline is broken).
+    fn extend_to(&mut self, t_ns: u64) -> Option<([f64; 2], f64)> {
+        let Some((t0, v, sigma)) = self.last else {
+            self.start = None;
+            return None;
+        };
+        if t_ns < t0 || t_ns - t0 > BASELINE_MAX_GAP_NS {
+            self.start = None;
+            return None;
+        }
+        let dt = (t_ns - t0) as f64 * 1e-9;
+        for (d, a) in self.disp_m.iter_mut().zip(&v) {
+            *d += a * dt;
+        }
+        self.var_m2 += sigma * sigma * dt * dt;
+        self.last = Some((t_ns, v, sigma));
+        Some((self.disp_m, self.var_m2))
+    }
+
+    /// Opens a baseline at a fix.
+    fn open(&mut self, body_pos: [f64; 2], cov: [[f64; 2]; 2]) {
+        self.start = Some((body_pos, cov));
+        self.disp_m = [0.0; 2];
+        self.var_m2 = 0.0;
+    }
+}
+
+/// At a UWB fix (`body_pos`, horizontal, with covariance `cov`) at `t_ns`:
+/// closes the source's baseline when it is `min_m` long, as an observation
+/// of its scale factor (the distance its samples integrate to against the
+/// distance between the fixes along it), and opens the next one.
+fn close_baseline(
+    base: &mut Baseline,
+    scale: &mut ScaleEstimator,
+    t_ns: u64,
+    body_pos: [f64; 2],
+    cov: [[f64; 2]; 2],
+    min_m: f64,
+) {
+    let Some((disp, var)) = base.extend_to(t_ns) else {
+        return;
+    };
+    let Some((p0, c0)) = base.start else {
+        base.open(body_pos, cov);
+        return;
+    };
+    let dist = disp[0].hypot(disp[1]);
+    if dist < min_m {
+        return;
+    }
+    let u = [disp[0] / dist, disp[1] / dist];
+    let fixes = u[0] * (body_pos[0] - p0[0]) + u[1] * (body_pos[1] - p0[1]);
+    let mut fixes_var = 0.0;
+    for r in 0..2 {
+        for c in 0..2 {
+            fixes_var += u[r] * u[c] * (c0[r][c] + cov[r][c]);
+        }
+    }
+    scale.advance(t_ns);
+    let _ = scale.observe(dist, var.sqrt(), fixes, fixes_var);
+    base.open(body_pos, cov);
+}
+
+/// The measurement `measured` (standard deviation `sigma`) corrected for
+/// the factor of `scale`, and its standard deviation grown by what the
+/// factor is not known to at the predicted value `predicted`: what
+/// [`ScaleEstimator::observe`] returns, without observing.
+pub(crate) fn scale_corrected(
+    scale: &ScaleEstimator,
+    measured: f64,
+    sigma: f64,
+    predicted: f64,
+) -> (f64, f64) {
+    let (s, sd) = scale.scale();
+    let sigma = sigma * scale.config().sigma_factor;
+    let var = sigma * sigma + predicted * predicted * sd * sd;
+    (measured / s, var.sqrt() / s)
 }
 
 #[cfg(test)]

@@ -175,6 +175,7 @@ pub fn build_estimator(
     let vehicle = cfg.vehicle_settings();
     vehicle.validate()?;
     cfg.aiding.validate()?;
+    cfg.loose.validate()?;
     if kind == FilterKind::IakfTdoa {
         return Ok(Box::new(
             TightEstimator::new(
@@ -184,10 +185,9 @@ pub fn build_estimator(
             )?
             .with_vibration(cfg.vibration.clone())
             .with_vehicle(&vehicle)
-            .with_aiding(&cfg.aiding),
+            .with_aiding(&cfg.aiding, cfg.loose.scale_baseline_m),
         ));
     }
-    cfg.loose.validate()?;
     let model = insuwb_filter::PaperModel::new(cfg.model.clone())?;
     let f = insuwb_filter::build(kind, model, &cfg.filter, &cfg.setup)?;
     Ok(Box::new(

@@ -3,7 +3,7 @@
 //! with UWB fixes, and the tightly coupled 15-state error-state filter fed
 //! with each TDOA measurement.
 
-use crate::aiding::{AidingConfig, ScaleEstimator, VelocityScales};
+use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbTdoa};
 
@@ -305,127 +305,6 @@ impl LooseConfig {
     }
 }
 
-/// Longest interval between two samples of a velocity source (and from
-/// the last one to a fix) that a baseline integrates across, ns.
-const BASELINE_MAX_GAP_NS: u64 = 500_000_000;
-
-/// The displacement a velocity source's samples integrate to since the UWB
-/// fix that opened the baseline ([`LooseConfig::scale_baseline_m`]), for
-/// the source's scale factor.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-struct Baseline {
-    /// The fix that opened it: horizontal position of the body (the
-    /// antenna less its lever arm), m, and its covariance, m^2.
-    start: Option<([f64; 2], [[f64; 2]; 2])>,
-    /// Displacement from the raw measurements, ENU, m.
-    disp_m: [f64; 2],
-    /// Its variance from the samples' noise, m^2.
-    var_m2: f64,
-    /// Time up to which it is integrated (ns), the last sample's
-    /// horizontal velocity (ENU, m/s) and its largest standard deviation.
-    last: Option<(u64, [f64; 2], f64)>,
-}
-
-impl Baseline {
-    /// Integrates a sample at `t_ns` (trapezoid from the previous one); a
-    /// gap longer than [`BASELINE_MAX_GAP_NS`] breaks the baseline.
-    fn push(&mut self, t_ns: u64, vel_en: [f64; 2], sigma: f64) {
-        match self.last {
-            Some((t0, v0, s0)) if t_ns >= t0 && t_ns - t0 <= BASELINE_MAX_GAP_NS => {
-                let dt = (t_ns - t0) as f64 * 1e-9;
-                for (d, (a, b)) in self.disp_m.iter_mut().zip(v0.iter().zip(&vel_en)) {
-                    *d += 0.5 * (a + b) * dt;
-                }
-                let s = 0.5 * (s0 + sigma);
-                self.var_m2 += s * s * dt * dt;
-            }
-            Some((t0, ..)) if t_ns < t0 => return,
-            _ => self.start = None,
-        }
-        self.last = Some((t_ns, vel_en, sigma));
-    }
-
-    /// At a fix at `t_ns`: the baseline's displacement and variance up to
-    /// it, the last sample held (None when the source has not been heard
-    /// from within [`BASELINE_MAX_GAP_NS`]: the baseline is broken).
-    fn extend_to(&mut self, t_ns: u64) -> Option<([f64; 2], f64)> {
-        let Some((t0, v, sigma)) = self.last else {
-            self.start = None;
-            return None;
-        };
-        if t_ns < t0 || t_ns - t0 > BASELINE_MAX_GAP_NS {
-            self.start = None;
-            return None;
-        }
-        let dt = (t_ns - t0) as f64 * 1e-9;
-        for (d, a) in self.disp_m.iter_mut().zip(&v) {
-            *d += a * dt;
-        }
-        self.var_m2 += sigma * sigma * dt * dt;
-        self.last = Some((t_ns, v, sigma));
-        Some((self.disp_m, self.var_m2))
-    }
-
-    /// Opens a baseline at a fix.
-    fn open(&mut self, body_pos: [f64; 2], cov: [[f64; 2]; 2]) {
-        self.start = Some((body_pos, cov));
-        self.disp_m = [0.0; 2];
-        self.var_m2 = 0.0;
-    }
-}
-
-/// At a UWB fix (`body_pos`, horizontal, with covariance `cov`) at `t_ns`:
-/// closes the source's baseline when it is `min_m` long, as an observation
-/// of its scale factor (the distance its samples integrate to against the
-/// distance between the fixes along it), and opens the next one.
-fn close_baseline(
-    base: &mut Baseline,
-    scale: &mut ScaleEstimator,
-    t_ns: u64,
-    body_pos: [f64; 2],
-    cov: [[f64; 2]; 2],
-    min_m: f64,
-) {
-    let Some((disp, var)) = base.extend_to(t_ns) else {
-        return;
-    };
-    let Some((p0, c0)) = base.start else {
-        base.open(body_pos, cov);
-        return;
-    };
-    let dist = disp[0].hypot(disp[1]);
-    if dist < min_m {
-        return;
-    }
-    let u = [disp[0] / dist, disp[1] / dist];
-    let fixes = u[0] * (body_pos[0] - p0[0]) + u[1] * (body_pos[1] - p0[1]);
-    let mut fixes_var = 0.0;
-    for r in 0..2 {
-        for c in 0..2 {
-            fixes_var += u[r] * u[c] * (c0[r][c] + cov[r][c]);
-        }
-    }
-    scale.advance(t_ns);
-    let _ = scale.observe(dist, var.sqrt(), fixes, fixes_var);
-    base.open(body_pos, cov);
-}
-
-/// The measurement `measured` (standard deviation `sigma`) corrected for
-/// the factor of `scale`, and its standard deviation grown by what the
-/// factor is not known to at the predicted value `predicted`: what
-/// [`ScaleEstimator::observe`] returns, without observing.
-fn scale_corrected(
-    scale: &ScaleEstimator,
-    measured: f64,
-    sigma: f64,
-    predicted: f64,
-) -> (f64, f64) {
-    let (s, sd) = scale.scale();
-    let sigma = sigma * scale.config().sigma_factor;
-    let var = sigma * sigma + predicted * predicted * sd * sd;
-    (measured / s, var.sqrt() / s)
-}
-
 /// The paper's filters (KF, SHAF, STF, IAKF) as an [`Estimator`].
 ///
 /// Prediction runs once per AR step of the model (`model.ar_rate_hz`): INS
@@ -478,8 +357,6 @@ pub struct PaperEstimator {
     /// The online scale factors of flow and odometry ([`crate::aiding`])
     /// and the baselines they are observed on.
     scales: VelocityScales,
-    flow_baseline: Baseline,
-    odometry_baseline: Baseline,
     /// Body-velocity components applied (weighted down included), rejected
     /// by the gate, and refused by the filter.
     velocity_applied: u64,
@@ -511,8 +388,6 @@ impl PaperEstimator {
             ground: None,
             constraint_errors: 0,
             scales: VelocityScales::default(),
-            flow_baseline: Baseline::default(),
-            odometry_baseline: Baseline::default(),
             velocity_applied: 0,
             velocity_rejected: 0,
             velocity_errors: 0,
@@ -673,23 +548,11 @@ impl PaperEstimator {
         } else {
             [[r[(0, 0)], 0.0], [0.0, r[(1, 1)]]]
         };
-        let t = fix.header.meas_time_ns;
-        let min_m = self.cfg.scale_baseline_m;
-        close_baseline(
-            &mut self.odometry_baseline,
-            &mut self.scales.odometry,
-            t,
+        self.scales.on_fix(
+            fix.header.meas_time_ns,
             body,
             cov,
-            min_m,
-        );
-        close_baseline(
-            &mut self.flow_baseline,
-            &mut self.scales.flow,
-            t,
-            body,
-            cov,
-            min_m,
+            self.cfg.scale_baseline_m,
         );
     }
 
@@ -886,9 +749,9 @@ impl Estimator for PaperEstimator {
     /// Each measured axis `i` of the body velocity, the unit vector `u =
     /// C e_i` (ENU) of the INS attitude, as a scalar measurement of the
     /// planar error state: the INS's velocity along the axis, `u . v`,
-    /// minus the measurement corrected for its source's scale factor
-    /// ([`ScaleEstimator::observe`], against the filter's own estimate `u .
-    /// v - H x` and its variance `H P H^T`), with `H` = `u_e` on `δv_e`,
+    /// minus the measurement corrected for its source's scale factor (as
+    /// known so far: [`crate::aiding`]; the factor is observed on
+    /// baselines between fixes, not here), with `H` = `u_e` on `δv_e`,
     /// `u_n` on `δv_n` and `-u_n v_e + u_e v_n` on `δψ` (the axis turned
     /// by the heading error; the ground constraint's `H` for the lateral
     /// axis). Weighted down beyond `loose.velocity_kappa` and rejected
@@ -897,30 +760,11 @@ impl Estimator for PaperEstimator {
     /// within 60 deg of the vertical is left out: the filter is planar.
     fn update_velocity(&mut self, ins: &InsAt, m: &BodyVelocity) -> Option<UpdateInfo> {
         use insuwb_filter::model::{idx, Vec14};
-        let (scale, baseline) = match m.source {
-            BodyVelocity::SOURCE_ODOMETRY => {
-                (&mut self.scales.odometry, &mut self.odometry_baseline)
-            }
-            BodyVelocity::SOURCE_FLOW => (&mut self.scales.flow, &mut self.flow_baseline),
-            _ => return None,
-        };
-        let t_ns = m.header.meas_time_ns;
-        scale.advance(t_ns);
         let q = ins.quat;
         let att = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             q[0], q[1], q[2], q[3],
         ));
-        // The raw measurement in the navigation frame, for the baseline.
-        let mut body = nalgebra::Vector3::zeros();
-        let mut sigma_max: f64 = 0.0;
-        for (i, (&value, &sigma)) in m.vel_mps.iter().zip(&m.sigma_mps).enumerate() {
-            if sigma > 0.0 {
-                body[i] = value;
-                sigma_max = sigma_max.max(sigma);
-            }
-        }
-        let nav = att * body;
-        baseline.push(t_ns, [nav.x, nav.y], sigma_max);
+        let scale = self.scales.on_sample(m, &att)?;
         let [ve, vn, vu] = ins.vel_mps;
         let (kappa, gate) = (self.cfg.velocity_kappa, self.cfg.velocity_gate_sigma);
         let mut info = UpdateInfo {
@@ -1031,8 +875,7 @@ impl Estimator for PaperEstimator {
         let _ = self.filter.take_correction();
         let _ = self.filter.reset(&self.p0);
         self.vertical = None;
-        self.odometry_baseline = Baseline::default();
-        self.flow_baseline = Baseline::default();
+        self.scales.break_baselines();
         self.acc_dt = 0.0;
         self.acc_ae = 0.0;
         self.acc_an = 0.0;

@@ -11,7 +11,7 @@
 //! the engine's monitor finds from each update's NIS as for every filter
 //! (and [`Estimator::needs_reset`] when the covariance stops being finite).
 
-use crate::aiding::{AidingConfig, VelocityScales};
+use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
 use crate::vehicle::{DragMeasurement, DragMeter, GroundConfig, VehicleSettings};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_eskf::{
@@ -145,8 +145,10 @@ pub struct TightEstimator {
     /// Pseudo-measurements (drag, velocity constraints) applied and gated out.
     pseudo_applied: u64,
     pseudo_rejected: u64,
-    /// The scale factors of flow and odometry.
+    /// The scale factors of flow and odometry, the baselines they are
+    /// observed on and the length a baseline needs, m.
     scales: VelocityScales,
+    scale_baseline_m: f64,
     /// Velocity components (odometry, flow) applied and gated out.
     velocity_applied: u64,
     velocity_rejected: u64,
@@ -189,6 +191,7 @@ impl TightEstimator {
             pseudo_applied: 0,
             pseudo_rejected: 0,
             scales: VelocityScales::default(),
+            scale_baseline_m: 2.0,
             velocity_applied: 0,
             velocity_rejected: 0,
             predict_errors: 0,
@@ -233,10 +236,13 @@ impl TightEstimator {
     }
 
     /// Uses the velocity aiding's settings `aiding`: each source's scale
-    /// factor starts at its prior.
+    /// factor starts at its prior, and is observed on baselines at least
+    /// `scale_baseline_m` long between UWB fixes (`loose.scale_baseline_m`,
+    /// as the loose filters do: [`crate::aiding`]).
     #[must_use]
-    pub fn with_aiding(mut self, aiding: &AidingConfig) -> Self {
+    pub fn with_aiding(mut self, aiding: &AidingConfig, scale_baseline_m: f64) -> Self {
         self.scales = VelocityScales::new(aiding);
+        self.scale_baseline_m = scale_baseline_m;
         self
     }
 
@@ -480,7 +486,28 @@ impl Estimator for TightEstimator {
         self.propagate();
     }
 
-    fn update_fix(&mut self, _ins: &InsAt, _fix: &UwbFix) -> Option<UpdateInfo> {
+    /// No update (the filter takes the TDOA differences the fix was
+    /// built from); a velocity source's baseline that is long enough is an
+    /// observation of its scale factor: the fixes are the UWB alone, which
+    /// the source does not drive ([`crate::aiding`]).
+    fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo> {
+        let c = fix.pos_cov_m2;
+        let usable = [c[0][0], c[1][1]].iter().all(|v| v.is_finite() && *v > 0.0)
+            && c[0][1].is_finite()
+            && c[1][0].is_finite()
+            && fix.pos_m.iter().all(|v| v.is_finite());
+        if !usable {
+            return None;
+        }
+        let q = ins.quat;
+        let att =
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+        // The body's position: the fix less the lever arm (rotated).
+        let arm = att * Vector3::from(self.cfg.lever_arm_m);
+        let body = [fix.pos_m[0] - arm.x, fix.pos_m[1] - arm.y];
+        let cov = [[c[0][0], c[0][1]], [c[1][0], c[1][1]]];
+        self.scales
+            .on_fix(fix.header.meas_time_ns, body, cov, self.scale_baseline_m);
         None
     }
 
@@ -520,13 +547,7 @@ impl Estimator for TightEstimator {
             fading: 1.0,
             ..UpdateInfo::default()
         };
-        let scale = if m.source == BodyVelocity::SOURCE_ODOMETRY {
-            &mut self.scales.odometry
-        } else {
-            &mut self.scales.flow
-        };
-        scale.advance(m.header.meas_time_ns);
-        let pv = self.eskf.position_velocity_cov();
+        let scale = self.scales.on_sample(m, &att)?;
         let mut measured = 0;
         for i in 0..3 {
             if m.sigma_mps[i] <= 0.0 {
@@ -534,15 +555,9 @@ impl Estimator for TightEstimator {
             }
             measured += 1;
             let axis = att * Vector3::ith(i, 1.0);
-            // The filter's body velocity on this axis and its variance.
+            // The filter's body velocity on this axis.
             let predicted = axis.dot(&vel);
-            let mut predicted_var = 0.0;
-            for (r, ar) in axis.iter().enumerate() {
-                for (c, ac) in axis.iter().enumerate() {
-                    predicted_var += ar * ac * pv[3 + r][3 + c];
-                }
-            }
-            let (z, sigma) = scale.observe(m.vel_mps[i], m.sigma_mps[i], predicted, predicted_var);
+            let (z, sigma) = scale_corrected(scale, m.vel_mps[i], m.sigma_mps[i], predicted);
             let mut h = StateVector::zeros();
             h.fixed_rows_mut::<3>(IDX_VEL).copy_from(&(-axis));
             h.fixed_rows_mut::<3>(IDX_ATT)
@@ -606,6 +621,7 @@ impl Estimator for TightEstimator {
         self.acc_dt_s = 0.0;
         self.acc_f = [0.0; 3];
         self.acc_n = 0;
+        self.scales.break_baselines();
         self.eskf.reset();
     }
 

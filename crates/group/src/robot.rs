@@ -465,6 +465,16 @@ impl RobotConfig {
         self.ros2
             .validate()
             .map_err(|e| invalid(origin, &format!("ros2.{}", e.key), e.reason))?;
+        if !self.ros2.odometry_in.is_empty() && !self.stages.contains(&StageRole::Ros2) {
+            return Err(invalid(
+                origin,
+                "ros2.odometry_in",
+                format!(
+                    "[ros2] odometry_in = {:?} is read by the ROS 2 bridge, which runs only where `stages` lists \"ros2\": add \"ros2\" to stages, or leave odometry_in empty",
+                    self.ros2.odometry_in
+                ),
+            ));
+        }
         self.foxglove
             .validate()
             .map_err(|e| invalid(origin, &format!("foxglove.{}", e.key), e.reason))?;
@@ -1134,6 +1144,43 @@ mod tests {
         let mut have = ESTIMATOR_KEYS.to_vec();
         have.sort_unstable();
         assert_eq!(have, want);
+    }
+
+    /// `[ros2] odometry_in` is read by the bridge: refused, naming the key
+    /// and `stages`, where `stages` does not list `ros2`.
+    #[test]
+    fn odometry_in_needs_the_ros2_stage() {
+        let table = "[ros2]\nodometry_in = \"/wheel/odom\"\n";
+        let e = RobotConfig::from_str(table, "robot.toml", Path::new("/tmp")).unwrap_err();
+        let msg = format!("{e:#}");
+        assert!(
+            msg.contains("robot.toml:2: key 'ros2.odometry_in'"),
+            "{msg}"
+        );
+        assert!(
+            msg.contains("[ros2] odometry_in") && msg.contains("stages"),
+            "{msg}"
+        );
+        let c = RobotConfig::from_str(
+            &format!("stages = [\"imu\", \"uwb\", \"ins\", \"fusion\", \"ros2\"]\n{table}"),
+            "robot.toml",
+            Path::new("/tmp"),
+        )
+        .unwrap();
+        assert_eq!(
+            c.ros2.odometry_in_topic_name().as_deref(),
+            Some("/wheel/odom")
+        );
+        let bad = RobotConfig::from_str(
+            "stages = [\"ros2\"]\n[ros2]\nodometry_in = \"/wheel/odom\"\nodometry_in_sigma_mps = -1.0\n",
+            "robot.toml",
+            Path::new("/tmp"),
+        );
+        let msg = format!("{:#}", bad.unwrap_err());
+        assert!(
+            msg.contains("robot.toml:4: key 'ros2.odometry_in_sigma_mps'"),
+            "{msg}"
+        );
     }
 
     /// `sources.imu = "ros2:/TOPIC"`: a ROS topic name, IMU only; the

@@ -8,7 +8,9 @@
 //! readers go through the typed views; a code this version does not know
 //! reads as an error ([`UnknownState`], [`UnknownCounterKind`]). A change of
 //! a kind's counters, their order or their meaning bumps
-//! [`crate::LAYOUT_VERSION`].
+//! [`crate::LAYOUT_VERSION`]; a counter appended in a word the kind left
+//! unused (0) does not: a record written before it reads it as 0, and an
+//! older reader ignores it.
 //!
 //! ```
 //! use insuwb_msg::{FusionCounters, Health, HealthState, StageCounters};
@@ -496,6 +498,13 @@ stage_counters! {
         tf: u64,
         /// DDS writes refused (a full send window).
         write_failures: u64,
+        /// Body velocities published on `body_vel` from the base's odometry
+        /// (`[ros2] odometry_in`). Appended in a word that was unused, so a
+        /// heartbeat written before it reads 0 here.
+        velocities: u64,
+        /// Odometry messages whose twist is in a frame other than the body
+        /// frame (used all the same). Appended as `velocities`.
+        velocities_other_frame: u64,
     }
     /// The Foxglove live view.
     Foxglove(FoxgloveCounters) = 8 {
@@ -614,7 +623,17 @@ mod tests {
                     "other_frame",
                 ],
             ),
-            (7, &["odometry", "imu", "tf", "write_failures"]),
+            (
+                7,
+                &[
+                    "odometry",
+                    "imu",
+                    "tf",
+                    "write_failures",
+                    "velocities",
+                    "velocities_other_frame",
+                ],
+            ),
             (8, &["poses", "fixes", "diags", "clients"]),
             (9, &["poses", "health", "fixes", "diags", "put_failures"]),
         ];
@@ -687,6 +706,8 @@ mod tests {
                 imu: 2,
                 tf: 3,
                 write_failures: 4,
+                velocities: 5,
+                velocities_other_frame: 6,
             }),
             StageCounters::Foxglove(FoxgloveCounters {
                 poses: 1,
@@ -705,6 +726,25 @@ mod tests {
             let names: Vec<&str> = c.values().map(|(k, _)| k).collect();
             assert_eq!(names, c.kind().names());
         }
+    }
+
+    /// The ROS 2 bridge's velocity counters were appended in words a
+    /// bridge before them left 0: such a heartbeat (a log's Health record)
+    /// reads the same, with no velocities.
+    #[test]
+    fn a_bridge_heartbeat_from_before_the_velocity_counters_reads() {
+        let old = CounterBlock::from_raw(7, [1, 2, 3, 4, 0, 0]);
+        assert_eq!(
+            old.get(),
+            Ok(StageCounters::Ros2Bridge(Ros2BridgeCounters {
+                odometry: 1,
+                imu: 2,
+                tf: 3,
+                write_failures: 4,
+                velocities: 0,
+                velocities_other_frame: 0,
+            }))
+        );
     }
 
     #[test]

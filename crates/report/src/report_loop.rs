@@ -37,6 +37,10 @@ pub enum ReportLoopError {
     /// Publishing the heartbeat.
     #[error("ReportLoopError::Heartbeat: {0}")]
     Heartbeat(#[from] PublishError),
+    /// Publishing a sample of the stage's own on iceoryx2 (the ROS 2
+    /// bridge's body velocities).
+    #[error("ReportLoopError::Publish: {0}")]
+    Publish(PublishError),
 }
 
 /// The outputs of a stage run by [`ReportLoop::run`]: what it does at each

@@ -10,6 +10,23 @@
 //! | `<ns>/imu` | `sensor_msgs/Imu` | reliable, volatile, keep-last 10 | each IMU sample (`publish_imu`) |
 //! | `/diagnostics` | `diagnostic_msgs/DiagnosticArray` | reliable, volatile, keep-last 10 | every `diagnostics_period_s`: one status per stage |
 //!
+//! and, when `[ros2] odometry_in` names a topic, it reads the robot base's
+//! odometry from ROS and publishes it on iceoryx2:
+//!
+//! | ROS topic (in) | type | QoS | to |
+//! |---|---|---|---|
+//! | `odometry_in` | `nav_msgs/Odometry` or `geometry_msgs/TwistStamped` (`odometry_in_type`) | best effort, volatile, keep-last 100 (matches reliable and best-effort writers) | `body_vel`: a `BodyVelocity` of source odometry per message the velocity gate accepts |
+//!
+//! Each message's linear twist is taken as the body's velocity (its frame
+//! should be `child_frame_id`; another is used all the same, counted and
+//! warned of once), each axis's sigma from the twist covariance's diagonal
+//! (0: `odometry_in_sigma_mps`; 1e6 or more: not measured; negative or NaN:
+//! refused), timed by its stamp mapped to CLOCK_MONOTONIC
+//! ([`crate::convert::TwistMessage`], [`crate::odometry_in`]). Every
+//! velocity passes `insuwb_msg::check::VelocityGate` (values, then a time
+//! strictly after the previous one's); refused ones are counted and never
+//! published. The reader is drained with non-blocking takes at each drain.
+//!
 //! The loop ([`crate::report_loop`]) sleeps in the stage's `Waiter`: it
 //! wakes for each fused state, drains the IMU samples and heartbeats then
 //! (or [`DRAIN_PERIOD_NS`] after the last drain while no fused state
@@ -22,26 +39,34 @@
 //! republished: a restarted bridge's subscribers first get the topics'
 //! history, which its previous run published already.
 //!
-//! Heartbeat counters: `received` what the subscribers got, `published` the
-//! DDS messages written, `dropped_invalid` samples no conversion accepts,
-//! `dropped_time` samples too old to republish, and
+//! Heartbeat counters: `received` what the subscribers got and the odometry
+//! messages taken, `published` the DDS messages written and the body
+//! velocities published, `dropped_invalid` samples no conversion accepts
+//! and odometry refused for its values or undecodable, `dropped_time`
+//! samples too old to republish and odometry refused for its time, and
 //! [`Ros2BridgeCounters`] (odometry, IMU and transforms written, write
-//! failures).
+//! failures, body velocities published, odometry in another frame).
 
-use insuwb_msg::{topics, FusedState, Health, ImuSample, Ros2BridgeCounters, StageCounters};
+use insuwb_msg::{
+    topics, BodyVelocity, FusedState, Health, ImuSample, Ros2BridgeCounters, StageCounters,
+};
 use insuwb_runtime::{
-    monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
+    monotonic_ns, HealthCounters, HealthReporter, PortError, Pub, RuntimeConfig, Stage, StageError,
+    Sub,
 };
 use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
+    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile, ReadError,
+    Subscription,
 };
+use serde::de::DeserializeOwned;
 
-use crate::config::{Ros2Config, Ros2ConfigError};
-use crate::convert::{self, ConvertError, Frames, RosStamp};
+use crate::config::{OdometryInType, Ros2Config, Ros2ConfigError};
+use crate::convert::{self, ConvertError, Frames, RosStamp, TwistMessage};
 use crate::msgs::{
-    DiagnosticArray, Header, Imu, Odometry, RosMessage, TfMessage, TransformStamped,
+    DiagnosticArray, Header, Imu, Odometry, RosMessage, TfMessage, TransformStamped, TwistStamped,
 };
+use crate::odometry_in::OdometryIntake;
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::GroupSeen;
 use insuwb_report::report_loop::{ReportLoop, ReportOutputs};
@@ -110,6 +135,16 @@ pub struct BridgeStats {
     pub old: u64,
     /// DDS writes that failed (full send window, middleware error).
     pub write_failures: u64,
+    /// Body velocities published on `body_vel` from `[ros2] odometry_in`.
+    pub velocities: u64,
+    /// Odometry messages refused (invalid values, an undecodable message,
+    /// a time not after the previous one's).
+    pub velocities_refused: u64,
+    /// Odometry messages whose twist is in a frame other than the body
+    /// frame.
+    pub velocities_other_frame: u64,
+    /// Takes from the odometry reader that failed (not a message).
+    pub odometry_in_read_failures: u64,
 }
 
 type Publisher<M> = ros2_client::Publisher<M>;
@@ -144,8 +179,85 @@ struct Outputs {
     _tf_static_pub: Publisher<TfMessage>,
     imu_pub: Option<Publisher<Imu>>,
     diag_pub: Publisher<DiagnosticArray>,
+    odometry_in: Option<OdometryIn>,
     _node: ros2_client::Node,
     _context: Context,
+}
+
+/// Most messages taken from the odometry reader in one drain: a bound on
+/// the loop's time even when a publisher floods it (the reader keeps
+/// [`crate::subscribe::QUEUE_DEPTH`]).
+const MAX_TAKES_PER_DRAIN: usize = 4 * crate::subscribe::QUEUE_DEPTH;
+
+/// The reader of `[ros2] odometry_in`, of its configured type.
+enum TwistReader {
+    /// `nav_msgs/Odometry`.
+    Odometry(Subscription<Odometry>),
+    /// `geometry_msgs/TwistStamped`.
+    TwistStamped(Subscription<TwistStamped>),
+}
+
+/// The base's odometry in: DDS reader, intake, iceoryx2 publisher.
+struct OdometryIn {
+    reader: TwistReader,
+    intake: OdometryIntake,
+    body_vel: Pub<BodyVelocity>,
+}
+
+impl OdometryIn {
+    /// Takes every message the reader holds (at most
+    /// [`MAX_TAKES_PER_DRAIN`]), without waiting, and publishes the
+    /// velocities the intake accepts.
+    fn drain(
+        &mut self,
+        clock: &ClockOffset,
+        stats: &mut BridgeStats,
+    ) -> Result<(), BridgeRunError> {
+        let Self {
+            reader,
+            intake,
+            body_vel,
+        } = self;
+        match reader {
+            TwistReader::Odometry(r) => take_all(r, intake, body_vel, clock, stats),
+            TwistReader::TwistStamped(r) => take_all(r, intake, body_vel, clock, stats),
+        }
+    }
+}
+
+fn take_all<M: TwistMessage + DeserializeOwned + 'static>(
+    reader: &Subscription<M>,
+    intake: &mut OdometryIntake,
+    body_vel: &mut Pub<BodyVelocity>,
+    clock: &ClockOffset,
+    stats: &mut BridgeStats,
+) -> Result<(), BridgeRunError> {
+    for _ in 0..MAX_TAKES_PER_DRAIN {
+        match reader.take() {
+            Ok(Some((m, _))) => {
+                if let Some(v) = intake.take(&m, clock, monotonic_ns()) {
+                    body_vel.publish(v).map_err(BridgeRunError::Publish)?;
+                    stats.velocities += 1;
+                }
+            }
+            Ok(None) => break,
+            Err(ReadError::Deserialization { .. } | ReadError::Malformed) => {
+                intake.undecodable();
+            }
+            Err(e) => {
+                stats.odometry_in_read_failures += 1;
+                // The first failure and then one in a thousand.
+                if stats.odometry_in_read_failures % 1000 == 1 {
+                    tracing::warn!(
+                        "ros2: reading odometry_in failed ({} so far): {e}",
+                        stats.odometry_in_read_failures
+                    );
+                }
+                break;
+            }
+        }
+    }
+    Ok(())
 }
 
 impl std::fmt::Debug for Bridge {
@@ -170,6 +282,23 @@ fn reliable(depth: usize, durability: Durability) -> QosProfile {
         .reliability_reliable(WhenFull::Fail)
         .durability(durability)
         .history(History::KeepLast { depth })
+}
+
+/// The reader of `[ros2] odometry_in` (full name `topic`) of type `M`.
+fn twist_reader<M: RosMessage + DeserializeOwned + 'static>(
+    node: &mut ros2_client::Node,
+    topic: &str,
+) -> Result<Subscription<M>, BridgeOpenError> {
+    let name = dds(&format!("topic name {topic}"), Name::parse(topic))?;
+    let ty = MessageTypeName::new(M::DEF.package, M::DEF.name);
+    let t = dds(
+        &format!("topic {topic} ({})", M::type_name()),
+        node.create_topic(&name, ty, &crate::subscribe::imu_qos()),
+    )?;
+    dds(
+        &format!("reader on {topic}"),
+        node.create_subscription::<M>(&t, None),
+    )
 }
 
 fn publisher<M: RosMessage>(
@@ -202,9 +331,23 @@ impl Bridge {
         let fused = stage.subscriber::<FusedState>(topics::FUSED)?;
         let imu = stage.subscriber::<ImuSample>(topics::IMU)?;
         let health_sub = stage.subscriber::<Health>(topics::HEALTH)?;
+        let body_vel = match c.odometry_in_topic_name() {
+            Some(_) => Some(stage.publisher::<BodyVelocity>(topics::BODY_VEL)?),
+            None => None,
+        };
         let health = stage.health_reporter()?;
         insuwb_runtime::signal::with_signals_blocked(|| {
-            Self::open_dds(setup, stage, fused, imu, health_sub, health)
+            Self::open_dds(
+                setup,
+                stage,
+                Inputs {
+                    fused,
+                    imu,
+                    health: health_sub,
+                },
+                health,
+                body_vel,
+            )
         })
     }
 
@@ -212,10 +355,9 @@ impl Bridge {
     fn open_dds(
         setup: BridgeSetup,
         stage: Stage,
-        fused: Sub<FusedState>,
-        imu: Sub<ImuSample>,
-        health_sub: Sub<Health>,
+        inputs: Inputs,
         health: HealthReporter,
+        body_vel: Option<Pub<BodyVelocity>>,
     ) -> Result<Self, BridgeOpenError> {
         let c = &setup.ros2;
         let context = dds(
@@ -264,6 +406,29 @@ impl Bridge {
         };
         let diag_pub =
             publisher::<DiagnosticArray>(&mut node, &c.diagnostics_topic_name(), &volatile10)?;
+        let odometry_in = match (c.odometry_in_topic_name(), body_vel) {
+            (Some(topic), Some(body_vel)) => {
+                let reader = match c.odometry_in_type {
+                    OdometryInType::Odometry => {
+                        TwistReader::Odometry(twist_reader::<Odometry>(&mut node, &topic)?)
+                    }
+                    OdometryInType::TwistStamped => {
+                        TwistReader::TwistStamped(twist_reader::<TwistStamped>(&mut node, &topic)?)
+                    }
+                };
+                tracing::info!(
+                    "ROS 2 odometry in: {topic} ({}), body velocities on {}",
+                    c.odometry_in_type.name(),
+                    topics::BODY_VEL
+                );
+                Some(OdometryIn {
+                    reader,
+                    intake: OdometryIntake::new(c),
+                    body_vel,
+                })
+            }
+            _ => None,
+        };
         let frames = Frames {
             frame_id: c.frame_id.clone(),
             child_frame_id: c.child_frame_id.clone(),
@@ -284,11 +449,7 @@ impl Bridge {
         );
         Ok(Self {
             stage,
-            inputs: Inputs {
-                fused,
-                imu,
-                health: health_sub,
-            },
+            inputs,
             health,
             out: Outputs {
                 frames,
@@ -299,6 +460,7 @@ impl Bridge {
                 _tf_static_pub: tf_static_pub,
                 imu_pub,
                 diag_pub,
+                odometry_in,
                 stats: BridgeStats::default(),
                 opened_ns: monotonic_ns(),
                 setup,
@@ -326,6 +488,10 @@ impl Bridge {
             stamp_clock: r.stamp_clock,
         };
         looped.run(&stage, &inputs.fused, &inputs, &mut health, &mut out)?;
+        if let Some(o) = &out.odometry_in {
+            out.stats.velocities_refused = o.intake.dropped_invalid() + o.intake.dropped_time();
+            out.stats.velocities_other_frame = o.intake.counts().other_frame;
+        }
         Ok(out.stats)
     }
 }
@@ -334,7 +500,8 @@ impl ReportOutputs for Outputs {
     type Inputs = Inputs;
     type Error = BridgeRunError;
 
-    /// Drains the three subscribers and publishes what they held.
+    /// Drains the three subscribers and the odometry reader and publishes
+    /// what they held.
     fn drain(
         &mut self,
         inputs: &Inputs,
@@ -354,6 +521,7 @@ impl ReportOutputs for Outputs {
             tf_pub,
             imu_pub,
             stats,
+            odometry_in,
             ..
         } = self;
         let only_valid = setup.ros2.only_valid;
@@ -414,6 +582,9 @@ impl ReportOutputs for Outputs {
                 }
             }
         })?;
+        if let Some(o) = odometry_in {
+            o.drain(clock, stats)?;
+        }
         let now = monotonic_ns();
         health_sub.drain(|h| group.note_heartbeat(h, now))?;
         Ok(())
@@ -467,14 +638,23 @@ impl ReportOutputs for Outputs {
             c.add_sub(&st);
         }
         let s = &self.stats;
-        c.published = s.odometry + s.imu + s.tf + s.diagnostics;
+        c.published = s.odometry + s.imu + s.tf + s.diagnostics + s.velocities;
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
+        let mut other_frame = 0;
+        if let Some(o) = &self.odometry_in {
+            c.received += o.intake.counts().received;
+            c.dropped_invalid += o.intake.dropped_invalid();
+            c.dropped_time += o.intake.dropped_time();
+            other_frame = o.intake.counts().other_frame;
+        }
         c.stage = StageCounters::Ros2Bridge(Ros2BridgeCounters {
             odometry: s.odometry,
             imu: s.imu,
             tf: s.tf,
             write_failures: s.write_failures,
+            velocities: s.velocities,
+            velocities_other_frame: other_frame,
         });
         c
     }

@@ -59,7 +59,44 @@ pub struct Ros2Config {
     pub diagnostics_period_s: f64,
     /// A stage whose last heartbeat is older than this is reported ERROR, s.
     pub stale_after_s: f64,
+    /// A ROS topic of the robot's base odometry, read and published as body
+    /// velocities on iceoryx2 (`body_vel`, source odometry), relative to the
+    /// namespace or absolute; empty: none.
+    pub odometry_in: String,
+    /// The message type of `odometry_in`.
+    pub odometry_in_type: OdometryInType,
+    /// The standard deviation of an axis of `odometry_in` whose variance is
+    /// 0 (unset, as many base drivers publish it), m/s; every axis's for
+    /// `geometry_msgs/TwistStamped`, which has no covariance.
+    pub odometry_in_sigma_mps: f64,
 }
+
+/// The message type of `[ros2] odometry_in`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OdometryInType {
+    /// `nav_msgs/Odometry`: the twist in `child_frame_id`, with its
+    /// covariance.
+    #[default]
+    Odometry,
+    /// `geometry_msgs/TwistStamped`: the twist in `header.frame_id`,
+    /// without covariance.
+    TwistStamped,
+}
+
+impl OdometryInType {
+    /// Its spelling in `[ros2] odometry_in_type`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Odometry => "odometry",
+            Self::TwistStamped => "twist_stamped",
+        }
+    }
+}
+
+/// The default of `[ros2] odometry_in_sigma_mps`, m/s.
+pub const DEFAULT_ODOMETRY_IN_SIGMA_MPS: f64 = 0.1;
 
 impl Default for Ros2Config {
     fn default() -> Self {
@@ -81,6 +118,9 @@ impl Default for Ros2Config {
             stamp_clock: StampClock::Realtime,
             diagnostics_period_s: 1.0,
             stale_after_s: 1.0,
+            odometry_in: String::new(),
+            odometry_in_type: OdometryInType::Odometry,
+            odometry_in_sigma_mps: DEFAULT_ODOMETRY_IN_SIGMA_MPS,
         }
     }
 }
@@ -164,7 +204,23 @@ impl Ros2Config {
                 return bad(key, format!("must be in (0, 3600] s, got {v}"));
             }
         }
+        if !self.odometry_in.is_empty() {
+            check_name("odometry_in", &self.odometry_in)?;
+        }
+        let sigma = self.odometry_in_sigma_mps;
+        if !(sigma.is_finite() && sigma > 0.0 && sigma <= MAX_ODOMETRY_IN_SIGMA_MPS) {
+            return bad(
+                "odometry_in_sigma_mps",
+                format!("must be in (0, {MAX_ODOMETRY_IN_SIGMA_MPS}] m/s, got {sigma}"),
+            );
+        }
         Ok(())
+    }
+
+    /// The full name of `odometry_in`, `None` when it is empty.
+    #[must_use]
+    pub fn odometry_in_topic_name(&self) -> Option<String> {
+        (!self.odometry_in.is_empty()).then(|| self.full_topic(&self.odometry_in))
     }
 
     /// The full name of a topic of the node: `topic` when absolute, else
@@ -198,6 +254,10 @@ impl Ros2Config {
         self.full_topic(&self.diagnostics_topic)
     }
 }
+
+/// The largest `[ros2] odometry_in_sigma_mps`, m/s: a larger one says
+/// nothing a velocity aiding could use.
+pub const MAX_ODOMETRY_IN_SIGMA_MPS: f64 = 100.0;
 
 /// A ROS name token: `[A-Za-z_][A-Za-z0-9_]*`, no `__`, no trailing `_`
 /// rule (ROS allows it).
@@ -301,7 +361,7 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, Ros2Config); 9] = [
+        let cases: [(&str, Ros2Config); 12] = [
             (
                 "domain_id",
                 Ros2Config {
@@ -365,6 +425,27 @@ mod tests {
                     ..Ros2Config::default()
                 },
             ),
+            (
+                "odometry_in",
+                Ros2Config {
+                    odometry_in: "/wheel//odom".into(),
+                    ..Ros2Config::default()
+                },
+            ),
+            (
+                "odometry_in_sigma_mps",
+                Ros2Config {
+                    odometry_in_sigma_mps: 0.0,
+                    ..Ros2Config::default()
+                },
+            ),
+            (
+                "odometry_in_sigma_mps",
+                Ros2Config {
+                    odometry_in_sigma_mps: f64::NAN,
+                    ..Ros2Config::default()
+                },
+            ),
         ];
         for (key, c) in cases {
             let e = c.validate().unwrap_err();
@@ -381,6 +462,26 @@ mod tests {
         assert!(toml::from_str::<Ros2Config>("odom = \"x\"").is_err());
         let c: Ros2Config = toml::from_str("stamp_clock = \"monotonic\"").unwrap();
         assert_eq!(c.stamp_clock, StampClock::Monotonic);
+    }
+
+    #[test]
+    fn odometry_in_is_off_unless_set() {
+        let c = Ros2Config::default();
+        assert_eq!(c.odometry_in_topic_name(), None);
+        assert_eq!(c.odometry_in_type, OdometryInType::Odometry);
+        assert_eq!(c.odometry_in_sigma_mps, DEFAULT_ODOMETRY_IN_SIGMA_MPS);
+        let c: Ros2Config = toml::from_str(
+            "odometry_in = \"wheel/odom\"\nodometry_in_type = \"twist_stamped\"\nodometry_in_sigma_mps = 0.05",
+        )
+        .unwrap();
+        c.validate().unwrap();
+        assert_eq!(
+            c.odometry_in_topic_name().as_deref(),
+            Some("/insuwb/wheel/odom")
+        );
+        assert_eq!(c.odometry_in_type, OdometryInType::TwistStamped);
+        assert_eq!(c.odometry_in_type.name(), "twist_stamped");
+        assert!(toml::from_str::<Ros2Config>("odometry_in_type = \"twist\"").is_err());
     }
 
     #[test]

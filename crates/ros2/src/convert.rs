@@ -22,7 +22,11 @@
 //!   ("unknown").
 //! - The other way: [`ros_to_imu_sample`] reads a `sensor_msgs/Imu` of an
 //!   IMU already in ROS (the IMU driver's `ros2:/TOPIC` source), timed by
-//!   its stamp mapped back to CLOCK_MONOTONIC ([`stamp_to_monotonic`]).
+//!   its stamp mapped back to CLOCK_MONOTONIC ([`stamp_to_monotonic`]);
+//!   [`TwistMessage::body_velocity`] reads the twist of a base's
+//!   `nav_msgs/Odometry` or `geometry_msgs/TwistStamped` (the bridge's
+//!   `[ros2] odometry_in`) as a body velocity, its sigmas from the twist's
+//!   covariance ([`twist_sigma_mps`]), timed the same way.
 //!
 //! ```
 //! use insuwb_msg::{FusedState, Header};
@@ -36,11 +40,12 @@
 //! assert_eq!(odom.pose.pose.orientation.w, 1.0);
 //! ```
 
-use insuwb_msg::{name_str, FusedState, ImuSample};
+use insuwb_msg::{name_str, BodyVelocity, FusedState, ImuSample};
 
 use crate::msgs::{
     Cov6, DiagnosticStatus, Header, Imu, KeyValue, Odometry, Point, Pose, PoseWithCovariance,
-    Quaternion, Time, Transform, TransformStamped, Twist, TwistWithCovariance, Vector3,
+    Quaternion, Time, Transform, TransformStamped, Twist, TwistStamped, TwistWithCovariance,
+    Vector3,
 };
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::{StageCondition, StageSeen};
@@ -486,15 +491,16 @@ fn heartbeat_values(s: &StageSeen, age_ns: u64) -> Vec<KeyValue> {
     values
 }
 
-/// The oldest an incoming IMU message's stamp may be against its receive
+/// The oldest an incoming message's stamp (IMU, body velocity) may be against its receive
 /// time and still be its measurement time, ns: an older stamp is of another
 /// clock (simulation time, a publisher whose clock is far off), and the
 /// receive time is taken instead.
 pub const MAX_STAMP_AGE_NS: u64 = 1_000_000_000;
 
-/// Which time an IMU sample received from ROS got as its measurement time.
+/// Which time a sample received from ROS (an IMU sample, a body velocity)
+/// got as its measurement time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ImuTimeSource {
+pub enum RosTimeSource {
     /// `header.stamp`, mapped to CLOCK_MONOTONIC.
     Stamp,
     /// The receive time: the stamp was unset (0), invalid, after the
@@ -515,27 +521,35 @@ pub fn stamp_to_monotonic(t: &Time, clock: &ClockOffset) -> Option<u64> {
     u64::try_from(ns).ok()
 }
 
+/// The measurement time (CLOCK_MONOTONIC) of a message stamped `stamp` and
+/// received at `rx_ns`: the stamp mapped by `clock`
+/// ([`stamp_to_monotonic`]) when it is set, not after `rx_ns` and at most
+/// [`MAX_STAMP_AGE_NS`] before it (the time the sensor measured, without
+/// the transport's delay); otherwise `rx_ns`.
+#[must_use]
+pub fn measurement_time(stamp: &Time, clock: &ClockOffset, rx_ns: u64) -> (u64, RosTimeSource) {
+    let stamped = (*stamp != Time::default())
+        .then(|| stamp_to_monotonic(stamp, clock))
+        .flatten()
+        .filter(|t| *t <= rx_ns && rx_ns - *t <= MAX_STAMP_AGE_NS);
+    match stamped {
+        Some(t) => (t, RosTimeSource::Stamp),
+        None => (rx_ns, RosTimeSource::Receive),
+    }
+}
+
 /// The insuwb IMU sample of a `sensor_msgs/Imu` message received at
 /// `rx_ns` (CLOCK_MONOTONIC): `linear_acceleration` (specific force, m/s^2)
 /// and `angular_velocity` (rad/s) as they are, so the message's frame must
 /// be the body frame; orientation and covariances are not read.
 ///
-/// Measurement time: `header.stamp` mapped to CLOCK_MONOTONIC by `clock`
-/// ([`stamp_to_monotonic`]) when it is set, not after `rx_ns` and at most
-/// [`MAX_STAMP_AGE_NS`] before it (the time the sensor measured, without
-/// the transport's delay); otherwise `rx_ns`. The values are not checked
-/// here: the IMU driver drops and counts NaN, infinite and out-of-range
-/// ones. The header's sequence number is 0 (the publisher numbers it).
+/// Measurement time: [`measurement_time`] of `header.stamp`. The values
+/// are not checked here: the IMU driver drops and counts NaN, infinite and
+/// out-of-range ones. The header's sequence number is 0 (the publisher
+/// numbers it).
 #[must_use]
-pub fn ros_to_imu_sample(m: &Imu, clock: &ClockOffset, rx_ns: u64) -> (ImuSample, ImuTimeSource) {
-    let stamped = (m.header.stamp != Time::default())
-        .then(|| stamp_to_monotonic(&m.header.stamp, clock))
-        .flatten()
-        .filter(|t| *t <= rx_ns && rx_ns - *t <= MAX_STAMP_AGE_NS);
-    let (t, source) = match stamped {
-        Some(t) => (t, ImuTimeSource::Stamp),
-        None => (rx_ns, ImuTimeSource::Receive),
-    };
+pub fn ros_to_imu_sample(m: &Imu, clock: &ClockOffset, rx_ns: u64) -> (ImuSample, RosTimeSource) {
+    let (t, source) = measurement_time(&m.header.stamp, clock, rx_ns);
     let v = |v: &Vector3| [v.x, v.y, v.z];
     let s = ImuSample {
         header: insuwb_msg::Header::new(0, t),
@@ -543,6 +557,118 @@ pub fn ros_to_imu_sample(m: &Imu, clock: &ClockOffset, rx_ns: u64) -> (ImuSample
         gyro_rps: v(&m.angular_velocity),
     };
     (s, source)
+}
+
+/// The standard deviation, m/s, of one axis of an incoming twist whose
+/// variance (the covariance's diagonal entry) is `variance`:
+///
+/// - `sqrt(variance)` when it is finite and above 0;
+/// - 0 (the axis is not measured) at or above [`UNKNOWN_VARIANCE`], 1e6,
+///   the ROS convention for an unknown entry (infinity included);
+/// - `default_sigma_mps` for 0 (unset: many base drivers publish a zero
+///   covariance);
+/// - for a negative variance a negative sigma, for NaN a NaN one: values
+///   no measurement has, which the one check of body velocities
+///   ([`insuwb_msg::check::VelocityGate`]) refuses and counts (`sigma`,
+///   `non_finite`).
+#[must_use]
+pub fn twist_sigma_mps(variance: f64, default_sigma_mps: f64) -> f64 {
+    if variance.is_nan() {
+        f64::NAN
+    } else if variance < 0.0 {
+        -(-variance).sqrt()
+    } else if variance == 0.0 {
+        default_sigma_mps
+    } else if variance >= UNKNOWN_VARIANCE {
+        0.0
+    } else {
+        variance.sqrt()
+    }
+}
+
+/// A body velocity read from a ROS message, unchecked.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VelocityIn {
+    /// The measurement: `twist.linear` in the twist's frame, a sigma per
+    /// axis ([`twist_sigma_mps`]), source [`BodyVelocity::SOURCE_ODOMETRY`],
+    /// `header.seq` 0 (the publisher numbers it). Not checked here: the
+    /// bridge passes it through [`insuwb_msg::check::VelocityGate`].
+    pub sample: BodyVelocity,
+    /// Which time it got ([`measurement_time`]).
+    pub time: RosTimeSource,
+}
+
+/// A ROS message that carries a twist of the robot's base
+/// (`[ros2] odometry_in`): `nav_msgs/Odometry` or
+/// `geometry_msgs/TwistStamped`.
+pub trait TwistMessage {
+    /// The frame of its twist (Odometry's `child_frame_id`, TwistStamped's
+    /// `header.frame_id`): the body frame is expected.
+    fn twist_frame(&self) -> &str;
+
+    /// Its body velocity received at `rx_ns` (CLOCK_MONOTONIC), timed by
+    /// [`measurement_time`] of its stamp; `default_sigma_mps` is the sigma
+    /// of an axis whose variance is 0 or not sent.
+    fn body_velocity(&self, default_sigma_mps: f64, clock: &ClockOffset, rx_ns: u64) -> VelocityIn;
+}
+
+fn velocity_in(
+    stamp: &Time,
+    linear: &Vector3,
+    sigma_mps: [f64; 3],
+    clock: &ClockOffset,
+    rx_ns: u64,
+) -> VelocityIn {
+    let (t, time) = measurement_time(stamp, clock, rx_ns);
+    VelocityIn {
+        sample: BodyVelocity {
+            header: insuwb_msg::Header::new(0, t),
+            vel_mps: [linear.x, linear.y, linear.z],
+            sigma_mps,
+            source: BodyVelocity::SOURCE_ODOMETRY,
+            reserved: 0,
+        },
+        time,
+    }
+}
+
+impl TwistMessage for Odometry {
+    fn twist_frame(&self) -> &str {
+        &self.child_frame_id
+    }
+
+    /// `twist.twist.linear`; each axis's sigma from the diagonal of
+    /// `twist.covariance` (entries 0, 7, 14) by [`twist_sigma_mps`]. The
+    /// pose and the angular velocity are not read.
+    fn body_velocity(&self, default_sigma_mps: f64, clock: &ClockOffset, rx_ns: u64) -> VelocityIn {
+        let c = &self.twist.covariance.0;
+        let sigma = [0, 7, 14].map(|i| twist_sigma_mps(c[i], default_sigma_mps));
+        velocity_in(
+            &self.header.stamp,
+            &self.twist.twist.linear,
+            sigma,
+            clock,
+            rx_ns,
+        )
+    }
+}
+
+impl TwistMessage for TwistStamped {
+    fn twist_frame(&self) -> &str {
+        &self.header.frame_id
+    }
+
+    /// `twist.linear`, every axis with sigma `default_sigma_mps` (the
+    /// message has no covariance).
+    fn body_velocity(&self, default_sigma_mps: f64, clock: &ClockOffset, rx_ns: u64) -> VelocityIn {
+        velocity_in(
+            &self.header.stamp,
+            &self.twist.linear,
+            [default_sigma_mps; 3],
+            clock,
+            rx_ns,
+        )
+    }
 }
 
 #[cfg(test)]
@@ -836,7 +962,7 @@ mod tests {
         assert_eq!(stamp_to_monotonic(&stamp, &clock), Some(rx - 3_000_000));
         let m = ros_imu(stamp.sec, stamp.nanosec);
         let (s, src) = ros_to_imu_sample(&m, &clock, rx);
-        assert_eq!(src, ImuTimeSource::Stamp);
+        assert_eq!(src, RosTimeSource::Stamp);
         assert_eq!(s.header.meas_time_ns, rx - 3_000_000);
         assert_eq!(s.accel_mps2, [0.1, -0.2, 9.81]);
         assert_eq!(s.gyro_rps, [0.01, -0.02, 0.5]);
@@ -847,7 +973,7 @@ mod tests {
         let (s, src) = ros_to_imu_sample(&ros_imu(4, 990_000_000), &ClockOffset::ZERO, rx);
         assert_eq!(
             (s.header.meas_time_ns, src),
-            (4_990_000_000, ImuTimeSource::Stamp)
+            (4_990_000_000, RosTimeSource::Stamp)
         );
         // Non-finite values pass through (the driver counts them).
         let mut nan = m.clone();
@@ -865,13 +991,13 @@ mod tests {
             let (s, src) = at(sec, nanosec);
             assert_eq!(
                 (s.header.meas_time_ns, src),
-                (rx, ImuTimeSource::Receive),
+                (rx, RosTimeSource::Receive),
                 "{sec} s {nanosec} ns"
             );
         }
         // Exactly now and exactly the oldest allowed: the stamp.
-        assert_eq!(at(5, 0).1, ImuTimeSource::Stamp);
-        assert_eq!(at(4, 0).1, ImuTimeSource::Stamp);
+        assert_eq!(at(5, 0).1, RosTimeSource::Stamp);
+        assert_eq!(at(4, 0).1, RosTimeSource::Stamp);
         // Before the monotonic clock's start: no monotonic time.
         let late = ClockOffset {
             offset_ns: 10_000_000_000,
@@ -890,5 +1016,151 @@ mod tests {
             ),
             None
         );
+    }
+
+    fn ros_odometry(sec: i32, nanosec: u32, variances: [f64; 3]) -> Odometry {
+        let mut m = Odometry {
+            header: Header {
+                stamp: Time { sec, nanosec },
+                frame_id: "odom".into(),
+            },
+            child_frame_id: "base_link".into(),
+            ..Odometry::default()
+        };
+        m.twist.twist.linear = Vector3 {
+            x: 0.8,
+            y: -0.05,
+            z: 0.01,
+        };
+        // Angular rate and pose: not read.
+        m.twist.twist.angular.z = 0.3;
+        m.pose.pose.position.x = 12.0;
+        for (i, v) in variances.into_iter().enumerate() {
+            m.twist.covariance.0[i * 7] = v;
+        }
+        // Off-diagonal and angular entries: not read.
+        m.twist.covariance.0[1] = -5.0;
+        m.twist.covariance.0[35] = f64::NAN;
+        m
+    }
+
+    #[test]
+    fn twist_sigmas_follow_the_covariance_rules() {
+        let d = 0.1;
+        assert_eq!(twist_sigma_mps(0.04, d), 0.2);
+        assert_eq!(twist_sigma_mps(0.0, d), d);
+        assert_eq!(twist_sigma_mps(-0.0, d), d);
+        // 1e6 and above: the ROS "unknown", not measured.
+        assert_eq!(twist_sigma_mps(UNKNOWN_VARIANCE, d), 0.0);
+        assert_eq!(twist_sigma_mps(1e9, d), 0.0);
+        assert_eq!(twist_sigma_mps(f64::INFINITY, d), 0.0);
+        assert_eq!(twist_sigma_mps(999_999.0, d), 999_999f64.sqrt());
+        // Invalid: values the velocity gate refuses.
+        assert!(twist_sigma_mps(-0.01, d) < 0.0);
+        assert!(twist_sigma_mps(f64::NEG_INFINITY, d) < 0.0);
+        assert!(twist_sigma_mps(f64::NAN, d).is_nan());
+    }
+
+    #[test]
+    fn odometry_becomes_a_body_velocity_at_its_stamp() {
+        let clock = ClockOffset {
+            offset_ns: 1_700_000_000_000_000_000,
+        };
+        let rx = 5_000_000_000;
+        let stamp = clock.stamp(rx - 4_000_000).unwrap();
+        let m = ros_odometry(stamp.sec, stamp.nanosec, [0.0004, 0.0, UNKNOWN_VARIANCE]);
+        assert_eq!(m.twist_frame(), "base_link");
+        let v = m.body_velocity(0.1, &clock, rx);
+        assert_eq!(v.time, RosTimeSource::Stamp);
+        assert_eq!(v.sample.header.meas_time_ns, rx - 4_000_000);
+        assert_eq!(v.sample.header.seq, 0);
+        assert_eq!(v.sample.vel_mps, [0.8, -0.05, 0.01]);
+        assert_eq!(v.sample.sigma_mps, [0.02, 0.1, 0.0]);
+        assert_eq!(v.sample.source, BodyVelocity::SOURCE_ODOMETRY);
+        insuwb_msg::check::velocity_values(&v.sample).unwrap();
+        // Unset, ahead, too old: the receive time.
+        for (sec, nanosec) in [(0, 0), (stamp.sec + 2, 0), (stamp.sec - 2, 0)] {
+            let v = ros_odometry(sec, nanosec, [0.01; 3]).body_velocity(0.1, &clock, rx);
+            assert_eq!(
+                (v.sample.header.meas_time_ns, v.time),
+                (rx, RosTimeSource::Receive)
+            );
+        }
+        // Monotonic stamps map as they are.
+        let v = ros_odometry(4, 500_000_000, [0.01; 3]).body_velocity(0.1, &ClockOffset::ZERO, rx);
+        assert_eq!(v.sample.header.meas_time_ns, 4_500_000_000);
+    }
+
+    #[test]
+    fn invalid_twists_are_refused_by_the_velocity_gate() {
+        use insuwb_msg::check::{InvalidVelocity, VelocityGate, VelocityRefusal};
+        let z = ClockOffset::ZERO;
+        let rx = 5_000_000_000;
+        let mut gate = VelocityGate::new();
+        let mut check = |m: &Odometry| gate.check(&m.body_velocity(0.1, &z, rx).sample);
+        // A NaN velocity, a negative and a NaN variance, every axis unknown.
+        let mut nan = ros_odometry(4, 0, [0.01; 3]);
+        nan.twist.twist.linear.y = f64::NAN;
+        assert!(matches!(
+            check(&nan),
+            Err(VelocityRefusal::Invalid(InvalidVelocity::NonFinite {
+                field: "vel_mps",
+                ..
+            }))
+        ));
+        assert!(matches!(
+            check(&ros_odometry(4, 0, [0.01, -0.01, 0.01])),
+            Err(VelocityRefusal::Invalid(InvalidVelocity::Sigma { .. }))
+        ));
+        assert!(matches!(
+            check(&ros_odometry(4, 0, [f64::NAN, 0.01, 0.01])),
+            Err(VelocityRefusal::Invalid(InvalidVelocity::NonFinite {
+                field: "sigma_mps",
+                ..
+            }))
+        ));
+        assert!(matches!(
+            check(&ros_odometry(4, 0, [UNKNOWN_VARIANCE; 3])),
+            Err(VelocityRefusal::Invalid(InvalidVelocity::Sigma { .. }))
+        ));
+        // Valid, then a stamp before it and the same again.
+        check(&ros_odometry(4, 100, [0.01; 3])).unwrap();
+        assert!(matches!(
+            check(&ros_odometry(4, 0, [0.01; 3])),
+            Err(VelocityRefusal::TimeBackwards { .. })
+        ));
+        assert!(matches!(
+            check(&ros_odometry(4, 100, [0.01; 3])),
+            Err(VelocityRefusal::TimeRepeated { .. })
+        ));
+        let r = gate.refusals();
+        assert_eq!((r.invalid(), r.time()), (4, 2));
+    }
+
+    #[test]
+    fn twist_stamped_has_the_default_sigma_on_every_axis() {
+        let m = TwistStamped {
+            header: Header {
+                stamp: Time {
+                    sec: 4,
+                    nanosec: 250,
+                },
+                frame_id: "base_footprint".into(),
+            },
+            twist: Twist {
+                linear: Vector3 {
+                    x: 1.5,
+                    y: 0.0,
+                    z: 0.0,
+                },
+                angular: Vector3::default(),
+            },
+        };
+        assert_eq!(m.twist_frame(), "base_footprint");
+        let v = m.body_velocity(0.07, &ClockOffset::ZERO, 5_000_000_000);
+        assert_eq!(v.sample.header.meas_time_ns, 4_000_000_250);
+        assert_eq!(v.sample.vel_mps, [1.5, 0.0, 0.0]);
+        assert_eq!(v.sample.sigma_mps, [0.07; 3]);
+        assert_eq!(v.sample.source, BodyVelocity::SOURCE_ODOMETRY);
     }
 }

@@ -8,8 +8,11 @@
 //! - [`convert`]: pure conversions from insuwb samples (stamps, frames,
 //!   covariance layout, quaternion order, diagnostics levels);
 //! - [`config`]: the `[ros2]` table of the robot config;
+//! - [`odometry_in`]: a robot base's odometry from ROS (`[ros2]
+//!   odometry_in`) made checked body velocities;
 //! - `bridge` (feature `dds`, on by default through `jazzy`): the stage's
-//!   loop, iceoryx2 in, DDS out through `ros2-client` (RustDDS). Feature
+//!   loop, iceoryx2 in, DDS out through `ros2-client` (RustDDS), and the
+//!   base's odometry DDS in, `body_vel` out on iceoryx2. Feature
 //!   `humble` (without the default features) builds it for ROS 2 Humble.
 //! - `subscribe` (feature `dds`): a `sensor_msgs/Imu` subscriber, the IMU
 //!   driver's source for an IMU already in ROS (`sources.imu = "ros2:/TOPIC"`).
@@ -32,7 +35,8 @@ pub mod cdr;
 pub mod config;
 pub mod convert;
 pub mod msgs;
+pub mod odometry_in;
 #[cfg(feature = "dds")]
 pub mod subscribe;
 
-pub use config::{Ros2Config, Ros2ConfigError};
+pub use config::{OdometryInType, Ros2Config, Ros2ConfigError};

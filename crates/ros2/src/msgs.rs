@@ -253,6 +253,16 @@ pub struct Twist {
     pub angular: Vector3,
 }
 
+/// `geometry_msgs/TwistStamped`: a twist with its stamp and frame (what
+/// base drivers without a covariance publish).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TwistStamped {
+    /// Stamp and frame of the twist.
+    pub header: Header,
+    /// Twist.
+    pub twist: Twist,
+}
+
 /// `geometry_msgs/TwistWithCovariance`: covariance over
 /// `(vx, vy, vz, wx, wy, wz)`.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
@@ -423,6 +433,13 @@ pub static TWIST: MsgDef = MsgDef {
     text: "Vector3 linear\nVector3 angular\n",
     uses: &[&VECTOR3],
 };
+/// `geometry_msgs/TwistStamped`.
+pub static TWIST_STAMPED: MsgDef = MsgDef {
+    package: "geometry_msgs",
+    name: "TwistStamped",
+    text: "std_msgs/Header header\nTwist twist\n",
+    uses: &[&HEADER, &TWIST],
+};
 /// `geometry_msgs/TwistWithCovariance`.
 pub static TWIST_WITH_COVARIANCE: MsgDef = MsgDef {
     package: "geometry_msgs",
@@ -500,6 +517,7 @@ ros_message!(Quaternion, QUATERNION);
 ros_message!(Pose, POSE);
 ros_message!(PoseWithCovariance, POSE_WITH_COVARIANCE);
 ros_message!(Twist, TWIST);
+ros_message!(TwistStamped, TWIST_STAMPED);
 ros_message!(TwistWithCovariance, TWIST_WITH_COVARIANCE);
 ros_message!(Transform, TRANSFORM);
 ros_message!(TransformStamped, TRANSFORM_STAMPED);
@@ -548,6 +566,13 @@ mod tests {
             "tf2_msgs::msg::dds_::TFMessage_"
         );
         assert_eq!(Imu::dds_type_name(), "sensor_msgs::msg::dds_::Imu_");
+        assert_eq!(
+            TwistStamped::dds_type_name(),
+            "geometry_msgs::msg::dds_::TwistStamped_"
+        );
+        let ts = TwistStamped::schema();
+        assert!(ts.starts_with("std_msgs/Header header\nTwist twist\n"));
+        assert_eq!(ts.matches("MSG: geometry_msgs/Vector3\n").count(), 1);
         assert_eq!(
             DiagnosticArray::type_name(),
             "diagnostic_msgs/msg/DiagnosticArray"

@@ -49,7 +49,7 @@
 use insuwb_msg::{HealthState, ImuSample, Ros2SourceCounters, StageCounters};
 use insuwb_report::clock::ClockOffset;
 use insuwb_ros2::config::Ros2Config;
-use insuwb_ros2::convert::{ros_to_imu_sample, ImuTimeSource};
+use insuwb_ros2::convert::{ros_to_imu_sample, RosTimeSource};
 use insuwb_ros2::msgs::Imu;
 
 use crate::device::SILENT_NS;
@@ -136,7 +136,7 @@ impl Intake {
             }
         }
         let (s, source) = ros_to_imu_sample(m, clock, rx_ns);
-        if source == ImuTimeSource::Receive {
+        if source == RosTimeSource::Receive {
             self.counts.receive_timed += 1;
         }
         if imu_values(&s).is_err() {

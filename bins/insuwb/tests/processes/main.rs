@@ -25,5 +25,6 @@ mod refusals;
 mod replay_tight;
 mod ros2_imu_source;
 mod ros2_interop;
+mod ros2_odometry_source;
 mod sensor_faults;
 mod zenoh_bridge;

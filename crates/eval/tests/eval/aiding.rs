@@ -15,13 +15,13 @@ use crate::vehicle::lateral_rms;
 
 const ODOMETRY: u32 = BodyVelocity::SOURCE_ODOMETRY;
 
-/// The loose filters that use the odometry find its 5 % scale error from
-/// a prior of 1 +- 0.1, on each seed.
+/// The filters that use the odometry, loose and tight, find its 5 % scale
+/// error from a prior of 1 +- 0.1, on each seed.
 #[test]
 fn the_odometry_scale_error_is_estimated_by_the_filters_that_use_it() {
     let sc = ScenarioFile::load("ground-outage").unwrap();
     assert_eq!(sc.sim.odometry.as_ref().unwrap().scale, 1.05);
-    for kind in [FilterKind::Kf, FilterKind::Iakf] {
+    for kind in [FilterKind::Kf, FilterKind::Iakf, FilterKind::IakfTdoa] {
         let mut sum = 0.0;
         for seed in 1..=5u64 {
             let sim = insuwb_sim::simulate(&sc.sim, seed).unwrap();
@@ -76,12 +76,12 @@ fn odometry_keeps_the_lateral_velocity_near_zero_through_the_turns() {
 }
 
 /// Through the 10 s outage (the truth's times from 30 s to 40 s, the
-/// filters' coasting states there), the odometry halves the loose filters'
-/// horizontal error.
+/// filters' coasting states there), the odometry halves the horizontal
+/// error of the loose filters and of the tight one.
 #[test]
 fn odometry_halves_the_error_through_the_outage() {
     let sc = ScenarioFile::load("ground-outage").unwrap();
-    let filters = [FilterKind::Kf, FilterKind::Iakf];
+    let filters = [FilterKind::Kf, FilterKind::Iakf, FilterKind::IakfTdoa];
     let rows = |sources: Vec<u32>| {
         let opts = ScenarioOptions {
             velocity_sources: sources,

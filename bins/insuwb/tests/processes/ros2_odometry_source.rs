@@ -1,0 +1,274 @@
+//! The ROS 2 bridge's odometry input against a DDS implementation nobody
+//! here wrote: a group with stages `imu` (simulated, a scenario without
+//! simulated velocities), `logger` and `ros2`, whose `[ros2] odometry_in`
+//! is `/wheel/odom`, runs, and a Python publisher built on the PyPI
+//! `cyclonedds` package (`tests/ros2/odometry_publisher.py`,
+//! `nav_msgs::msg::dds_::Odometry_` on `rt/wheel/odom`, reliable as base
+//! drivers publish) sends 150 messages at 50 Hz with known twists and twist
+//! covariances (set, unset, unknown), three of them invalid (a NaN
+//! velocity, a negative variance, a stamp before its predecessor's). The
+//! recording must hold exactly the valid ones as body velocities of source
+//! odometry, with their velocities and the sigmas of their covariances, at
+//! their stamps mapped to CLOCK_MONOTONIC, in time order; the bridge's last
+//! heartbeat must count the refused ones.
+//!
+//! DDS discovery multicasts, so the test body runs in a private network
+//! namespace (`unshare -n`, or `unshare -rn` when not root) with only
+//! loopback up, multicast on and 224.0.0.0/4 routed to it: no packet
+//! leaves the machine. Where namespaces or the Python environment
+//! (`target/pyenv`, installed by `.ci/run`) are missing the test says so
+//! and skips, unless `CI` is set: then it fails. Every wait is bounded;
+//! the test starts processes, so it holds the one-at-a-time lock.
+
+// Test helpers outside `#[test]` functions may unwrap and panic too.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use crate::common;
+
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
+use insuwb_log::Record;
+use insuwb_msg::BodyVelocity;
+
+/// Set in the re-executed test process, inside the network namespace.
+const INNER: &str = "INSUWB_ROS2_ODOMETRY_SOURCE_INNER";
+/// This test's name in the binary, module and function (the re-executed
+/// process runs it alone, `--exact`).
+const TEST: &str =
+    "ros2_odometry_source::odometry_from_a_cyclonedds_publisher_becomes_body_velocities";
+const DOMAIN: u16 = 44;
+const TOPIC: &str = "/wheel/odom";
+/// `[ros2] odometry_in_sigma_mps`: the sigma of an axis whose variance is 0
+/// (not the default, so that the test sees it is read).
+const DEFAULT_SIGMA_MPS: f64 = 0.15;
+/// Messages published, and how many of them are invalid (see the script):
+/// for their values, for their time.
+const COUNT: usize = 150;
+const INVALID_VALUES: u64 = 2;
+const INVALID_TIME: u64 = 1;
+/// Seconds the group runs: start, discovery, 3 s of messages, margin.
+const GROUP_S: f64 = 16.0;
+/// Bound of every wait.
+const BOUND: Duration = Duration::from_secs(90);
+
+/// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
+/// or `<workspace>/target/pyenv`), when it has `cyclonedds`.
+fn python() -> Option<PathBuf> {
+    common::pyenv_python("cyclonedds")
+}
+
+#[test]
+fn odometry_from_a_cyclonedds_publisher_becomes_body_velocities() {
+    let _one = one_at_a_time();
+    if std::env::var_os(INNER).is_some() {
+        inner();
+        return;
+    }
+    let Some(_) = python() else {
+        skip_or_fail("no Python environment with cyclonedds (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install cyclonedds==11.0.1)");
+        return;
+    };
+    // The test body again, in a namespace of its own with loopback only.
+    common::run_in_private_netns(INNER, TEST, BOUND);
+}
+
+/// What the publisher sent: stamp (CLOCK_REALTIME ns), linear velocity,
+/// variances of the linear axes, why invalid.
+struct Sent {
+    stamp_ns: i128,
+    vel: [f64; 3],
+    var: [f64; 3],
+    invalid: Option<String>,
+}
+
+fn sent(path: &std::path::Path) -> Vec<Sent> {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    // The invalid value comes as a string ("nan"): NaN here.
+    let three = |x: &serde_json::Value| -> [f64; 3] {
+        let a: Vec<f64> = x
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e.as_f64().unwrap_or(f64::NAN))
+            .collect();
+        [a[0], a[1], a[2]]
+    };
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|s| Sent {
+            stamp_ns: i128::from(s["stamp_ns"].as_i64().unwrap()),
+            vel: three(&s["vel"]),
+            var: three(&s["var"]),
+            invalid: s["invalid"].as_str().map(str::to_owned),
+        })
+        .collect()
+}
+
+/// The sigma a variance stands for: unset (0) the configured one, 1e6 or
+/// more not measured (0), else its square root.
+fn sigma(var: f64) -> f64 {
+    if var == 0.0 {
+        DEFAULT_SIGMA_MPS
+    } else if var >= 1e6 {
+        0.0
+    } else {
+        var.sqrt()
+    }
+}
+
+/// The test body, inside the network namespace.
+fn inner() {
+    let py = python().expect("the Python environment vanished");
+    // The default scenario simulates no velocities: every body velocity
+    // logged is the bridge's.
+    let g = Group::with_config(
+        "ros2odom",
+        "imu = \"sim\"\nuwb = \"sim\"\nseed = 1",
+        "filter = \"iakf\"\naiding_sources = [\"odometry\"]\n",
+        &format!(
+            "[ros2]\ndomain_id = {DOMAIN}\npublish_imu = false\nodometry_in = \"{TOPIC}\"\n\
+             odometry_in_sigma_mps = {DEFAULT_SIGMA_MPS}\n"
+        ),
+    );
+    g.set_stages(&["imu", "logger", "ros2"]);
+    let path = g.dir.join("robot.toml");
+    // CLOCK_REALTIME - CLOCK_MONOTONIC, as the bridge maps the stamps.
+    let offset_ns = realtime_ns() - i128::from(insuwb_runtime::monotonic_ns());
+    let mut launcher = Command::new(insuwb())
+        .arg("launch")
+        .arg(&path)
+        .args(["--duration", &GROUP_S.to_string(), "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    common::wait_for_lock(&g, &mut launcher, BOUND, "ros2");
+    let out_json = g.dir.join("published.json");
+    let publisher = run_bounded(
+        Command::new(&py)
+            .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/ros2/odometry_publisher.py"))
+            .args(["--domain", &DOMAIN.to_string()])
+            .args(["--topic", TOPIC])
+            .args(["--count", &COUNT.to_string()])
+            .args(["--rate", "50"])
+            .args(["--match-timeout", "10"])
+            .arg("--out")
+            .arg(&out_json),
+        BOUND,
+    );
+    let pub_err = String::from_utf8_lossy(&publisher.stderr);
+    eprintln!("{}{pub_err}", String::from_utf8_lossy(&publisher.stdout));
+    wait_bounded(&mut launcher, "insuwb launch", BOUND);
+    let out = launcher.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "launch failed:\n{stderr}");
+    for l in stderr.lines().filter(|l| l.contains("ros2")) {
+        eprintln!("{l}");
+    }
+    assert!(
+        publisher.status.success(),
+        "the cyclonedds publisher failed:\n{pub_err}\n{stderr}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("no JSON report ({e}):\n{stderr}"));
+    assert_eq!(f(&report, "restarts"), 0.0, "{report}");
+    assert_eq!(
+        g.leftover_shm(),
+        Vec::<String>::new(),
+        "/dev/shm files left"
+    );
+
+    let sent = sent(&out_json);
+    assert_eq!(sent.len(), COUNT);
+    let valid: Vec<&Sent> = sent.iter().filter(|s| s.invalid.is_none()).collect();
+    assert_eq!(
+        valid.len() as u64,
+        COUNT as u64 - INVALID_VALUES - INVALID_TIME
+    );
+
+    // --- the bridge's last heartbeat: the refused ones counted ---
+    let ros2 = &report["stages"]["ros2"];
+    assert!(ros2.is_object(), "no ros2 heartbeat: {report}");
+    let n = |k: &str| ros2[k].as_u64().unwrap_or_else(|| panic!("{k} in {ros2}"));
+    // NaN velocity, negative variance; the stamp before its predecessor's
+    // (nothing else of the bridge's is dropped: no fusion, no IMU out).
+    assert_eq!(n("dropped_invalid"), INVALID_VALUES, "{ros2}");
+    assert_eq!(n("dropped_time"), INVALID_TIME, "{ros2}");
+    let counters = &ros2["counters"];
+    assert_eq!(
+        counters["velocities"].as_u64(),
+        Some(valid.len() as u64),
+        "velocities published: {ros2}"
+    );
+    assert_eq!(
+        counters["velocities_other_frame"].as_u64(),
+        Some(0),
+        "other frames: {ros2}"
+    );
+    assert!(n("received") >= COUNT as u64, "{ros2}");
+
+    // --- the recording: exactly the valid messages, at their stamps ---
+    let logged: Vec<BodyVelocity> = common::records(&g.log_dir())
+        .into_iter()
+        .filter_map(|r| match r {
+            Record::BodyVel(v) => Some(v),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(logged.len(), valid.len(), "logged body velocities");
+    let close = |a: &[f64; 3], b: &[f64; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-9);
+    let mut worst_ns = 0i128;
+    for (v, w) in logged.iter().zip(&valid) {
+        assert_eq!(v.source, BodyVelocity::SOURCE_ODOMETRY);
+        assert!(close(&v.vel_mps, &w.vel), "{:?} vs {:?}", v.vel_mps, w.vel);
+        let want_sigma = w.var.map(sigma);
+        assert!(
+            close(&v.sigma_mps, &want_sigma),
+            "sigma {:?}, variances {:?}",
+            v.sigma_mps,
+            w.var
+        );
+        // The stamp mapped to CLOCK_MONOTONIC (both offsets measured on
+        // this host, microseconds apart), never after the publication.
+        let d = i128::from(v.header.meas_time_ns) + offset_ns - w.stamp_ns;
+        worst_ns = worst_ns.max(d.abs());
+        assert!(
+            d.abs() < 2_000_000,
+            "measurement time {} is {d} ns from the stamp",
+            v.header.meas_time_ns
+        );
+        assert!(v.header.meas_time_ns <= v.header.pub_time_ns);
+    }
+    eprintln!(
+        "{} body velocities logged; measurement time within {worst_ns} ns of the stamp",
+        logged.len()
+    );
+    // Each axis kind was exercised: set, unset (the configured sigma),
+    // unknown (not measured).
+    let sigmas: Vec<f64> = logged.iter().flat_map(|v| v.sigma_mps).collect();
+    assert!(sigmas.contains(&DEFAULT_SIGMA_MPS) && sigmas.contains(&0.0));
+    assert!(
+        logged
+            .windows(2)
+            .all(|w| w[0].header.meas_time_ns < w[1].header.meas_time_ns),
+        "measurement times do not increase"
+    );
+    assert!(
+        logged
+            .windows(2)
+            .all(|w| w[1].header.seq == w[0].header.seq + 1),
+        "sequence numbers not consecutive"
+    );
+}
+
+fn realtime_ns() -> i128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as i128
+}
