@@ -268,11 +268,13 @@ impl Watch for GroupWatch<'_> {
 
     fn on_wake(&mut self, sup: &mut Supervisor, now: Instant, elapsed: Duration) -> Result<()> {
         let mon = &mut self.mon;
+        // Fixes before the fused states: a coasting state closes a gap only
+        // if no fix was published in it.
+        self.fix.drain(|s| mon.fix(&s))?;
         self.fused.drain(|f| mon.fused(&f))?;
         self.truth.drain(|t| mon.truth(t))?;
         mon.settle();
         self.imu.drain(|s| mon.imu.count(s.header.meas_time_ns))?;
-        self.fix.drain(|s| mon.fixes.count(s.header.meas_time_ns))?;
         self.health.drain(|h| {
             let name = insuwb_msg::name_str(&h.stage);
             sup.note_heartbeat_from(&name, h.pid, now);

@@ -6,7 +6,7 @@
 use std::collections::{BTreeMap, VecDeque};
 
 use insuwb_eval::metrics::TruthTrack;
-use insuwb_msg::{FusedState, GroundTruth, Health};
+use insuwb_msg::{FusedState, GroundTruth, Health, UwbFix};
 
 /// Longest gap across which ground truth is interpolated, ns.
 const TRUTH_MAX_GAP_NS: u64 = 100_000_000;
@@ -18,6 +18,9 @@ const TRUTH_KEEP_NS: u64 = 1_000_000_000;
 const PENDING_GIVE_UP_NS: u64 = 10_000_000_000;
 /// Gap between valid updates counted as a deadlock, ns.
 const DEADLOCK_NS: u64 = 5_000_000_000;
+/// Fix publish times kept, to tell a coasting state in a UWB outage from
+/// one although fixes came (6.4 s of fixes at 10 Hz).
+const FIX_PUBS_KEPT: usize = 64;
 
 /// First time, last time and count of a stream.
 #[derive(Debug, Default, Clone, Copy)]
@@ -151,6 +154,8 @@ pub struct Monitor {
     pub imu: Times,
     /// UWB fixes.
     pub fixes: Times,
+    /// Publish times of the latest fixes (at most [`FIX_PUBS_KEPT`]).
+    fix_pubs: VecDeque<u64>,
     /// Each stage's last heartbeat, by name.
     pub health: BTreeMap<String, Health>,
 }
@@ -175,6 +180,7 @@ impl Monitor {
             last_pos: [f64::NAN; 3],
             imu: Times::default(),
             fixes: Times::default(),
+            fix_pubs: VecDeque::with_capacity(FIX_PUBS_KEPT),
             health: BTreeMap::new(),
         }
     }
@@ -188,6 +194,14 @@ impl Monitor {
         }
         if degraded {
             self.degraded += 1;
+            // Coasting while no fix exists (a UWB outage): the INS's pose
+            // is the answer, and closes the gap; coasting although fixes
+            // came is not.
+            if f.header.flags & FusedState::FLAG_VALID != 0
+                && !self.fix_since_valid(f.header.pub_time_ns)
+            {
+                self.note_valid(f.header.pub_time_ns);
+            }
             return;
         }
         if f.header.flags & FusedState::FLAG_UWB_ONLY != 0 {
@@ -211,6 +225,22 @@ impl Monitor {
         self.accuracy
             .state(f.header.meas_time_ns, [f.pos_m[0], f.pos_m[1]]);
         self.note_valid(f.header.pub_time_ns);
+    }
+
+    /// Takes one UWB fix.
+    pub fn fix(&mut self, f: &UwbFix) {
+        self.fixes.count(f.header.meas_time_ns);
+        if self.fix_pubs.len() == FIX_PUBS_KEPT {
+            self.fix_pubs.pop_front();
+        }
+        self.fix_pubs.push_back(f.header.pub_time_ns);
+    }
+
+    /// Whether a fix was published after the last valid pose and at or
+    /// before `at`.
+    fn fix_since_valid(&self, at: u64) -> bool {
+        let from = self.last_valid_pub.unwrap_or(0);
+        self.fix_pubs.iter().any(|&t| t > from && t <= at)
     }
 
     /// A valid pose published at `at`: the gap since the previous one.
@@ -378,5 +408,48 @@ mod tests {
         m.settle();
         let r = m.finish().rmse_horizontal.unwrap_or(f64::NAN);
         assert!((r - 0.5).abs() < 1e-9, "{r}");
+    }
+
+    /// A gap is closed by an update, or by a coasting state while no fix
+    /// was published since the last valid pose (a UWB outage); coasting
+    /// although fixes came leaves it open.
+    #[test]
+    fn coasting_closes_a_gap_only_in_a_uwb_outage() {
+        let ms = 1_000_000u64;
+        let coast = |t: u64| {
+            let mut f = state(t, 0.0);
+            f.uwb_seq = 0;
+            f.header.flags |= FusedState::FLAG_DEGRADED;
+            f
+        };
+        let fix = |t: u64| {
+            let mut f = UwbFix::default();
+            f.header.meas_time_ns = t;
+            f.header.pub_time_ns = t + 500;
+            f
+        };
+        // An outage: updates to 1 s, coasting every 100 ms to 3 s, updates again.
+        let mut m = Monitor::new(Vec::new());
+        for k in 0..=10u64 {
+            m.fix(&fix(k * 100 * ms));
+            m.fused(&state(k * 100 * ms, 0.0));
+        }
+        for k in 11..30u64 {
+            m.fused(&coast(k * 100 * ms));
+        }
+        m.fix(&fix(3000 * ms));
+        m.fused(&state(3000 * ms, 0.0));
+        let gap = m.finish().max_gap_ms;
+        assert!((gap - 100.0).abs() < 1.0, "{gap}");
+        // The same coasting while fixes keep coming: a 2 s gap.
+        let mut m = Monitor::new(Vec::new());
+        m.fused(&state(1000 * ms, 0.0));
+        for k in 11..30u64 {
+            m.fix(&fix(k * 100 * ms));
+            m.fused(&coast(k * 100 * ms));
+        }
+        m.fused(&state(3000 * ms, 0.0));
+        let gap = m.finish().max_gap_ms;
+        assert!((gap - 2000.0).abs() < 1.0, "{gap}");
     }
 }
