@@ -66,7 +66,7 @@ pub struct StationArgs {
     /// about it (also `[station] require_tls` in the --config file).
     #[arg(long)]
     pub require_tls: bool,
-    /// A station config file: a [station] table with name, mode, listen, connect, require_tls, stamp_clock, lost_after_s, stale_after_s, rate_window_s, and [station.tls] (root_ca_certificate, certificate, private_key, mutual, verify_name; paths relative to the file). The options here override its keys.
+    /// A station config file: a [station] table with name, mode, listen, connect, require_tls, stamp_clock, lost_after_s, stale_after_s, rate_window_s, max_robots (the most robots tracked, default 1000; samples of further robots are counted as excess), and [station.tls] (root_ca_certificate, certificate, private_key, mutual, verify_name; paths relative to the file). The options here override its keys.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Print one JSON snapshot per period on standard output, one object a line: t_s, now_ns, robots (id, status, rate_hz, age_s, restarts, lost_count, pose, poses, health, gaps, runs, delay_ms), events (new, lost, back), delivery.

@@ -178,6 +178,12 @@ pub struct DeliverySummary {
     /// Samples that were not fleet payloads of this version (not counted
     /// elsewhere).
     pub invalid: u64,
+    /// Samples of robots the station does not track because it tracked
+    /// `max_robots` already (not counted elsewhere; the station's count,
+    /// [`crate::station::Station::excess`], which [`Delivery::summary`]
+    /// leaves at 0 and [`crate::view::Snapshot::new`] fills in).
+    #[serde(default)]
+    pub excess: u64,
     /// Delay of the poses (receive time minus stamp), median, ms (`null`
     /// before the first pose).
     pub delay_p50_ms: Option<f64>,
@@ -246,6 +252,7 @@ impl Delivery {
             health: sum(|r| r.health.received()),
             gaps: sum(|r| r.poses.gaps() + r.health.gaps()),
             invalid: self.invalid,
+            excess: 0,
             delay_p50_ms: self.delay.quantile(0.5).map(ms),
             delay_p99_ms: self.delay.quantile(0.99).map(ms),
             delay_max_ms: any.then(|| ms(self.delay.max())),

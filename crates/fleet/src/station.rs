@@ -13,6 +13,12 @@
 //!   older than [`StationConfig::stale_after_s`], or it never sent one;
 //! - [`Status::Degraded`]: a stage of its last health report is not OK;
 //! - [`Status::Ok`].
+//!
+//! The station tracks at most [`StationConfig::max_robots`] robots (1000 by
+//! default): a sample of a robot not yet tracked once that many are is
+//! dropped and counted ([`Station::excess`]), so a peer that puts under
+//! thousands of made-up robot ids cannot grow the station's memory without
+//! bound.
 
 use std::collections::{BTreeMap, VecDeque};
 
@@ -29,7 +35,17 @@ pub struct StationConfig {
     pub stale_after_s: f64,
     /// The window the pose rate is measured over, s (default 1).
     pub rate_window_s: f64,
+    /// The most robots tracked (default [`DEFAULT_MAX_ROBOTS`], at most
+    /// [`MAX_ROBOTS_LIMIT`]): the samples of any further robot are
+    /// dropped and counted ([`Station::excess`]).
+    pub max_robots: usize,
 }
+
+/// The default of [`StationConfig::max_robots`].
+pub const DEFAULT_MAX_ROBOTS: usize = 1000;
+
+/// The largest [`StationConfig::max_robots`].
+pub const MAX_ROBOTS_LIMIT: usize = 1_000_000;
 
 impl Default for StationConfig {
     fn default() -> Self {
@@ -37,18 +53,40 @@ impl Default for StationConfig {
             lost_after_s: 2.0,
             stale_after_s: 0.5,
             rate_window_s: 1.0,
+            max_robots: DEFAULT_MAX_ROBOTS,
         }
     }
 }
 
 /// A [`StationConfig`] value out of range.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("StationConfigError::OutOfRange: {key} must be finite and in (0, 3600] s, got {value}")]
-pub struct StationConfigError {
-    /// The key.
-    pub key: &'static str,
-    /// Its value.
-    pub value: f64,
+pub enum StationConfigError {
+    /// A threshold is not finite or not in (0, 3600] s.
+    #[error(
+        "StationConfigError::OutOfRange: {key} must be finite and in (0, 3600] s, got {value}"
+    )]
+    OutOfRange {
+        /// The key.
+        key: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// `max_robots` is 0 or above [`MAX_ROBOTS_LIMIT`].
+    #[error(
+        "StationConfigError::MaxRobots: max_robots must be in 1..={MAX_ROBOTS_LIMIT}, got {0}"
+    )]
+    MaxRobots(usize),
+}
+
+impl StationConfigError {
+    /// The key whose value is refused.
+    #[must_use]
+    pub const fn key(&self) -> &'static str {
+        match self {
+            Self::OutOfRange { key, .. } => key,
+            Self::MaxRobots(_) => "max_robots",
+        }
+    }
 }
 
 impl StationConfig {
@@ -63,8 +101,11 @@ impl StationConfig {
             ("rate_window_s", self.rate_window_s),
         ] {
             if !(value.is_finite() && value > 0.0 && value <= 3600.0) {
-                return Err(StationConfigError { key, value });
+                return Err(StationConfigError::OutOfRange { key, value });
             }
+        }
+        if !(1..=MAX_ROBOTS_LIMIT).contains(&self.max_robots) {
+            return Err(StationConfigError::MaxRobots(self.max_robots));
         }
         Ok(())
     }
@@ -193,6 +234,8 @@ struct Track {
 pub struct Station {
     cfg: StationConfig,
     robots: BTreeMap<String, Track>,
+    /// Samples of robots beyond `max_robots`.
+    excess: u64,
 }
 
 fn s_to_ns(s: f64) -> u64 {
@@ -210,7 +253,39 @@ impl Station {
         Ok(Self {
             cfg,
             robots: BTreeMap::new(),
+            excess: 0,
         })
+    }
+
+    /// Whether `robot` is tracked (heard while there was room for it).
+    #[must_use]
+    pub fn tracks(&self, robot: &str) -> bool {
+        self.robots.contains_key(robot)
+    }
+
+    /// The samples dropped because their robot was not tracked and
+    /// [`StationConfig::max_robots`] robots were.
+    #[must_use]
+    pub fn excess(&self) -> u64 {
+        self.excess
+    }
+
+    /// The most robots tracked.
+    #[must_use]
+    pub fn max_robots(&self) -> usize {
+        self.cfg.max_robots
+    }
+
+    /// Whether a sample of `robot` is taken: the robot is tracked, or there
+    /// is room for one more. Counts the sample in [`Station::excess`] when
+    /// it is not.
+    fn admit(&mut self, robot: &str) -> bool {
+        if self.robots.len() < self.cfg.max_robots || self.robots.contains_key(robot) {
+            true
+        } else {
+            self.excess += 1;
+            false
+        }
     }
 
     /// The robots heard so far.
@@ -248,8 +323,13 @@ impl Station {
     }
 
     /// A pose of `robot` received at `rx_ns`; the event if the robot is
-    /// new or back.
+    /// new or back. A robot beyond [`StationConfig::max_robots`] is not
+    /// tracked: the pose is counted in [`Station::excess`] and dropped
+    /// ([`Station::tracks`] tells which).
     pub fn on_pose(&mut self, robot: &str, pose: PoseSample, rx_ns: u64) -> Option<Event> {
+        if !self.admit(robot) {
+            return None;
+        }
         let window = s_to_ns(self.cfg.rate_window_s);
         let (t, ev) = self.heard(robot, rx_ns);
         t.pose = Some(pose);
@@ -266,8 +346,12 @@ impl Station {
     }
 
     /// A health report of `robot` received at `rx_ns`; the event if the
-    /// robot is new or back.
+    /// robot is new or back. A robot beyond [`StationConfig::max_robots`]
+    /// is not tracked, as with [`Station::on_pose`].
     pub fn on_health(&mut self, robot: &str, health: HealthSample, rx_ns: u64) -> Option<Event> {
+        if !self.admit(robot) {
+            return None;
+        }
         let (t, ev) = self.heard(robot, rx_ns);
         t.health = Some(health);
         ev
@@ -469,11 +553,51 @@ mod tests {
                     ..StationConfig::default()
                 },
             ),
+            (
+                "max_robots",
+                StationConfig {
+                    max_robots: 0,
+                    ..StationConfig::default()
+                },
+            ),
         ] {
             let e = Station::new(cfg).unwrap_err();
-            assert_eq!(e.key, key);
+            assert_eq!(e.key(), key);
             assert!(e.to_string().contains(key), "{e}");
         }
+    }
+
+    #[test]
+    fn robots_beyond_the_cap_are_counted_not_tracked() {
+        let mut s = Station::new(StationConfig {
+            max_robots: 3,
+            ..StationConfig::default()
+        })
+        .unwrap();
+        assert_eq!(StationConfig::default().max_robots, DEFAULT_MAX_ROBOTS);
+        s.on_pose("r1", pose(0), 0);
+        let mut new = 0;
+        for i in 0..20_000u64 {
+            let id = format!("fake{i}");
+            let ev = if i % 2 == 0 {
+                s.on_health(&id, health(StageState::Ok, 0), i)
+            } else {
+                s.on_pose(&id, pose(i), i)
+            };
+            new += usize::from(ev.is_some());
+        }
+        assert_eq!((s.len(), new), (3, 2), "two made-up robots fit");
+        assert_eq!(s.excess(), 19_998);
+        assert!(s.tracks("fake0") && s.tracks("fake1") && !s.tracks("fake2"));
+        // The robots tracked keep being taken; lost ones stay tracked.
+        for k in 1..=10u64 {
+            assert_eq!(s.on_pose("r1", pose(k * 100 * MS), k * 100 * MS), None);
+        }
+        assert_eq!(s.excess(), 19_998);
+        let v = s.snapshot(1000 * MS);
+        assert_eq!(v.len(), 3);
+        assert_eq!(v[2].id, "r1");
+        assert!((v[2].rate_hz - 10.0).abs() < 1e-9, "{}", v[2].rate_hz);
     }
 
     #[test]

@@ -13,7 +13,7 @@
 //!              "pose": {"stamp_ns": 1767225600100000000, "pos_m": [1.2, -3.4, 0.5], "yaw_rad": 0.61},
 //!              "poses": 125, "health": 13, "gaps": 0, "runs": 1, "delay_ms": 1.42}],
 //!  "events": [{"event": "lost", "robot": "r2", "at_ns": 81233567890123}],
-//!  "delivery": {"poses": 375, "health": 39, "gaps": 0, "invalid": 0,
+//!  "delivery": {"poses": 375, "health": 39, "gaps": 0, "invalid": 0, "excess": 0,
 //!               "delay_p50_ms": 1.3, "delay_p99_ms": 4.1, "delay_max_ms": 9.8}}
 //! ```
 //!
@@ -29,7 +29,9 @@
 //!   last pose's receive time minus its stamp, in the robots' stamp clock);
 //! - `events` since the previous snapshot: `new`, `lost` (silent for the
 //!   lost time, 2 s) and `back`, each with its robot and time;
-//! - `delivery`: the totals ([`DeliverySummary`]).
+//! - `delivery`: the totals ([`DeliverySummary`]): `invalid` counts the
+//!   samples that are not fleet payloads, `excess` those of robots beyond
+//!   the station's `max_robots`.
 //!
 //! ```
 //! use insuwb_fleet::delivery::Delivery;
@@ -115,12 +117,14 @@ impl Snapshot {
                 }
             })
             .collect();
+        let mut delivery = delivery.summary();
+        delivery.excess = station.excess();
         Self {
             t_s,
             now_ns,
             robots,
             events,
-            delivery: delivery.summary(),
+            delivery,
         }
     }
 
@@ -150,7 +154,8 @@ fn opt(v: Option<f64>, prec: usize) -> String {
     v.map_or_else(|| "-".to_owned(), |x| format!("{x:.prec$}"))
 }
 
-/// The terminal table of a snapshot: a summary line, then one row per
+/// The terminal table of a snapshot: a summary line (and one of the
+/// refused samples, when there are any), then one row per
 /// robot (id, status, position, heading, pose rate, age of the last pose,
 /// restarts, times lost, samples lost on the way, delay of the last pose).
 #[must_use]
@@ -171,6 +176,13 @@ pub fn render_table(s: &Snapshot) -> String {
         opt(d.delay_p50_ms, 1),
         opt(d.delay_p99_ms, 1),
     );
+    if d.invalid > 0 || d.excess > 0 {
+        let _ = writeln!(
+            out,
+            "refused: {} not fleet payloads, {} of robots beyond max_robots",
+            d.invalid, d.excess
+        );
+    }
     let _ = writeln!(
         out,
         "{:<16} {:<8} {:>9} {:>9} {:>7} {:>7} {:>6} {:>7} {:>8} {:>4} {:>6} {:>8}",
@@ -301,12 +313,50 @@ mod tests {
             "health",
             "gaps",
             "invalid",
+            "excess",
             "delay_p50_ms",
             "delay_p99_ms",
             "delay_max_ms",
         ] {
             assert!(j["delivery"].get(k).is_some(), "{k}");
         }
+    }
+
+    #[test]
+    fn refused_samples_are_in_the_totals_and_the_table() {
+        let mut s = Station::new(StationConfig {
+            max_robots: 1,
+            ..StationConfig::default()
+        })
+        .unwrap();
+        let mut d = Delivery::default();
+        let pose = PoseSample {
+            stamp_ns: 0,
+            pos_m: [0.0; 3],
+            yaw_rad: 0.0,
+        };
+        let _ = s.on_pose("r1", pose, 0);
+        let _ = s.on_pose("made-up", pose, 0);
+        d.on_pose("r1", 0, 0);
+        d.on_invalid();
+        let snap = Snapshot::new(0.1, 0, &s, &d, vec![]);
+        assert_eq!(
+            (
+                snap.robots.len(),
+                snap.delivery.invalid,
+                snap.delivery.excess
+            ),
+            (1, 1, 1)
+        );
+        let t = render_table(&snap);
+        assert!(
+            t.lines().nth(1).is_some_and(
+                |l| l == "refused: 1 not fleet payloads, 1 of robots beyond max_robots"
+            ),
+            "{t}"
+        );
+        let j = serde_json::to_value(&snap).unwrap();
+        assert_eq!(j["delivery"]["excess"], 1);
     }
 
     #[test]

@@ -256,6 +256,16 @@ pub fn is_loopback(e: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
+/// Whether `e` carries the fleet in clear text to a host off the loopback:
+/// a `tcp/` (or `udp/`, which is no safer, though not built) endpoint
+/// whose host is not a loopback one ([`is_loopback`]). `tls/` and any
+/// other transport are not: a warning (or the refusal under
+/// `require_tls`) is for exactly these.
+#[must_use]
+pub fn is_plain_off_loopback(e: &str) -> bool {
+    (e.starts_with("tcp/") || e.starts_with("udp/")) && !is_loopback(e)
+}
+
 /// What a plain `tcp/` endpoint off the loopback exposes and how to close
 /// it: the text of the warning, and of the error under `require_tls`.
 #[must_use]
@@ -279,7 +289,7 @@ impl LinkConfig {
             .iter()
             .map(|e| ("connect", e.as_str()))
             .chain(self.listen.iter().map(|e| ("listen", e.as_str())))
-            .filter(|(_, e)| e.starts_with("tcp/") && !is_loopback(e))
+            .filter(|(_, e)| is_plain_off_loopback(e))
             .collect()
     }
 
@@ -458,6 +468,30 @@ mod tests {
             p
         });
         (dir, files)
+    }
+
+    #[test]
+    fn plain_endpoints_off_the_loopback_are_told_apart() {
+        for (e, plain) in [
+            ("tcp/127.0.0.1:7447", false),
+            ("tcp/127.9.9.9:7447", false),
+            ("tcp/[::1]:7447", false),
+            ("tcp/localhost:7447", false),
+            ("tcp/LocalHost:7447", false),
+            ("tcp/127.0.0.1:7447#iface=lo", false),
+            ("tls/192.168.1.5:7447", false),
+            ("tls/station.lan:7447", false),
+            ("udp/127.0.0.1:7447", false),
+            ("tcp/192.168.1.5:7447", true),
+            ("tcp/0.0.0.0:7447", true),
+            ("tcp/[::]:7447", true),
+            ("tcp/[fe80::1]:7447", true),
+            ("tcp/station.lan:7447", true),
+            ("tcp/localhost.evil.example:7447", true),
+            ("udp/192.168.1.5:7447", true),
+        ] {
+            assert_eq!(is_plain_off_loopback(e), plain, "{e}");
+        }
     }
 
     #[test]

@@ -15,6 +15,9 @@
 //! that key's samples and the sample's insuwb flags. The JSON payloads
 //! carry `"version": 1` too. A decoder refuses another version
 //! ([`DecodeError::Version`]) and ignores fields it does not know.
+//! It refuses a payload over [`MAX_PAYLOAD_BYTES`] or an attachment over
+//! [`MAX_ATTACHMENT_BYTES`] before reading it ([`DecodeError::TooLarge`]),
+//! and JSON nested deeper than `serde_json`'s limit (128 levels).
 //!
 //! ```
 //! use insuwb_fleet::keys::Kind;
@@ -59,6 +62,15 @@ pub const FIX_ENCODING: &str = "application/json;insuwb/fix";
 pub const DIAG_ENCODING: &str = "application/json;insuwb/diag";
 /// The schema name of the health payload.
 pub const HEALTH_SCHEMA: &str = "insuwb/health";
+
+/// The largest payload a decoder reads, bytes: every payload of this
+/// version is a few KiB at most (a pose about 750 bytes, a group's health
+/// a few hundred bytes a stage).
+pub const MAX_PAYLOAD_BYTES: usize = 64 * 1024;
+
+/// The largest attachment a decoder reads, bytes (the [`Meta`] JSON is
+/// about 30).
+pub const MAX_ATTACHMENT_BYTES: usize = 1024;
 
 /// The frame of the pose (`header.frame_id`).
 pub const FRAME_ID: &str = "map";
@@ -126,6 +138,29 @@ pub enum DecodeError {
     /// that is not a rotation, a stamp out of range).
     #[error("DecodeError::Convert: {0}")]
     Convert(#[from] ConvertError),
+    /// The payload or the attachment is larger than any of this version
+    /// ([`MAX_PAYLOAD_BYTES`], [`MAX_ATTACHMENT_BYTES`]); not read.
+    #[error("DecodeError::TooLarge: the {what} has {len} bytes, at most {max} are read")]
+    TooLarge {
+        /// `payload` or `attachment`.
+        what: &'static str,
+        /// Its size, bytes.
+        len: usize,
+        /// The limit, bytes.
+        max: usize,
+    },
+}
+
+fn check_size(what: &'static str, bytes: &[u8], max: usize) -> Result<(), DecodeError> {
+    if bytes.len() > max {
+        Err(DecodeError::TooLarge {
+            what,
+            len: bytes.len(),
+            max,
+        })
+    } else {
+        Ok(())
+    }
 }
 
 fn check_version(found: u32) -> Result<(), DecodeError> {
@@ -186,10 +221,12 @@ impl Meta {
     ///
     /// # Errors
     /// [`DecodeError::Attachment`] when there is none or it is not the
-    /// JSON object, [`DecodeError::Version`] for another version.
+    /// JSON object, [`DecodeError::Version`] for another version,
+    /// [`DecodeError::TooLarge`] over [`MAX_ATTACHMENT_BYTES`].
     pub fn from_attachment(bytes: Option<&[u8]>) -> Result<Self, DecodeError> {
         let bytes =
             bytes.ok_or_else(|| DecodeError::Attachment("the sample has none".to_owned()))?;
+        check_size("attachment", bytes, MAX_ATTACHMENT_BYTES)?;
         let m: Self = serde_json::from_slice(bytes)
             .map_err(|e| DecodeError::Attachment(format!("not {{\"v\":1,...}}: {e}")))?;
         check_version(m.version)?;
@@ -603,8 +640,8 @@ pub struct Received {
 ///
 /// # Errors
 /// [`DecodeError`] for a key outside the fleet's, an encoding other than
-/// its kind's ([`encoding`]), another version, or bytes that do not hold
-/// the kind's payload.
+/// its kind's ([`encoding`]), another version, a payload over
+/// [`MAX_PAYLOAD_BYTES`], or bytes that do not hold the kind's payload.
 pub fn decode(
     key: &str,
     encoding_text: &str,
@@ -620,6 +657,7 @@ pub fn decode(
             want,
         });
     }
+    check_size("payload", payload, MAX_PAYLOAD_BYTES)?;
     let payload = match key.kind() {
         Kind::Pose => Payload::Pose(Box::new(Pose::decode(payload, attachment)?)),
         Kind::Health => Payload::Health(HealthPayload::decode(payload, attachment)?),
@@ -843,6 +881,39 @@ mod tests {
         assert_eq!(e, DecodeError::Version { found: 2 });
         let e = decode("insuwb/r1/imu", POSE_ENCODING, &bytes, Some(&att)).unwrap_err();
         assert!(matches!(e, DecodeError::Key(_)), "{e}");
+        // Too large, too deep.
+        let big = vec![b' '; MAX_PAYLOAD_BYTES + 1];
+        let e = decode("insuwb/r1/health", HEALTH_ENCODING, &big, Some(&att)).unwrap_err();
+        assert_eq!(
+            e,
+            DecodeError::TooLarge {
+                what: "payload",
+                len: MAX_PAYLOAD_BYTES + 1,
+                max: MAX_PAYLOAD_BYTES
+            }
+        );
+        let e = Meta::from_attachment(Some(&[b' '; MAX_ATTACHMENT_BYTES + 1])).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                DecodeError::TooLarge {
+                    what: "attachment",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let deep = format!("{}{}", "[".repeat(30_000), "]".repeat(30_000));
+        let e = decode(
+            "insuwb/r1/health",
+            HEALTH_ENCODING,
+            deep.as_bytes(),
+            Some(&att),
+        );
+        assert!(matches!(e, Err(DecodeError::Json(_))), "{e:?}");
+        let deep = format!("{}1{}", "{\"a\":".repeat(150), "}".repeat(150));
+        let e = Meta::from_attachment(Some(deep.as_bytes())).unwrap_err();
+        assert!(matches!(e, DecodeError::Attachment(_)), "{e}");
         let mut bad = fused();
         bad.pos_m[1] = f64::INFINITY;
         assert!(matches!(

@@ -9,7 +9,8 @@
 //! [`Snapshot`] to the caller, which prints it.
 //!
 //! - [`StationSettings`]: the `[station]` table (name, mode, endpoints,
-//!   TLS, the robots' stamp clock, the lost / stale / rate thresholds),
+//!   TLS, the robots' stamp clock, the lost / stale / rate thresholds, the
+//!   most robots tracked),
 //!   checked with the link's own rules ([`LinkConfig::validate`]), every
 //!   error naming its key;
 //! - [`FleetStation`]: the open station, [`FleetStation::run`] its loop.
@@ -18,6 +19,15 @@
 //! and queued for the station's thread, which wakes for them and at least
 //! every [`TICK`] (a robot silent for the lost time is found within a tick
 //! of it) and stops on SIGINT/SIGTERM or at the end of its duration.
+//!
+//! What any peer puts is refused unless it is a fleet payload: a sample
+//! whose key, encoding, attachment or bytes are not those of
+//! [`crate::payload`] (random bytes, a wrong encoding, a payload over
+//! [`crate::payload::MAX_PAYLOAD_BYTES`], JSON nested deeper than
+//! `serde_json`'s limit) is counted invalid, and a robot beyond
+//! `max_robots` is not tracked, its samples counted as excess. The first
+//! invalid sample is logged and then one in a thousand; the first excess
+//! one once.
 //!
 //! A station that listens is a router by default (robots and any other
 //! subscriber connect to it, and it routes between them); one that only
@@ -46,7 +56,7 @@ use insuwb_fleet::delivery::Delivery;
 use insuwb_fleet::keys::Kind;
 use insuwb_fleet::record::{FleetRecorder, RecordError, RobotRecording};
 use insuwb_fleet::station::StageState;
-use insuwb_fleet::station::{Event, Station, StationConfig, StationConfigError};
+use insuwb_fleet::station::{Event, Station, StationConfig, StationConfigError, MAX_ROBOTS_LIMIT};
 use insuwb_fleet::view::Snapshot;
 use insuwb_msg::{fixed_name, FusedState, Header, Health, HealthState};
 use insuwb_report::clock::{ClockOffset, StampClock};
@@ -98,6 +108,9 @@ pub struct StationSettings {
     pub stale_after_s: f64,
     /// The window of the pose rate, s (default 1).
     pub rate_window_s: f64,
+    /// The most robots tracked (default 1000): the samples of any further
+    /// robot id are dropped and counted as excess.
+    pub max_robots: usize,
 }
 
 impl Default for StationSettings {
@@ -114,6 +127,7 @@ impl Default for StationSettings {
             lost_after_s: d.lost_after_s,
             stale_after_s: d.stale_after_s,
             rate_window_s: d.rate_window_s,
+            max_robots: d.max_robots,
         }
     }
 }
@@ -160,6 +174,7 @@ impl StationSettings {
             lost_after_s: self.lost_after_s,
             stale_after_s: self.stale_after_s,
             rate_window_s: self.rate_window_s,
+            max_robots: self.max_robots,
         }
     }
 
@@ -212,11 +227,20 @@ impl StationSettings {
                 "the station needs an endpoint to listen on (e.g. [\"tcp/0.0.0.0:7447\"]) or one to connect to".to_owned(),
             );
         }
-        if let Err(e) = self.station_config().validate() {
-            return bad(
-                e.key,
-                format!("must be finite and in (0, 3600] s, got {}", e.value),
-            );
+        match self.station_config().validate() {
+            Ok(()) => {}
+            Err(StationConfigError::OutOfRange { key, value }) => {
+                return bad(
+                    key,
+                    format!("must be finite and in (0, 3600] s, got {value}"),
+                );
+            }
+            Err(StationConfigError::MaxRobots(n)) => {
+                return bad(
+                    "max_robots",
+                    format!("must be in 1..={MAX_ROBOTS_LIMIT}, got {n}"),
+                );
+            }
         }
         Ok(())
     }
@@ -461,6 +485,24 @@ impl FleetStation {
         self.events.push(ev);
     }
 
+    /// Whether `robot` is beyond the cap of robots tracked (its sample
+    /// was counted as excess by the model and goes nowhere else); the
+    /// first such sample is logged.
+    fn beyond_cap(&self, robot: &str) -> bool {
+        if self.station.tracks(robot) {
+            return false;
+        }
+        if self.station.excess() == 1 {
+            tracing::warn!(
+                "robot {robot}: not tracked, the station tracks {} robots already \
+                 (max_robots); the samples of further robots are counted as excess \
+                 (logged once)",
+                self.station.max_robots()
+            );
+        }
+        true
+    }
+
     /// Takes one arrival into the model, the delivery counts and the
     /// recording.
     fn take(&mut self, a: Arrival) -> Result<(), RecordError> {
@@ -486,6 +528,9 @@ impl FleetStation {
                 let delay_ns =
                     i64::try_from(delay).unwrap_or(if delay < 0 { i64::MIN } else { i64::MAX });
                 let ev = self.station.on_pose(robot, sample, rx_ns);
+                if self.beyond_cap(robot) {
+                    return Ok(());
+                }
                 self.note(ev);
                 self.delivery.on_pose(robot, p.meta.seq, delay_ns);
                 if let Some(rec) = &mut self.recorder {
@@ -497,6 +542,9 @@ impl FleetStation {
             }
             Payload::Health(h) => {
                 let ev = self.station.on_health(robot, h.sample(), rx_ns);
+                if self.beyond_cap(robot) {
+                    return Ok(());
+                }
                 self.note(ev);
                 self.delivery.on_health(robot, seq);
                 if let Some(rec) = &mut self.recorder {
@@ -608,12 +656,13 @@ impl FleetStation {
     pub fn finish(self) -> Result<Vec<RobotRecording>, RecordError> {
         let s = self.delivery.summary();
         tracing::info!(
-            "station: {} robots, {} poses and {} health samples received, {} lost on the way, {} invalid",
+            "station: {} robots, {} poses and {} health samples received, {} lost on the way, {} invalid, {} of robots beyond max_robots",
             self.station.len(),
             s.poses,
             s.health,
             s.gaps,
-            s.invalid
+            s.invalid,
+            self.station.excess()
         );
         match self.recorder {
             Some(r) => r.finish(),
@@ -679,6 +728,13 @@ mod tests {
                     ..c.clone()
                 },
             ),
+            (
+                "max_robots",
+                StationSettings {
+                    max_robots: 0,
+                    ..c.clone()
+                },
+            ),
         ] {
             let e = bad.validate().unwrap_err();
             assert_eq!(e.key, key, "{e}");
@@ -701,14 +757,15 @@ mod tests {
     #[test]
     fn the_table_reads_from_toml_and_refuses_unknown_keys() {
         let t: toml::Table = toml::from_str(
-            "[station]\nlisten = [\"tcp/0.0.0.0:7447\"]\nstamp_clock = \"monotonic\"\nlost_after_s = 3.0\n[station.tls]\nmutual = true\n",
+            "[station]\nlisten = [\"tcp/0.0.0.0:7447\"]\nstamp_clock = \"monotonic\"\nlost_after_s = 3.0\nmax_robots = 50\n[station.tls]\nmutual = true\n",
         )
         .unwrap();
         let s: StationSettings = t["station"].clone().try_into().unwrap();
         assert_eq!(
-            (s.stamp_clock, s.lost_after_s),
-            (StampClock::Monotonic, 3.0)
+            (s.stamp_clock, s.lost_after_s, s.station_config().max_robots),
+            (StampClock::Monotonic, 3.0, 50)
         );
+        assert_eq!(StationSettings::default().max_robots, 1000);
         assert!(toml::from_str::<StationSettings>("scouting = true").is_err());
     }
 

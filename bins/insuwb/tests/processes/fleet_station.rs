@@ -63,17 +63,18 @@ const STATION: &str = "test-station";
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(60);
 
-/// A station process and its snapshots as they come.
-struct Station {
-    child: Child,
+/// A station process and its snapshots as they come (the hostile peers'
+/// test uses it too).
+pub(crate) struct Station {
+    pub(crate) child: Child,
     rx: Receiver<Value>,
-    snaps: Vec<Value>,
+    pub(crate) snaps: Vec<Value>,
     err: PathBuf,
 }
 
 impl Station {
     /// Starts `insuwb ARGS`, its standard error into `err`.
-    fn start(args: &[&str], err: PathBuf) -> Self {
+    pub(crate) fn start(args: &[&str], err: PathBuf) -> Self {
         let mut child = Command::new(insuwb())
             .args(args)
             .stdin(Stdio::null())
@@ -90,12 +91,12 @@ impl Station {
         }
     }
 
-    fn log(&self) -> String {
+    pub(crate) fn log(&self) -> String {
         std::fs::read_to_string(&self.err).unwrap_or_default()
     }
 
     /// The first snapshot from now on for which `pred` holds.
-    fn wait_for(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+    pub(crate) fn wait_for(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
         let t0 = Instant::now();
         loop {
             match self.rx.recv_timeout(Duration::from_millis(100)) {
@@ -120,7 +121,7 @@ impl Station {
     }
 
     /// SIGTERM; its snapshots (the last one at its exit).
-    fn stop(mut self) -> Vec<Value> {
+    pub(crate) fn stop(mut self) -> Vec<Value> {
         common::signal(self.child.id(), "TERM");
         wait_bounded(&mut self.child, "the station", BOUND);
         assert!(
@@ -137,24 +138,24 @@ impl Station {
 }
 
 /// Robot `id` in a snapshot.
-fn robot<'a>(snap: &'a Value, id: &str) -> Option<&'a Value> {
+pub(crate) fn robot<'a>(snap: &'a Value, id: &str) -> Option<&'a Value> {
     snap["robots"].as_array()?.iter().find(|r| r["id"] == id)
 }
 
 /// Whether robot `id` is heard with recent poses (`ok`, or `degraded` for
 /// a stage's condition, e.g. fusion coasting through an NLOS spell).
-fn live(snap: &Value, id: &str) -> bool {
+pub(crate) fn live(snap: &Value, id: &str) -> bool {
     robot(snap, id).is_some_and(|r| r["status"] == "ok" || r["status"] == "degraded")
 }
 
-fn poses(snap: &Value, id: &str) -> u64 {
+pub(crate) fn poses(snap: &Value, id: &str) -> u64 {
     robot(snap, id)
         .and_then(|r| r["poses"].as_u64())
         .unwrap_or(0)
 }
 
 /// Poses of `id` received per second between two snapshots.
-fn rate(a: &Value, b: &Value, id: &str) -> f64 {
+pub(crate) fn rate(a: &Value, b: &Value, id: &str) -> f64 {
     (poses(b, id) - poses(a, id)) as f64 / (f(b, "t_s") - f(a, "t_s"))
 }
 

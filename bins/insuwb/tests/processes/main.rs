@@ -16,6 +16,7 @@ mod devices_stage;
 mod faults;
 mod fleet_station;
 mod foxglove_live;
+mod hostile_peers;
 mod latency;
 mod long_run;
 mod mcap_export;
