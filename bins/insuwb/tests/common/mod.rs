@@ -393,6 +393,85 @@ pub fn run_in_private_netns(inner_env: &str, test: &str, bound: Duration) {
     );
 }
 
+/// CLOCK_REALTIME now, ns (what ROS stamps are in).
+pub fn realtime_ns() -> i128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as i128
+}
+
+/// A script of this package (a path under its folder, e.g.
+/// `tests/ros2/imu_publisher.py`) run by the Python `py`.
+pub fn python_script(py: &Path, script: &str) -> Command {
+    let mut c = Command::new(py);
+    c.arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(script));
+    c
+}
+
+/// Three numbers of a JSON array; a value that is not a number (a script's
+/// "nan" or "inf") reads as NaN.
+pub fn json_f64x3(x: &serde_json::Value) -> [f64; 3] {
+    let a: Vec<f64> = x
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e.as_f64().unwrap_or(f64::NAN))
+        .collect();
+    [a[0], a[1], a[2]]
+}
+
+/// Launches group `g` for `group_s` seconds (`insuwb launch --json`), waits
+/// until stage `role` is up, runs `script` (e.g. a Python publisher) beside
+/// it, and waits for both within `bound`. Echoes the script's output and
+/// the launcher's lines holding `echo`; asserts that both succeeded, that
+/// no stage restarted and that no /dev/shm file is left. Returns the
+/// launcher's JSON report.
+pub fn launch_beside_script(
+    g: &Group,
+    group_s: f64,
+    role: &str,
+    script: &mut Command,
+    echo: &str,
+    bound: Duration,
+) -> serde_json::Value {
+    let mut launcher = Command::new(insuwb())
+        .arg("launch")
+        .arg(g.dir.join("robot.toml"))
+        .args(["--duration", &group_s.to_string(), "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_lock(g, &mut launcher, bound, role);
+    let script_out = run_bounded(script, bound);
+    let script_err = String::from_utf8_lossy(&script_out.stderr);
+    eprintln!(
+        "{}{script_err}",
+        String::from_utf8_lossy(&script_out.stdout)
+    );
+    wait_bounded(&mut launcher, "insuwb launch", bound);
+    let out = launcher.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "launch failed:\n{stderr}");
+    for l in stderr.lines().filter(|l| l.contains(echo)) {
+        eprintln!("{l}");
+    }
+    assert!(
+        script_out.status.success(),
+        "{script:?} failed:\n{script_err}\n{stderr}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("no JSON report ({e}):\n{stderr}"));
+    assert_eq!(f(&report, "restarts"), 0.0, "{report}");
+    assert_eq!(
+        g.leftover_shm(),
+        Vec::<String>::new(),
+        "/dev/shm files left"
+    );
+    report
+}
+
 /// Waits until stage `role` of `g` holds its lock (it takes it first thing);
 /// fails if the launcher ends first or after `bound`.
 pub fn wait_for_lock(g: &Group, launcher: &mut Child, bound: Duration, role: &str) {

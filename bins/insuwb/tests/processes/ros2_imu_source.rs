@@ -24,10 +24,9 @@
 use crate::common;
 
 use std::path::PathBuf;
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{f, insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
+use common::{one_at_a_time, skip_or_fail, Group};
 use insuwb_log::Record;
 use insuwb_msg::{HealthState, ImuSample};
 
@@ -80,15 +79,7 @@ fn sent(path: &std::path::Path) -> Vec<Sent> {
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
     // The invalid values come as strings ("nan", "inf"): NaN here.
-    let three = |x: &serde_json::Value| -> [f64; 3] {
-        let a: Vec<f64> = x
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|e| e.as_f64().unwrap_or(f64::NAN))
-            .collect();
-        [a[0], a[1], a[2]]
-    };
+    let three = common::json_f64x3;
     v.as_array()
         .unwrap()
         .iter()
@@ -110,25 +101,15 @@ fn inner() {
         "filter = \"iakf\"\n",
         &format!("[ros2]\ndomain_id = {DOMAIN}\n"),
     );
-    // `stages` is a top-level key: before the first table.
-    let path = g.dir.join("robot.toml");
-    let text = std::fs::read_to_string(&path).unwrap();
-    std::fs::write(&path, format!("stages = [\"imu\", \"logger\"]\n{text}")).unwrap();
+    g.set_stages(&["imu", "logger"]);
     // CLOCK_REALTIME - CLOCK_MONOTONIC, as the driver maps the stamps.
-    let offset_ns = realtime_ns() - i128::from(insuwb_runtime::monotonic_ns());
-    let mut launcher = Command::new(insuwb())
-        .arg("launch")
-        .arg(&path)
-        .args(["--duration", &GROUP_S.to_string(), "--json"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    common::wait_for_lock(&g, &mut launcher, BOUND, "imu");
+    let offset_ns = common::realtime_ns() - i128::from(insuwb_runtime::monotonic_ns());
     let out_json = g.dir.join("published.json");
-    let publisher = run_bounded(
-        Command::new(&py)
-            .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/ros2/imu_publisher.py"))
+    let report = common::launch_beside_script(
+        &g,
+        GROUP_S,
+        "imu",
+        common::python_script(&py, "tests/ros2/imu_publisher.py")
             .args(["--domain", &DOMAIN.to_string()])
             .args(["--topic", TOPIC])
             .args(["--count", &COUNT.to_string()])
@@ -136,28 +117,8 @@ fn inner() {
             .args(["--match-timeout", "10"])
             .arg("--out")
             .arg(&out_json),
+        "[imu]",
         BOUND,
-    );
-    let pub_err = String::from_utf8_lossy(&publisher.stderr);
-    eprintln!("{}{pub_err}", String::from_utf8_lossy(&publisher.stdout));
-    wait_bounded(&mut launcher, "insuwb launch", BOUND);
-    let out = launcher.wait_with_output().unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "launch failed:\n{stderr}");
-    for l in stderr.lines().filter(|l| l.contains("[imu]")) {
-        eprintln!("{l}");
-    }
-    assert!(
-        publisher.status.success(),
-        "the cyclonedds publisher failed:\n{pub_err}\n{stderr}"
-    );
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
-        .unwrap_or_else(|e| panic!("no JSON report ({e}):\n{stderr}"));
-    assert_eq!(f(&report, "restarts"), 0.0, "{report}");
-    assert_eq!(
-        g.leftover_shm(),
-        Vec::<String>::new(),
-        "/dev/shm files left"
     );
 
     let sent = sent(&out_json);
@@ -245,11 +206,4 @@ fn inner() {
             .all(|w| w[1].header.seq == w[0].header.seq + 1),
         "sequence numbers not consecutive"
     );
-}
-
-fn realtime_ns() -> i128 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos() as i128
 }

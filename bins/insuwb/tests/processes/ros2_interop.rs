@@ -88,7 +88,7 @@ fn inner() {
     )
     .unwrap();
     // CLOCK_REALTIME - CLOCK_MONOTONIC, as the bridge stamps.
-    let offset_ns = realtime_ns() - i128::from(insuwb_runtime::monotonic_ns());
+    let offset_ns = common::realtime_ns() - i128::from(insuwb_runtime::monotonic_ns());
     let mut launcher = Command::new(insuwb())
         .arg("launch")
         .arg(&path)
@@ -133,13 +133,6 @@ fn inner() {
         serde_json::from_str(&std::fs::read_to_string(&out_json).unwrap()).unwrap();
     let (fused, imu) = recording(&g.log_dir());
     check(&got, &fused, &imu, offset_ns, &g.name);
-}
-
-fn realtime_ns() -> i128 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos() as i128
 }
 
 /// The recording's valid fused states and IMU samples.
