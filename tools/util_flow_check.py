@@ -48,14 +48,23 @@ def rsd(e):
     return 1.4826 * np.median(np.abs(e - np.median(e)))
 
 
-def check(path, lag=0.0):
+def records(path, needed):
+    """A flight's records (times in s) and its motion-capture poses (repeated
+    times dropped); None when a record type of `needed` is missing."""
     r = {k: v.copy() for k, v in load(path).items()}
-    if "estFlow" not in r or "estTOF" not in r:
+    if any(n not in r for n in needed):
         return None
     for v in r.values():
         v[:, 0] *= 1e-6  # microseconds to seconds
     p = r["estPose"]
-    p = p[np.concatenate([[True], np.diff(p[:, 0]) > 1e-3])]
+    return r, p[np.concatenate([[True], np.diff(p[:, 0]) > 1e-3])]
+
+
+def check(path, lag=0.0):
+    got = records(path, ("estFlow", "estTOF"))
+    if got is None:
+        return None
+    r, p = got
     t = p[:, 0]
     fl = r["estFlow"]
     dt = np.diff(fl[:, 0], prepend=fl[0, 0] - 0.01)

@@ -21,18 +21,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from util_tdoa_bound import load  # noqa: E402
-from util_flow_check import rotation  # noqa: E402
+from util_flow_check import records, rotation  # noqa: E402
 
 
 def check(path):
-    r = {k: v.copy() for k, v in load(path).items()}
-    if "estTOF" not in r:
+    got = records(path, ("estTOF",))
+    if got is None:
         return None
-    for v in r.values():
-        v[:, 0] *= 1e-6  # microseconds to seconds
-    p = r["estPose"]
-    p = p[np.concatenate([[True], np.diff(p[:, 0]) > 1e-3])]
+    r, p = got
     t = p[:, 0]
     tof = r["estTOF"]
     tof = tof[(tof[:, 0] > t[0]) & (tof[:, 0] < t[-1])]
