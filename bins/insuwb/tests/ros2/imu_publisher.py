@@ -12,8 +12,6 @@ values and whether a receiver should keep it. Exit code 2 when no reader
 matched.
 """
 
-import argparse
-import json
 import math
 import sys
 import time
@@ -23,7 +21,8 @@ from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 
-from ros_types import Header, Imu, Quaternion, Time, Vector3
+import publish
+from ros_types import Header, Imu, Quaternion, Vector3
 
 
 # Sample index -> what is wrong with it.
@@ -38,15 +37,7 @@ def values(k):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--domain", type=int, required=True)
-    ap.add_argument("--topic", required=True, help="ROS topic, e.g. /test_imu")
-    ap.add_argument("--count", type=int, default=300)
-    ap.add_argument("--rate", type=float, default=100.0)
-    ap.add_argument("--match-timeout", type=float, default=30.0)
-    ap.add_argument("--settle", type=float, default=1.0)
-    ap.add_argument("--out", required=True)
-    a = ap.parse_args()
+    a = publish.arguments("/test_imu", 300, 100.0)
 
     dp = DomainParticipant(a.domain)
     sensor_data = Qos(
@@ -54,28 +45,15 @@ def main():
         Policy.Durability.Volatile,
         Policy.History.KeepLast(5),
     )
-    topic = Topic(dp, "rt/" + a.topic.strip("/"), Imu)
+    topic = Topic(dp, publish.dds_topic(a), Imu)
     writer = DataWriter(dp, topic, qos=sensor_data)
 
-    # Bounded wait for the insuwb reader, then time for its side of the
-    # discovery (best effort: a sample before that would be lost).
-    deadline = time.monotonic() + a.match_timeout
-    while not writer.get_matched_subscriptions():
-        if time.monotonic() > deadline:
-            print("imu publisher: no reader matched", file=sys.stderr, flush=True)
-            return 2
-        time.sleep(0.01)
-    time.sleep(a.settle)
+    if not publish.wait_matched(writer, a, "imu publisher"):
+        return 2
 
     published = []
     prev_stamp = None
-    period = 1.0 / a.rate
-    start = time.monotonic()
-    for k in range(a.count):
-        # Paced by the monotonic clock, bounded by count.
-        delay = start + k * period - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+    for k in publish.paced(a):
         accel, gyro = values(k)
         what = INVALID.get(k)
         if what == "nan":
@@ -89,7 +67,7 @@ def main():
             stamp = prev_stamp - 5_000_000
         msg = Imu(
             header=Header(
-                stamp=Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000),
+                stamp=publish.ros_time(stamp),
                 frame_id="base_link",
             ),
             orientation=Quaternion(0.0, 0.0, 0.0, 1.0),
@@ -104,22 +82,14 @@ def main():
             {
                 "stamp_ns": stamp,
                 # JSON has no NaN or infinity: the invalid ones as strings.
-                "accel": [v if math.isfinite(v) else str(v) for v in accel],
-                "gyro": [v if math.isfinite(v) else str(v) for v in gyro],
+                "accel": publish.json_numbers(accel),
+                "gyro": publish.json_numbers(gyro),
                 "invalid": what,
             }
         )
         if what != "older":
             prev_stamp = stamp
-    # Let the last samples leave before the participant goes.
-    time.sleep(0.5)
-    with open(a.out, "w") as f:
-        json.dump(published, f)
-    print(
-        f"imu publisher: {len(published)} samples on rt/{a.topic.strip('/')}, "
-        f"{len(INVALID)} invalid",
-        flush=True,
-    )
+    publish.finish(a, published, "imu publisher", "samples", len(INVALID))
     return 0
 
 

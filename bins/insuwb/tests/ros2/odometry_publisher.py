@@ -13,8 +13,6 @@ linear velocity, variances of the three linear axes and whether a receiver
 should keep it. Exit code 2 when no reader matched.
 """
 
-import argparse
-import json
 import math
 import sys
 import time
@@ -25,6 +23,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
+import publish
 from ros_types import (
     Header,
     Odometry,
@@ -32,7 +31,6 @@ from ros_types import (
     Pose,
     PoseWithCovariance,
     Quaternion,
-    Time,
     Twist,
     TwistWithCovariance,
     Vector3,
@@ -57,15 +55,7 @@ def values(k):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--domain", type=int, required=True)
-    ap.add_argument("--topic", required=True, help="ROS topic, e.g. /wheel/odom")
-    ap.add_argument("--count", type=int, default=150)
-    ap.add_argument("--rate", type=float, default=50.0)
-    ap.add_argument("--match-timeout", type=float, default=30.0)
-    ap.add_argument("--settle", type=float, default=1.0)
-    ap.add_argument("--out", required=True)
-    a = ap.parse_args()
+    a = publish.arguments("/wheel/odom", 150, 50.0)
 
     dp = DomainParticipant(a.domain)
     qos = Qos(
@@ -73,28 +63,15 @@ def main():
         Policy.Durability.Volatile,
         Policy.History.KeepLast(10),
     )
-    topic = Topic(dp, "rt/" + a.topic.strip("/"), Odometry)
+    topic = Topic(dp, publish.dds_topic(a), Odometry)
     writer = DataWriter(dp, topic, qos=qos)
 
-    # Bounded wait for the insuwb reader, then time for its side of the
-    # discovery (its reader is best effort: a message before that is lost).
-    deadline = time.monotonic() + a.match_timeout
-    while not writer.get_matched_subscriptions():
-        if time.monotonic() > deadline:
-            print("odometry publisher: no reader matched", file=sys.stderr, flush=True)
-            return 2
-        time.sleep(0.01)
-    time.sleep(a.settle)
+    if not publish.wait_matched(writer, a, "odometry publisher"):
+        return 2
 
     published = []
     prev_stamp = None
-    period = 1.0 / a.rate
-    start = time.monotonic()
-    for k in range(a.count):
-        # Paced by the monotonic clock, bounded by count.
-        delay = start + k * period - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+    for k in publish.paced(a):
         vel, var = values(k)
         what = INVALID.get(k)
         if what == "nan":
@@ -112,7 +89,7 @@ def main():
             cov[i * 7] = 1e6
         msg = Odometry(
             header=Header(
-                stamp=Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000),
+                stamp=publish.ros_time(stamp),
                 frame_id="odom",
             ),
             child_frame_id="base_link",
@@ -133,22 +110,14 @@ def main():
             {
                 "stamp_ns": stamp,
                 # JSON has no NaN: the invalid one as a string.
-                "vel": [v if math.isfinite(v) else str(v) for v in vel],
+                "vel": publish.json_numbers(vel),
                 "var": var,
                 "invalid": what,
             }
         )
         if what != "older":
             prev_stamp = stamp
-    # Let the last messages leave before the participant goes.
-    time.sleep(0.5)
-    with open(a.out, "w") as f:
-        json.dump(published, f)
-    print(
-        f"odometry publisher: {len(published)} messages on rt/{a.topic.strip('/')}, "
-        f"{len(INVALID)} invalid",
-        flush=True,
-    )
+    publish.finish(a, published, "odometry publisher", "messages", len(INVALID))
     return 0
 
 
