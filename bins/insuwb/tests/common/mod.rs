@@ -472,6 +472,31 @@ pub fn launch_beside_script(
     report
 }
 
+/// The Python of the virtual environment `.ci/run` makes, when it has the
+/// PyPI `cyclonedds` package (the DDS nobody here wrote).
+pub fn cyclonedds_python() -> Option<PathBuf> {
+    pyenv_python("cyclonedds")
+}
+
+/// The entry of a test against `cyclonedds`, one at a time: in the process
+/// re-executed inside the network namespace (`inner_env` set) it runs
+/// `inner`; otherwise it skips (or fails under `CI`) without the Python
+/// environment, else runs the test `test` again in a private network
+/// namespace ([`run_in_private_netns`]).
+pub fn cyclonedds_test(inner_env: &str, test: &str, bound: Duration, inner: impl FnOnce()) {
+    let _one = one_at_a_time();
+    if std::env::var_os(inner_env).is_some() {
+        inner();
+        return;
+    }
+    if cyclonedds_python().is_none() {
+        skip_or_fail("no Python environment with cyclonedds (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install cyclonedds==11.0.1)");
+        return;
+    }
+    // The test body again, in a namespace of its own with loopback only.
+    run_in_private_netns(inner_env, test, bound);
+}
+
 /// Waits until stage `role` of `g` holds its lock (it takes it first thing);
 /// fails if the launcher ends first or after `bound`.
 pub fn wait_for_lock(g: &Group, launcher: &mut Child, bound: Duration, role: &str) {

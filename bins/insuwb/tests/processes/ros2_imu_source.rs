@@ -23,10 +23,9 @@
 
 use crate::common;
 
-use std::path::PathBuf;
 use std::time::Duration;
 
-use common::{one_at_a_time, skip_or_fail, Group};
+use common::Group;
 use insuwb_log::Record;
 use insuwb_msg::{HealthState, ImuSample};
 
@@ -46,25 +45,9 @@ const GROUP_S: f64 = 20.0;
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(90);
 
-/// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
-/// or `<workspace>/target/pyenv`), when it has `cyclonedds`.
-fn python() -> Option<PathBuf> {
-    common::pyenv_python("cyclonedds")
-}
-
 #[test]
 fn imu_samples_from_a_cyclonedds_publisher_are_driven_like_any_source() {
-    let _one = one_at_a_time();
-    if std::env::var_os(INNER).is_some() {
-        inner();
-        return;
-    }
-    let Some(_) = python() else {
-        skip_or_fail("no Python environment with cyclonedds (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install cyclonedds==11.0.1)");
-        return;
-    };
-    // The test body again, in a namespace of its own with loopback only.
-    common::run_in_private_netns(INNER, TEST, BOUND);
+    common::cyclonedds_test(INNER, TEST, BOUND, inner);
 }
 
 /// What the publisher sent: stamp (CLOCK_REALTIME ns), values, why invalid.
@@ -94,7 +77,7 @@ fn sent(path: &std::path::Path) -> Vec<Sent> {
 
 /// The test body, inside the network namespace.
 fn inner() {
-    let py = python().expect("the Python environment vanished");
+    let py = common::cyclonedds_python().expect("the Python environment vanished");
     let g = Group::with_config(
         "ros2imu",
         &format!("imu = \"ros2:{TOPIC}\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1"),

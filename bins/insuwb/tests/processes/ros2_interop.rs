@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
+use common::{insuwb, run_bounded, wait_bounded, Group};
 use insuwb_log::Record;
 use insuwb_msg::{FusedState, ImuSample};
 
@@ -46,30 +46,14 @@ const KILL_AT_S: f64 = 17.0;
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(90);
 
-/// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
-/// or `<workspace>/target/pyenv`), when it has `cyclonedds`.
-fn python() -> Option<PathBuf> {
-    common::pyenv_python("cyclonedds")
-}
-
 #[test]
 fn ros2_topics_reach_a_cyclonedds_subscriber() {
-    let _one = one_at_a_time();
-    if std::env::var_os(INNER).is_some() {
-        inner();
-        return;
-    }
-    let Some(_) = python() else {
-        skip_or_fail("no Python environment with cyclonedds (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install cyclonedds==11.0.1)");
-        return;
-    };
-    // The test body again, in a namespace of its own with loopback only.
-    common::run_in_private_netns(INNER, TEST, BOUND);
+    common::cyclonedds_test(INNER, TEST, BOUND, inner);
 }
 
 /// The test body, inside the network namespace.
 fn inner() {
-    let py = python().expect("the Python environment vanished");
+    let py = common::cyclonedds_python().expect("the Python environment vanished");
     let g = Group::with_config(
         "ros2",
         SIM,

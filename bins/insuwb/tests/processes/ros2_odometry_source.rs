@@ -25,10 +25,9 @@
 
 use crate::common;
 
-use std::path::PathBuf;
 use std::time::Duration;
 
-use common::{one_at_a_time, skip_or_fail, Group};
+use common::Group;
 use insuwb_log::Record;
 use insuwb_msg::BodyVelocity;
 
@@ -53,25 +52,9 @@ const GROUP_S: f64 = 16.0;
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(90);
 
-/// The Python of the virtual environment `.ci/run` makes (`INSUWB_PYENV`
-/// or `<workspace>/target/pyenv`), when it has `cyclonedds`.
-fn python() -> Option<PathBuf> {
-    common::pyenv_python("cyclonedds")
-}
-
 #[test]
 fn odometry_from_a_cyclonedds_publisher_becomes_body_velocities() {
-    let _one = one_at_a_time();
-    if std::env::var_os(INNER).is_some() {
-        inner();
-        return;
-    }
-    let Some(_) = python() else {
-        skip_or_fail("no Python environment with cyclonedds (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install cyclonedds==11.0.1)");
-        return;
-    };
-    // The test body again, in a namespace of its own with loopback only.
-    common::run_in_private_netns(INNER, TEST, BOUND);
+    common::cyclonedds_test(INNER, TEST, BOUND, inner);
 }
 
 /// What the publisher sent: stamp (CLOCK_REALTIME ns), linear velocity,
@@ -114,7 +97,7 @@ fn sigma(var: f64) -> f64 {
 
 /// The test body, inside the network namespace.
 fn inner() {
-    let py = python().expect("the Python environment vanished");
+    let py = common::cyclonedds_python().expect("the Python environment vanished");
     // The default scenario simulates no velocities: every body velocity
     // logged is the bridge's.
     let g = Group::with_config(
