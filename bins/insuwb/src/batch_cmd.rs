@@ -106,6 +106,7 @@ fn evaluate_flight(
         crate::dataset::RunChoice {
             vehicle: a.vehicle,
             aiding: a.aiding,
+            segment: a.segment.or(f.segment),
         },
     )?;
     if let Some(dir) = &a.plot {

@@ -28,6 +28,11 @@ pub struct EvalOptions {
     /// paper's Table 1) or `truth` (the ground-truth sample times, each
     /// solution interpolated there, as the UTIL references are measured).
     pub epochs: insuwb_eval::run::Epochs,
+    /// Which part of a log is evaluated: `flight` (ground truth above
+    /// `min_height_m`; a log that never rises above it is an error) or
+    /// `all` (a vehicle that stays on the floor). A manifest's `segment`
+    /// column and `insuwb eval --segment` override it.
+    pub segment: insuwb_eval::run::Segment,
 }
 
 impl Default for EvalOptions {
@@ -36,6 +41,7 @@ impl Default for EvalOptions {
             min_height_m: 0.0,
             filters: crate::eval_cmd::DEFAULT_FILTERS.to_vec(),
             epochs: insuwb_eval::run::Epochs::Fixes,
+            segment: insuwb_eval::run::Segment::Flight,
         }
     }
 }
@@ -141,9 +147,57 @@ pub struct RunChoice {
     pub vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
     /// The velocity aiding.
     pub aiding: Aiding,
+    /// The part of the log evaluated instead of the config's.
+    pub segment: Option<insuwb_eval::run::Segment>,
 }
 
 impl Loaded {
+    /// Chooses the part of the log evaluated: `choice`, else the config's
+    /// `[eval] segment`; logs which one. A flight segment of a log whose
+    /// ground truth never rises above the height is an error that says
+    /// how to evaluate the whole log instead.
+    ///
+    /// # Errors
+    /// No flight segment where one is asked for (naming the file).
+    pub fn choose_segment(
+        &mut self,
+        choice: Option<insuwb_eval::run::Segment>,
+        path: &Path,
+    ) -> Result<()> {
+        use insuwb_eval::run::Segment;
+        let span_s = |d: &Dataset| {
+            d.imu
+                .last()
+                .map_or(0.0, |s| s.header.meas_time_ns as f64 * 1e-9)
+        };
+        match choice.unwrap_or(self.config.eval.segment) {
+            Segment::All => {
+                self.data.segment = None;
+                self.segment_note = format!("the whole log, {:.1} s", span_s(&self.data));
+            }
+            Segment::Flight => match (self.flight_min_height_m, self.data.segment) {
+                (Some(h), Some((a, b))) => {
+                    self.segment_note = format!(
+                        "the flight, {:.1}-{:.1} s (ground truth above {h} m)",
+                        a as f64 * 1e-9,
+                        b as f64 * 1e-9
+                    );
+                }
+                (Some(h), None) => bail!(
+                    "{}: the ground truth never rises above {h} m: the vehicle does not fly. \
+                     Evaluate the whole log with --segment all, `[eval] segment = \"all\"` \
+                     in the config, or a manifest column `segment` of `all`",
+                    path.display()
+                ),
+                (None, _) => {
+                    self.segment_note = format!("the whole log, {:.1} s", span_s(&self.data));
+                }
+            },
+        }
+        tracing::info!("{}: evaluating {}", path.display(), self.segment_note);
+        Ok(())
+    }
+
     /// Puts the velocities `aiding` names into the dataset.
     ///
     /// # Errors
@@ -211,6 +265,11 @@ pub struct Loaded {
     /// What a UTIL log's flow records gave (None: no flow records, or a
     /// project log).
     pub flow_stats: Option<insuwb_data::FlowStats>,
+    /// The height the flight segment is cut at, m (`None`: the whole log,
+    /// a log without flight phases).
+    pub flight_min_height_m: Option<f64>,
+    /// Which part of the log is evaluated, in words ([`Loaded::choose_segment`]).
+    pub segment_note: String,
 }
 
 /// Loads a project log (a file, or a folder of `seg-*.iulog` segments as
@@ -276,18 +335,20 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
             Record::BodyVel(s) => velocity.push(s),
             Record::Imu(s) => data.imu.push(s),
             Record::Tdoa(s) => data.tdoa.push(s),
+            Record::Range(s) => data.range.push(s),
             Record::Truth(s) => data.truth.push(s),
             Record::Fused(s) => recorded.push(s),
             _ => {}
         }
     }
-    let sensors = !(data.imu.is_empty() || data.tdoa.is_empty());
+    let sensors = !(data.imu.is_empty() || (data.tdoa.is_empty() && data.range.is_empty()));
     if !sensors && recorded.is_empty() {
         bail!(
-            "{}: the log holds {} IMU, {} TDOA and no fused records: nothing to evaluate",
+            "{}: the log holds {} IMU, {} TDOA, {} range and no fused records: nothing to evaluate",
             path.display(),
             data.imu.len(),
-            data.tdoa.len()
+            data.tdoa.len(),
+            data.range.len()
         );
     }
     if sensors {
@@ -307,8 +368,9 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
             None => (ConfigFile::default(), "built-in defaults".to_owned()),
         },
     };
-    if config.eval.min_height_m > 0.0 {
-        data.segment = insuwb_data::segment::flight_segment(&data.truth, config.eval.min_height_m);
+    let flight_min_height_m = (config.eval.min_height_m > 0.0).then_some(config.eval.min_height_m);
+    if let Some(h) = flight_min_height_m {
+        data.segment = insuwb_data::segment::flight_segment(&data.truth, h);
     }
     Ok(Loaded {
         data,
@@ -317,12 +379,15 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
         config_origin: origin,
         velocity,
         flow_stats: None,
+        flight_min_height_m,
+        segment_note: String::new(),
     })
 }
 
 fn sort_streams(d: &mut Dataset) {
     d.imu.sort_by_key(|s| s.header.meas_time_ns);
     d.tdoa.sort_by_key(|s| s.header.meas_time_ns);
+    d.range.sort_by_key(|s| s.header.meas_time_ns);
     d.truth.sort_by_key(|s| s.header.meas_time_ns);
 }
 
@@ -364,10 +429,11 @@ fn load_util(
         ),
     }
     tracing::info!(
-        "{}: {} IMU, {} TDOA, {} truth samples; skipped: {} unknown-anchor TDOA, {} backwards, {} non-finite",
+        "{}: {} IMU, {} TDOA, {} range, {} truth samples; skipped: {} unknown-anchor UWB, {} backwards, {} non-finite",
         path.display(),
         flight.imu.len(),
         flight.tdoa.len(),
+        flight.twr.len(),
         flight.truth.len(),
         s.unknown_anchor,
         s.time_backwards,
@@ -394,6 +460,7 @@ fn load_util(
         name: path.display().to_string(),
         imu: flight.imu,
         tdoa: flight.tdoa,
+        range: flight.twr,
         truth: flight.truth,
         velocity: Vec::new(),
         segment,
@@ -406,5 +473,7 @@ fn load_util(
         config_origin: origin,
         velocity,
         flow_stats,
+        flight_min_height_m: Some(min_h),
+        segment_note: String::new(),
     })
 }

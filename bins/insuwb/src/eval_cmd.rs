@@ -22,6 +22,8 @@ pub const DEFAULT_FILTERS: [FilterKind; 4] = [
 ];
 
 /// Parses `--filters kf,iakf`.
+/// `iakf_twr` names the tight filter as `iakf_tdoa` does: on a ranging
+/// log it fuses the ranges and its solution is called so.
 pub fn parse_filters(list: Option<&str>, default: &[FilterKind]) -> Result<Vec<FilterKind>> {
     let Some(list) = list else {
         return Ok(default.to_vec());
@@ -29,7 +31,10 @@ pub fn parse_filters(list: Option<&str>, default: &[FilterKind]) -> Result<Vec<F
     list.split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<FilterKind>().context("--filters"))
+        .map(|s| match s {
+            insuwb_eval::run::TIGHT_TWR_KEY => Ok(FilterKind::IakfTdoa),
+            s => s.parse::<FilterKind>().context("--filters"),
+        })
         .collect()
 }
 
@@ -91,6 +96,12 @@ pub struct EvalArgs {
     /// ground (no lateral or vertical body velocity).
     #[arg(long)]
     pub vehicle: Option<insuwb_nav::vehicle::VehicleKind>,
+    /// The part of a log evaluated: `flight` (ground truth above the
+    /// config's `[eval] min_height_m`) or `all` (the whole log: a vehicle
+    /// that stays on the floor); default: a manifest's `segment` column,
+    /// else the config's `[eval] segment`.
+    #[arg(long, conflicts_with = "scenario")]
+    pub segment: Option<insuwb_eval::run::Segment>,
     /// Velocity measurements that aid the filters (`flow`: a UTIL log's
     /// optical-flow deck or a scenario's `[sim.flow]`; `odometry`: a
     /// scenario's `[sim.odometry]`); the solutions keep their names, so
@@ -184,6 +195,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         if let Some(v) = a.vehicle {
             loaded.config.fusion.vehicle = v;
         }
+        loaded.choose_segment(a.segment, path)?;
         loaded.use_aiding(a.aiding, path)?;
         if let Some(c) = &a.calibration {
             let c = crate::calibrate_cmd::CalibrationFile::load(c)?;
@@ -201,7 +213,10 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             .into_iter()
             .map(|s| (s.key, s.metrics))
             .collect();
-        (rows, format!("{}", path.display()))
+        (
+            rows,
+            format!("{} ({})", path.display(), loaded.segment_note),
+        )
     } else {
         bail!("give a FILE, --flights MANIFEST.csv or --scenario NAME (see insuwb eval --help)");
     };
@@ -366,6 +381,7 @@ pub fn evaluate_file(
             path.display()
         );
     }
+    loaded.choose_segment(run.segment, path)?;
     if let Some(c) = calibration {
         c.apply(&mut loaded, anchors, path)?;
     }
@@ -514,6 +530,7 @@ pub fn sim(a: &SimArgs) -> Result<()> {
         let rec = match r {
             insuwb_sim::SimRecord::Imu(s) => Record::Imu(s),
             insuwb_sim::SimRecord::Tdoa(s) => Record::Tdoa(s),
+            insuwb_sim::SimRecord::Range(s) => Record::Range(s),
             insuwb_sim::SimRecord::Truth(s) => Record::Truth(s),
             insuwb_sim::SimRecord::Velocity(s) => Record::BodyVel(s),
         };
@@ -638,9 +655,9 @@ pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
     // The error names the file and the cause.
     let mut w = LogWriter::create(&a.out, &meta, 0)?;
     let d = &loaded.data;
-    // Merge by time: truth, IMU, TDOA at equal times.
+    // Merge by time: truth, IMU, TDOA (or ranges) at equal times.
     let mut recs: Vec<(u64, u8, Record)> =
-        Vec::with_capacity(d.imu.len() + d.tdoa.len() + d.truth.len());
+        Vec::with_capacity(d.imu.len() + d.tdoa.len() + d.range.len() + d.truth.len());
     recs.extend(
         d.truth
             .iter()
@@ -655,6 +672,11 @@ pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
         d.tdoa
             .iter()
             .map(|s| (s.header.meas_time_ns, 2, Record::Tdoa(*s))),
+    );
+    recs.extend(
+        d.range
+            .iter()
+            .map(|s| (s.header.meas_time_ns, 2, Record::Range(*s))),
     );
     // The flow deck's velocities, if the log carries them: what the
     // vehicle measured, used when a replay or eval asks for the aiding.

@@ -157,6 +157,13 @@ fn csv_line(rec: &Record) -> String {
     match rec {
         Record::Imu(s) => format!("{head},{},{}", f(&s.accel_mps2), f(&s.gyro_rps)),
         Record::Tdoa(s) => format!("{head},{},{},{}", s.anchor_a, s.anchor_b, s.diff_m),
+        Record::Range(s) => format!(
+            "{head},{},{},{},{}",
+            s.anchor,
+            s.range_m,
+            s.quality,
+            f(&s.anchor_pos_m)
+        ),
         Record::Fix(s) => format!("{head},{},{},{}", f(&s.pos_m), f(&s.vel_mps), s.gdop),
         Record::Nav(s) => format!(
             "{head},{},{},{},{}",

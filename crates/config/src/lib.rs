@@ -218,6 +218,7 @@ pub const SCENARIOS: &[Builtin] = &[
     ),
     builtin_file!("nlos-long", "config/scenarios/nlos-long.toml"),
     builtin_file!("ground-outage", "config/scenarios/ground-outage.toml"),
+    builtin_file!("twr-3.4", "config/scenarios/twr-3.4.toml"),
 ];
 
 /// The built-in presets (`config/*.toml`).

@@ -16,6 +16,9 @@
 //!   with the body rates differentiated from the ground-truth attitude);
 //! - TDOA `diff_m = |p - a_idB| - |p - a_idA|` with `anchor_a = idA`,
 //!   `anchor_b = idB`, and the anchor positions from the anchor file;
+//! - two-way ranges (`estDistance`, the TWR logs) `range_m = distance`
+//!   to `anchor = id`, with its position from the anchor file and
+//!   no quality (the log carries none);
 //! - ground truth (`estPose`, Vicon frame x east, y north, z up) with the
 //!   quaternion reordered from scalar-last to `[w, x, y, z]` and normalised;
 //!   near-duplicate stamps (about 20 us apart) are dropped, the first one
@@ -23,7 +26,7 @@
 
 use std::path::{Path, PathBuf};
 
-use insuwb_msg::{GroundTruth, Header, ImuSample, UwbTdoa};
+use insuwb_msg::{GroundTruth, Header, ImuSample, UwbRange, UwbTdoa};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -63,6 +66,8 @@ mod names {
     pub const GYRO_VARS: [&str; 3] = ["gyro.x", "gyro.y", "gyro.z"];
     pub const TDOA: &str = "estTDOA";
     pub const TDOA_VARS: [&str; 3] = ["idA", "idB", "distanceDiff"];
+    pub const TWR: &str = "estDistance";
+    pub const TWR_VARS: [&str; 2] = ["id", "distance"];
     pub const FLOW: &str = "estFlow";
     pub const FLOW_VARS: [&str; 2] = ["motion.deltaX", "motion.deltaY"];
     pub const TOF: &str = "estTOF";
@@ -177,13 +182,17 @@ pub struct ImportStats {
     pub tdoa_records: u64,
     /// Ground-truth records read.
     pub truth_records: u64,
+    /// Two-way-ranging records read (`estDistance`).
+    #[serde(default)]
+    pub distance_records: u64,
     /// Optical-flow records read (`estFlow`).
     #[serde(default)]
     pub flow_records: u64,
     /// Time-of-flight range records read (`estTOF`).
     #[serde(default)]
     pub range_records: u64,
-    /// TDOA records naming an anchor id the anchor file lacks (or not an integer).
+    /// TDOA or two-way-ranging records naming an anchor id the anchor file
+    /// lacks (or not an integer).
     pub unknown_anchor: u64,
     /// TDOA records with `idA == idB`.
     pub same_anchor: u64,
@@ -277,6 +286,8 @@ pub struct UtilFlight {
     pub imu: Vec<ImuSample>,
     /// TDOA measurements, in log order.
     pub tdoa: Vec<UwbTdoa>,
+    /// Two-way ranges (`estDistance`), in log order; empty for a TDOA log.
+    pub twr: Vec<UwbRange>,
     /// Ground truth, strictly increasing times, deduplicated.
     pub truth: Vec<GroundTruth>,
     /// The flow deck's motion counts (`estFlow`), increasing times; empty
@@ -389,6 +400,7 @@ impl UtilFlight {
         let acc_c = columns(log, names::ACC, names::ACC_VARS)?;
         let gyro_c = columns(log, names::GYRO, names::GYRO_VARS)?;
         let tdoa_c = columns(log, names::TDOA, names::TDOA_VARS)?;
+        let twr_c = columns(log, names::TWR, names::TWR_VARS)?;
         let pose_c = columns(log, names::POSE, names::POSE_VARS)?;
         let flow_c = columns(log, names::FLOW, names::FLOW_VARS)?;
         let tof_c = columns(log, names::TOF, names::TOF_VARS)?;
@@ -398,6 +410,7 @@ impl UtilFlight {
         let mut accel: Vec<Vec3At> = Vec::new();
         let mut gyro: Vec<Vec3At> = Vec::new();
         let mut tdoa: Vec<UwbTdoa> = Vec::new();
+        let mut twr: Vec<UwbRange> = Vec::new();
         let mut truth: Vec<GroundTruth> = Vec::new();
         let mut flow: Vec<FlowRecord> = Vec::new();
         let mut ranges: Vec<RangeRecord> = Vec::new();
@@ -408,6 +421,7 @@ impl UtilFlight {
             acc_c.as_ref().map(|c| c.id),
             gyro_c.as_ref().map(|c| c.id),
             tdoa_c.as_ref().map(|c| c.id),
+            twr_c.as_ref().map(|c| c.id),
             pose_c.as_ref().map(|c| c.id),
             flow_c.as_ref().map(|c| c.id),
             tof_c.as_ref().map(|c| c.id),
@@ -475,6 +489,33 @@ impl UtilFlight {
                     diff_m,
                     anchor_a_pos_m: pa,
                     anchor_b_pos_m: pb,
+                });
+            } else if let Some(c) = twr_c.as_ref().filter(|c| c.id == r.event.id) {
+                stats.distance_records += 1;
+                let id = c
+                    .idx
+                    .first()
+                    .and_then(|&i| r.values.get(i))
+                    .and_then(|v| v.as_u32());
+                let range_m = c.f64s(&r)[1];
+                if twr.last().is_some_and(|m| t_ns < m.header.meas_time_ns) {
+                    stats.time_backwards += 1;
+                    continue;
+                }
+                let Some((id, pos)) = id.and_then(|id| Some((id, anchors.get(id)?))) else {
+                    stats.unknown_anchor += 1;
+                    continue;
+                };
+                if !range_m.is_finite() {
+                    stats.non_finite += 1;
+                    continue;
+                }
+                twr.push(UwbRange {
+                    header: Header::new(twr.len() as u64, t_ns),
+                    anchor: id,
+                    quality: 0,
+                    range_m,
+                    anchor_pos_m: pos,
                 });
             } else if let Some(c) = flow_c.as_ref().filter(|c| c.id == r.event.id) {
                 stats.flow_records += 1;
@@ -547,6 +588,7 @@ impl UtilFlight {
         Ok(Self {
             imu,
             tdoa,
+            twr,
             truth,
             flow,
             ranges,
@@ -563,6 +605,7 @@ impl UtilFlight {
         let last = |t: Option<u64>| t.unwrap_or(0);
         last(self.imu.last().map(|s| s.header.meas_time_ns))
             .max(last(self.tdoa.last().map(|s| s.header.meas_time_ns)))
+            .max(last(self.twr.last().map(|s| s.header.meas_time_ns)))
             .max(last(self.truth.last().map(|s| s.header.meas_time_ns)))
     }
 }
@@ -714,6 +757,51 @@ mod tests {
         let bytes = build(2, &events(), &recs);
         let log = CfLog::parse(&bytes, &ParseOptions::default()).unwrap();
         UtilFlight::from_cflog(&log, &anchors()).unwrap()
+    }
+
+    #[test]
+    fn imports_two_way_ranges_with_their_anchors_and_counts_skips() {
+        const DIST: u16 = 8;
+        let mut ev = events();
+        ev.push((DIST, "estDistance", &["id(B)", "distance(f)"]));
+        let dist = |id: u8, d: f32| {
+            let mut p = vec![id];
+            p.extend_from_slice(&d.to_le_bytes());
+            p
+        };
+        let recs = vec![
+            (DIST, 1000, dist(1, 3.25)),
+            (DIST, 1100, dist(2, 4.5)),
+            (DIST, 1050, dist(0, 1.0)), // backwards
+            (DIST, 1200, dist(9, 1.0)), // unknown anchor
+            (DIST, 1300, dist(0, f32::NAN)),
+            (DIST, 1400, dist(0, 2.0)),
+        ];
+        let bytes = build(2, &ev, &recs);
+        let log = CfLog::parse(&bytes, &ParseOptions::default()).unwrap();
+        let f = UtilFlight::from_cflog(&log, &anchors()).unwrap();
+        assert!(f.tdoa.is_empty());
+        let got: Vec<(u64, u32, f64, [f64; 3])> = f
+            .twr
+            .iter()
+            .map(|m| (m.header.meas_time_ns, m.anchor, m.range_m, m.anchor_pos_m))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                (0, 1, 3.25, [4.0, 0.0, 0.0]),
+                (100_000, 2, 4.5, [0.0, 4.0, 1.0]),
+                (400_000, 0, 2.0, [0.0, 0.0, 0.0]),
+            ]
+        );
+        assert_eq!(f.twr[2].header.seq, 2);
+        let s = f.stats;
+        assert_eq!(s.distance_records, 6);
+        assert_eq!(
+            (s.time_backwards, s.unknown_anchor, s.non_finite),
+            (1, 1, 1)
+        );
+        assert_eq!(f.duration_ns(), 400_000);
     }
 
     #[test]

@@ -26,7 +26,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use crate::{eliko, mavlink, nlink, witmotion};
+use crate::{dwm1001, eliko, mavlink, nlink, witmotion};
 
 /// Standard gravity (m/s^2) used to turn g and mG into m/s^2.
 pub const STANDARD_GRAVITY: f64 = 9.80665;
@@ -77,6 +77,26 @@ pub enum Reading {
         /// The system's own time stamp, if the protocol carries one.
         device_time: Option<DeviceTime>,
     },
+    /// One two-way range from a UWB tag to one anchor, as the tag reported
+    /// it: the anchors of one ranging round come one after the other, the
+    /// last with `last_of_round`.
+    Range {
+        /// The anchor's identifier (DWM1001: its 16-bit short address;
+        /// NLink: its index 0..7).
+        anchor: u32,
+        /// Distance from the tag to the anchor (m).
+        range_m: f64,
+        /// The anchor's position as the system knows it (m), if the
+        /// protocol carries it.
+        anchor_pos_m: Option<[f64; 3]>,
+        /// The device's quality figure of this range, 0-100, if the
+        /// protocol carries one.
+        quality: Option<u8>,
+        /// The last range of its round (its line or frame).
+        last_of_round: bool,
+        /// The system's own time stamp, if the protocol carries one.
+        device_time: Option<DeviceTime>,
+    },
     /// Euler angles an IMU computed on board.
     Attitude {
         /// Roll, pitch, yaw (rad).
@@ -107,7 +127,8 @@ pub struct DecoderStats {
     pub bytes_skipped: u64,
     /// Frames whose checksum held and whose content was decoded.
     pub frames_ok: u64,
-    /// Frames whose checksum held but whose type this decoder does not use.
+    /// Frames whose checksum held but whose type this decoder does not use
+    /// (text protocols: lines that are not reports).
     pub unknown: u64,
     /// Frames dropped because their checksum failed.
     pub checksum_errors: u64,
@@ -125,7 +146,8 @@ pub struct DecoderStats {
     /// Valid frames left out on purpose (another tag or IMU, a fallback
     /// message while the preferred one flows).
     pub filtered: u64,
-    /// Valid position reports that carried no position (tag not located).
+    /// Valid position reports that carried no position (tag not located;
+    /// DWM1001: a line with no range and no position of quality above 0).
     pub no_fix: u64,
 }
 
@@ -140,6 +162,8 @@ pub enum Protocol {
     Nlink,
     /// Eliko RTLS text protocol over TCP (UWB).
     Eliko,
+    /// Qorvo (Decawave) DWM1001 UART shell, `lec`/`les`/`lep` lines (UWB).
+    Dwm1001,
 }
 
 /// The name given to [`Protocol::from_str`] is not one we know.
@@ -152,15 +176,16 @@ pub struct UnknownProtocol {
 
 impl Protocol {
     /// Every protocol, in the order of [`Protocol::NAMES`].
-    pub const ALL: [Protocol; 4] = [
+    pub const ALL: [Protocol; 5] = [
         Protocol::WitMotion,
         Protocol::Mavlink,
         Protocol::Nlink,
         Protocol::Eliko,
+        Protocol::Dwm1001,
     ];
 
     /// The names [`Protocol::from_str`] accepts.
-    pub const NAMES: [&'static str; 4] = ["witmotion", "mavlink", "nlink", "eliko"];
+    pub const NAMES: [&'static str; 5] = ["witmotion", "mavlink", "nlink", "eliko", "dwm1001"];
 
     /// The protocol's name as [`Protocol::from_str`] accepts it.
     pub fn name(self) -> &'static str {
@@ -169,18 +194,20 @@ impl Protocol {
             Protocol::Mavlink => "mavlink",
             Protocol::Nlink => "nlink",
             Protocol::Eliko => "eliko",
+            Protocol::Dwm1001 => "dwm1001",
         }
     }
 
     /// Bytes of the frame that carries one reading: a WitMotion 0x51 or
     /// 0x52 frame, a MAVLink v2 HIGHRES_IMU, an NLink Tag_Frame0, a typical
-    /// Eliko COORD line.
+    /// Eliko COORD line, a DWM1001 `lec` line of four anchors.
     pub fn nominal_frame_len(self) -> usize {
         match self {
             Protocol::WitMotion => witmotion::FRAME_LEN,
             Protocol::Mavlink => mavlink::HIGHRES_IMU_V2_FRAME_LEN,
             Protocol::Nlink => nlink::FRAME_LEN,
             Protocol::Eliko => eliko::NOMINAL_LINE_LEN,
+            Protocol::Dwm1001 => dwm1001::NOMINAL_LINE_LEN,
         }
     }
 
@@ -192,6 +219,7 @@ impl Protocol {
             Protocol::Mavlink => mavlink::MAX_FRAME_LEN,
             Protocol::Nlink => nlink::FRAME_LEN,
             Protocol::Eliko => eliko::MAX_LINE_LEN,
+            Protocol::Dwm1001 => dwm1001::MAX_LINE_LEN,
         }
     }
 }
@@ -237,17 +265,20 @@ pub enum AnyDecoder {
     Nlink(nlink::Decoder),
     /// See [`eliko::Decoder`].
     Eliko(eliko::Decoder),
+    /// See [`dwm1001::Decoder`].
+    Dwm1001(dwm1001::Decoder),
 }
 
 impl AnyDecoder {
     /// The protocol's decoder with its default settings (MAVLink IMU id 0,
-    /// every Eliko tag).
+    /// every Eliko tag, DWM1001 positions as tag 0).
     pub fn new(protocol: Protocol) -> Self {
         match protocol {
             Protocol::WitMotion => AnyDecoder::WitMotion(witmotion::Decoder::new()),
             Protocol::Mavlink => AnyDecoder::Mavlink(mavlink::Decoder::new()),
             Protocol::Nlink => AnyDecoder::Nlink(nlink::Decoder::new()),
             Protocol::Eliko => AnyDecoder::Eliko(eliko::Decoder::new()),
+            Protocol::Dwm1001 => AnyDecoder::Dwm1001(dwm1001::Decoder::new()),
         }
     }
 
@@ -258,6 +289,7 @@ impl AnyDecoder {
             AnyDecoder::Mavlink(_) => Protocol::Mavlink,
             AnyDecoder::Nlink(_) => Protocol::Nlink,
             AnyDecoder::Eliko(_) => Protocol::Eliko,
+            AnyDecoder::Dwm1001(_) => Protocol::Dwm1001,
         }
     }
 
@@ -268,6 +300,7 @@ impl AnyDecoder {
             AnyDecoder::Mavlink(d) => d.push(bytes, out),
             AnyDecoder::Nlink(d) => d.push(bytes, out),
             AnyDecoder::Eliko(d) => d.push(bytes, out),
+            AnyDecoder::Dwm1001(d) => d.push(bytes, out),
         }
     }
 
@@ -278,6 +311,7 @@ impl AnyDecoder {
             AnyDecoder::Mavlink(d) => d.stats(),
             AnyDecoder::Nlink(d) => d.stats(),
             AnyDecoder::Eliko(d) => d.stats(),
+            AnyDecoder::Dwm1001(d) => d.stats(),
         }
     }
 
@@ -290,6 +324,7 @@ impl AnyDecoder {
             AnyDecoder::Mavlink(d) => d.bytes_since_last_valid_frame(),
             AnyDecoder::Nlink(d) => d.bytes_since_last_valid_frame(),
             AnyDecoder::Eliko(d) => d.bytes_since_last_valid_frame(),
+            AnyDecoder::Dwm1001(d) => d.bytes_since_last_valid_frame(),
         }
     }
 
@@ -300,6 +335,7 @@ impl AnyDecoder {
             AnyDecoder::Mavlink(d) => d.buffered(),
             AnyDecoder::Nlink(d) => d.buffered(),
             AnyDecoder::Eliko(d) => d.buffered(),
+            AnyDecoder::Dwm1001(d) => d.buffered(),
         }
     }
 
@@ -310,6 +346,7 @@ impl AnyDecoder {
             AnyDecoder::Mavlink(d) => d.clear(),
             AnyDecoder::Nlink(d) => d.clear(),
             AnyDecoder::Eliko(d) => d.clear(),
+            AnyDecoder::Dwm1001(d) => d.clear(),
         }
     }
 }

@@ -28,8 +28,10 @@
 //! | 127    | 1    | checksum: sum of bytes 0..=126 mod 256   |
 //!
 //! Each frame gives a [`Reading::Position`] (with velocity and the
-//! `system_time` as device time, wrapping at 2^32 ms) followed by a
-//! [`Reading::Ranges`].
+//! `system_time` as device time, wrapping at 2^32 ms), a
+//! [`Reading::Ranges`], then a [`Reading::Range`] per anchor whose
+//! distance is not 0 (anchor id = its index 0..7, no anchor position, no
+//! quality, the same device time), the last with `last_of_round`.
 //!
 //! ```
 //! use insuwb_devices::nlink::{Decoder, TagFrame};
@@ -213,7 +215,8 @@ impl Decoder {
     }
 
     /// Feeds bytes as they came off the link; calls `out` with a
-    /// [`Reading::Position`] then a [`Reading::Ranges`] per frame.
+    /// [`Reading::Position`], a [`Reading::Ranges`] and a [`Reading::Range`]
+    /// per heard anchor for each frame.
     pub fn push(&mut self, bytes: &[u8], out: &mut impl FnMut(Reading)) {
         self.framer.push(&Format, bytes, &mut |frame, _gap| {
             let Some(tf) = TagFrame::decode(frame) else {
@@ -232,6 +235,19 @@ impl Decoder {
                 ranges_m: tf.ranges_m,
                 device_time,
             });
+            let last = tf.ranges_m.iter().rposition(|d| *d != 0.0);
+            for ((anchor, i), range_m) in (0_u32..).zip(0_usize..).zip(tf.ranges_m) {
+                if range_m != 0.0 {
+                    out(Reading::Range {
+                        anchor,
+                        range_m,
+                        anchor_pos_m: None,
+                        quality: None,
+                        last_of_round: Some(i) == last,
+                        device_time,
+                    });
+                }
+            }
             Outcome::Decoded
         });
     }

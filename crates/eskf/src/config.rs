@@ -88,6 +88,11 @@ pub struct EskfConfig {
     /// 0.14-0.19 m, inlier SD 0.16-0.17 m plus per-pair biases of about
     /// 0.07 m RMS (measured on the four UTIL logs).
     pub tdoa_sigma_m: f64,
+    /// Sigma of one two-way range, m (as `tdoa_sigma_m`, for
+    /// [`crate::Eskf::update_range`]; the correlation inflation, the robust
+    /// weighting and the gates are the TDOA ones). Default 0.1: the ranging
+    /// precision the Qorvo DWM1001 datasheet states (10 cm).
+    pub range_sigma_m: f64,
     /// Correlation time of the TDOA errors, s, for the rate-adaptive
     /// inflation: a pair's `R` used in the gain is multiplied by
     /// `max(1, 2 tau / dt_pair)`, `dt_pair` the time since that pair's last
@@ -197,6 +202,7 @@ impl Default for EskfConfig {
             init_accel_bias_sigma_mps2: 0.2,
             init_gyro_bias_sigma_rps: 0.01,
             tdoa_sigma_m: 0.17,
+            range_sigma_m: 0.1,
             tdoa_corr_time_s: 0.25,
             tdoa_r_inflation: 1.0,
             min_interval_per_pair_s: 0.0,
@@ -301,6 +307,7 @@ impl EskfConfig {
             pos,
         )?;
         check("tdoa_sigma_m", self.tdoa_sigma_m, "> 0", pos)?;
+        check("range_sigma_m", self.range_sigma_m, "> 0", pos)?;
         check("tdoa_corr_time_s", self.tdoa_corr_time_s, ">= 0", non_neg)?;
         check("tdoa_r_inflation", self.tdoa_r_inflation, ">= 1", |v| {
             v >= 1.0

@@ -467,6 +467,37 @@ pub fn tdoa_model(
     })
 }
 
+/// The measurement model of one two-way range to `anchor_m` at the INS
+/// state: predicted `|p_ant - a|` and `H = [-u^T, 0, u^T [(C l) x], 0, 0]`
+/// with `u = (p_ant - a)/|p_ant - a|` (as [`tdoa_model`], one anchor).
+///
+/// # Errors
+/// [`TdoaUpdateError`] on a non-finite input, a non-unit quaternion or an
+/// antenna on the anchor.
+pub fn range_model(
+    p_ins_m: [f64; 3],
+    quat: [f64; 4],
+    lever_arm_body_m: [f64; 3],
+    anchor_m: [f64; 3],
+) -> Result<TdoaModel, TdoaUpdateError> {
+    finite("p_ins_m", &p_ins_m)?;
+    finite("lever_arm_body_m", &lever_arm_body_m)?;
+    finite("anchor_m", &anchor_m)?;
+    let rot = checked_rotation(quat)?;
+    let lever_nav = rot * Vector3::from(lever_arm_body_m);
+    let to_a = Vector3::from(p_ins_m) + lever_nav - Vector3::from(anchor_m);
+    let da = to_a.norm();
+    if da < MIN_ANCHOR_DIST_M {
+        return Err(TdoaUpdateError::AntennaAtAnchor { distance_m: da });
+    }
+    let u = to_a / da;
+    let mut h = StateVector::zeros();
+    h.fixed_rows_mut::<3>(IDX_POS).copy_from(&(-u));
+    h.fixed_rows_mut::<3>(IDX_ATT)
+        .copy_from(&u.cross(&lever_nav));
+    Ok(TdoaModel { predicted_m: da, h })
+}
+
 /// The tightly coupled error-state Kalman filter (15 states, closed loop).
 ///
 /// The INS integrates the nominal state; this filter propagates the error
@@ -897,11 +928,47 @@ impl Eskf {
     ) -> Result<TdoaUpdateReport, TdoaUpdateError> {
         finite("diff_m", &[diff_m])?;
         let model = tdoa_model(p_ins_m, quat, lever_arm_body_m, anchor_a_m, anchor_b_m)?;
+        let sigma = self.config.tdoa_sigma_m;
+        Ok(self.update_uwb(&model, diff_m, pair_key(&anchor_a_m, &anchor_b_m), sigma))
+    }
+
+    /// Updates with one two-way range `range_m = |p_ant - anchor|` taken
+    /// at the INS state `(p_ins_m, quat)` ([`range_model`]): the same
+    /// robust weighting, gates, correlation inflation (per anchor) and
+    /// process-noise adaptation as [`Eskf::update_tdoa`], with
+    /// [`EskfConfig::range_sigma_m`] as the measurement's sigma.
+    ///
+    /// # Errors
+    /// [`TdoaUpdateError`] on a non-finite input, a non-unit quaternion or an
+    /// antenna on the anchor; the filter is then unchanged.
+    pub fn update_range(
+        &mut self,
+        p_ins_m: [f64; 3],
+        quat: [f64; 4],
+        lever_arm_body_m: [f64; 3],
+        anchor_m: [f64; 3],
+        range_m: f64,
+    ) -> Result<TdoaUpdateReport, TdoaUpdateError> {
+        finite("range_m", &[range_m])?;
+        let model = range_model(p_ins_m, quat, lever_arm_body_m, anchor_m)?;
+        let sigma = self.config.range_sigma_m;
+        Ok(self.update_uwb(&model, range_m, pair_key(&anchor_m, &anchor_m), sigma))
+    }
+
+    /// One scalar UWB update of measurement `z` with `model`, its pair slot
+    /// `key` and sigma (see [`Eskf::update_tdoa`]).
+    fn update_uwb(
+        &mut self,
+        model: &TdoaModel,
+        z: f64,
+        key: [u64; 6],
+        sigma: f64,
+    ) -> TdoaUpdateReport {
         let h = model.h;
-        let v = diff_m - model.predicted_m - h.dot(&self.x);
+        let v = z - model.predicted_m - h.dot(&self.x);
         let c = self.p * h;
         let hph = h.dot(&c).max(0.0);
-        let sigma2 = self.config.tdoa_sigma_m * self.config.tdoa_sigma_m;
+        let sigma2 = sigma * sigma;
         let s = hph + sigma2;
         let nis = v * v / s;
         let r = nis.sqrt();
@@ -917,7 +984,6 @@ impl Eskf {
             q_scale: self.q_adapt.alpha,
         };
 
-        let key = pair_key(&anchor_a_m, &anchor_b_m);
         let slot = self.pairs.iter().position(|p| p.used && p.key == key);
         let dt_pair = slot
             .and_then(|i| self.pairs.get(i))
@@ -927,7 +993,7 @@ impl Eskf {
         {
             self.stats.decimated += 1;
             report.outcome = TdoaOutcome::Decimated;
-            return Ok(report);
+            return report;
         }
 
         self.nis_last = Some(nis);
@@ -937,7 +1003,7 @@ impl Eskf {
             report.outcome = TdoaOutcome::Rejected;
             report.rejected = true;
             report.needs_reset = self.needs_reset;
-            return Ok(report);
+            return report;
         }
 
         let lambda = if r > self.config.kappa {
@@ -969,7 +1035,7 @@ impl Eskf {
         report.r_gain_m2 = r_gain;
         report.q_scale = self.q_adapt.alpha;
         report.needs_reset = self.needs_reset;
-        Ok(report)
+        report
     }
 
     /// Fuses a 3D position fix of the antenna (`pos_uwb_m`, covariance

@@ -31,10 +31,11 @@ mod math;
 
 pub use config::{EskfConfig, EskfConfigError};
 pub use eskf::{
-    process_noise, tdoa_model, transition_matrix, Correction, Covariance, Eskf, EskfStats,
-    MultirotorDynamics, PositionUpdateError, PositionUpdateReport, PredictError, PseudoUpdateError,
-    PseudoUpdateReport, ResetError, StateVector, TdoaModel, TdoaOutcome, TdoaUpdateError,
-    TdoaUpdateReport, IDX_ACCEL_BIAS, IDX_ATT, IDX_GYRO_BIAS, IDX_POS, IDX_VEL, N_STATES,
+    process_noise, range_model, tdoa_model, transition_matrix, Correction, Covariance, Eskf,
+    EskfStats, MultirotorDynamics, PositionUpdateError, PositionUpdateReport, PredictError,
+    PseudoUpdateError, PseudoUpdateReport, ResetError, StateVector, TdoaModel, TdoaOutcome,
+    TdoaUpdateError, TdoaUpdateReport, IDX_ACCEL_BIAS, IDX_ATT, IDX_GYRO_BIAS, IDX_POS, IDX_VEL,
+    N_STATES,
 };
 pub use insuwb_filter::LimitMode;
 pub use math::{quat_to_rot, skew};

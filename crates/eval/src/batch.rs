@@ -41,6 +41,9 @@ use crate::metrics::Metrics;
 pub const FILE_COLUMN: &str = "file";
 /// The column naming each flight's anchor survey.
 pub const ANCHORS_COLUMN: &str = "anchors";
+/// The optional column saying which part of each log is evaluated
+/// (`flight`, `all`; empty: the config's).
+pub const SEGMENT_COLUMN: &str = "segment";
 /// Columns whose name ends in this hold reference horizontal RMSEs (m).
 pub const REFERENCE_SUFFIX: &str = "_m";
 
@@ -67,6 +70,16 @@ pub enum ManifestError {
     NoFlights {
         /// The manifest.
         path: PathBuf,
+    },
+    /// A `segment` cell that is neither `flight` nor `all`.
+    #[error("{}:{line}: column `segment`: `{value}` is neither `flight` nor `all`", path.display())]
+    BadSegment {
+        /// The manifest.
+        path: PathBuf,
+        /// The line.
+        line: usize,
+        /// The cell.
+        value: String,
     },
     /// A required column is missing from the header.
     #[error("{}:{line}: the header has no column `{column}`", path.display())]
@@ -149,6 +162,8 @@ pub struct ManifestFlight {
     pub anchors: Option<PathBuf>,
     /// One value per [`Manifest::references`] column (`None`: empty cell).
     pub references: Vec<Option<f64>>,
+    /// The [`SEGMENT_COLUMN`] cell (`None`: no such column, or empty).
+    pub segment: Option<crate::run::Segment>,
 }
 
 /// A parsed manifest.
@@ -243,6 +258,7 @@ impl Manifest {
         };
         let file_col = find(FILE_COLUMN)?;
         let anchors_col = find(ANCHORS_COLUMN)?;
+        let segment_col = columns.iter().position(|c| *c == SEGMENT_COLUMN);
         let ref_cols: Vec<usize> = (0..columns.len())
             .filter(|&i| i != file_col && i != anchors_col)
             .filter(|&i| columns[i].ends_with(REFERENCE_SUFFIX))
@@ -278,12 +294,23 @@ impl Manifest {
                     })
                 })
                 .collect::<Result<Vec<_>, _>>()?;
+            let segment = match segment_col.map(|c| cells[c]) {
+                None | Some("") => None,
+                Some(cell) => Some(cell.parse::<crate::run::Segment>().map_err(|_| {
+                    ManifestError::BadSegment {
+                        path: path.to_owned(),
+                        line,
+                        value: cell.to_owned(),
+                    }
+                })?),
+            };
             flights.push(ManifestFlight {
                 line,
                 name: name.to_owned(),
                 file: base.join(name),
                 anchors: (!anchors.is_empty()).then(|| base.join(anchors)),
                 references,
+                segment,
             });
         }
         if flights.is_empty() {

@@ -6,7 +6,8 @@
 use insuwb_fusion::config::{build_estimator, ConfigError, FusionConfig};
 use insuwb_fusion::runner::{self, RunOutput};
 use insuwb_msg::{
-    BodyVelocity, FilterKind, FusedState, GroundTruth, ImuSample, NavState, UwbFix, UwbTdoa,
+    BodyVelocity, FilterKind, FusedState, GroundTruth, ImuSample, NavState, UwbFix, UwbRange,
+    UwbTdoa,
 };
 
 use crate::metrics::{compute, Estimate, Metrics, MetricsError, TruthTrack};
@@ -20,6 +21,9 @@ pub struct Dataset {
     pub imu: Vec<ImuSample>,
     /// TDOA measurements.
     pub tdoa: Vec<UwbTdoa>,
+    /// Two-way ranges (a ranging log); when present the fixes and the
+    /// tight filter use them instead of `tdoa`.
+    pub range: Vec<UwbRange>,
     /// Ground truth.
     pub truth: Vec<GroundTruth>,
     /// Body-frame velocities (odometry, flow) the filters are aided with;
@@ -57,10 +61,12 @@ pub enum EvalError {
         error: MetricsError,
     },
     /// The UWB system produced no fix at all.
-    #[error("no UWB fix could be computed from {tdoa} TDOA measurements")]
+    #[error("no UWB fix could be computed from {tdoa} TDOA measurements and {range} ranges")]
     NoFixes {
-        /// Measurements given.
+        /// TDOA measurements given.
         tdoa: usize,
+        /// Two-way ranges given.
+        range: usize,
     },
 }
 
@@ -85,6 +91,32 @@ pub const ESTIMATE_MAX_GAP_NS: u64 = 1_000_000_000;
 /// Truth samples closer than this to the previous one are not evaluated
 /// again (ns): motion-capture logs hold near-duplicate stamps 20 us apart.
 const TRUTH_MIN_SPACING_NS: u64 = 1_000_000;
+
+/// Which part of a log is evaluated (`[eval] segment`, a manifest's
+/// `segment` column, `insuwb eval --segment`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Segment {
+    /// The flight: from the first to the last instant the ground truth is
+    /// above `[eval] min_height_m` (a log that never rises above it is an
+    /// error, naming this setting).
+    #[default]
+    Flight,
+    /// The whole log (a vehicle that stays on the floor).
+    All,
+}
+
+impl std::str::FromStr for Segment {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim() {
+            "flight" => Ok(Self::Flight),
+            "all" => Ok(Self::All),
+            other => Err(format!("unknown segment `{other}` (flight, all)")),
+        }
+    }
+}
 
 /// Where every solution is evaluated (`[eval] epochs`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -126,10 +158,16 @@ pub fn evaluate_at(
     at: Epochs,
 ) -> Result<EvalReport, EvalError> {
     let truth = TruthTrack::new(&data.truth, TRUTH_MAX_GAP_NS);
-    let fixes = runner::run_fixes(&data.tdoa, cfg)?;
+    let ranging = data.is_ranging();
+    let fixes = if ranging {
+        runner::run_fixes(&data.range, cfg)?
+    } else {
+        runner::run_fixes(&data.tdoa, cfg)?
+    };
     if fixes.is_empty() {
         return Err(EvalError::NoFixes {
             tdoa: data.tdoa.len(),
+            range: data.range.len(),
         });
     }
     let fix_epochs: Vec<u64> = fixes.iter().map(|f| f.header.meas_time_ns).collect();
@@ -158,14 +196,18 @@ pub fn evaluate_at(
 
     for &kind in filters {
         let est = build_estimator(kind, cfg)?;
-        let out = runner::run_aided(&data.imu, &data.tdoa, &data.velocity, cfg, est)?;
+        let out = if ranging {
+            runner::run_aided(&data.imu, &data.range, &data.velocity, cfg, est)?
+        } else {
+            runner::run_aided(&data.imu, &data.tdoa, &data.velocity, cfg, est)?
+        };
         let track = match at {
             Epochs::Fixes => sample_fused(&out.fused, &fix_epochs),
             Epochs::Truth => interpolate(&published(&out.fused), &epochs, ESTIMATE_MAX_GAP_NS),
         };
         let nis: Vec<f64> = out.diag.iter().map(|d| d.nis).collect();
         solutions.push(solution(
-            kind.name(),
+            solution_key(kind, ranging),
             track,
             &truth,
             data.segment,
@@ -178,6 +220,29 @@ pub fn evaluate_at(
         solutions,
         epochs,
     })
+}
+
+/// The name of the tight filter when it fuses two-way ranges.
+pub const TIGHT_TWR_KEY: &str = "iakf_twr";
+
+/// A filter's solution key: its name, but [`TIGHT_TWR_KEY`] for the tight
+/// filter on a ranging log (`iakf_tdoa` stays the TDOA one).
+#[must_use]
+pub fn solution_key(kind: FilterKind, ranging: bool) -> &'static str {
+    if ranging && kind == FilterKind::IakfTdoa {
+        TIGHT_TWR_KEY
+    } else {
+        kind.name()
+    }
+}
+
+impl Dataset {
+    /// Whether the UWB measurements are two-way ranges (the dataset holds
+    /// ranges and no TDOA difference).
+    #[must_use]
+    pub fn is_ranging(&self) -> bool {
+        !self.range.is_empty() && self.tdoa.is_empty()
+    }
 }
 
 fn solution(

@@ -67,6 +67,7 @@ pub fn dataset(file: &ScenarioFile, seed: u64) -> Result<Dataset, ScenarioError>
         name: format!("{} (seed {seed})", file.sim.name),
         imu: out.imu,
         tdoa: out.tdoa,
+        range: out.range,
         truth: out.truth,
         velocity: out.velocity,
         segment: None,

@@ -34,7 +34,7 @@ use std::collections::VecDeque;
 use insuwb_filter::{DivergenceMonitor, MonitorConfig, MonitorConfigError};
 use insuwb_msg::{
     fixed_name, BodyVelocity, FilterDiag, FusedState, Header, InsCorrection, NavState, UwbFix,
-    UwbTdoa, LAYOUT_VERSION,
+    UwbRange, UwbTdoa, LAYOUT_VERSION,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -227,6 +227,8 @@ pub enum Measurement {
     Fix(UwbFix),
     /// One TDOA difference.
     Tdoa(UwbTdoa),
+    /// One two-way range (used as a TDOA difference is: by the tight filter).
+    Range(UwbRange),
     /// A body-frame velocity (odometry, flow): an aiding update of the
     /// filters that take one ([`Estimator::update_velocity`]). In tight
     /// coupling its correction goes out with its epoch's; a loose filter
@@ -243,6 +245,7 @@ impl Measurement {
         match self {
             Self::Fix(f) => &f.header,
             Self::Tdoa(t) => &t.header,
+            Self::Range(r) => &r.header,
             Self::Velocity(v) => &v.header,
         }
     }
@@ -619,6 +622,7 @@ impl FusionEngine {
                         .chain(&t.anchor_b_pos_m)
                         .all(|v| v.is_finite())
             }
+            Measurement::Range(r) => insuwb_msg::check::range_values(r).is_ok(),
             Measurement::Velocity(v) => insuwb_msg::check::velocity_values(v).is_ok(),
         };
         if !finite {
@@ -630,7 +634,7 @@ impl FusionEngine {
         // the tight filter (a fix is published before the differences that
         // completed it, so its time runs ahead of them), fixes for a loose one.
         let uwb = match m {
-            Measurement::Tdoa(_) => self.est.is_tight(),
+            Measurement::Tdoa(_) | Measurement::Range(_) => self.est.is_tight(),
             Measurement::Fix(_) => !self.est.is_tight(),
             Measurement::Velocity(_) => false,
         };
@@ -820,6 +824,7 @@ impl FusionEngine {
         let info = match m {
             Measurement::Fix(f) => self.est.update_fix(&ins, &f),
             Measurement::Tdoa(t) => self.est.update_tdoa(&ins, &t),
+            Measurement::Range(r) => self.est.update_range(&ins, &r),
             Measurement::Velocity(v) => self.est.update_velocity(&ins, &v),
         };
         let Some(info) = info else {

@@ -5,7 +5,7 @@
 
 use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
 use crate::vibration::{VibrationConfig, VibrationMeter};
-use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbTdoa};
+use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
 
 /// The INS state at a measurement's epoch (interpolated between two samples).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -103,6 +103,11 @@ pub trait Estimator: std::fmt::Debug + Send {
     fn update_fix(&mut self, ins: &InsAt, fix: &UwbFix) -> Option<UpdateInfo>;
     /// Updates with one TDOA measurement (tight coupling); `None` when it does not use them.
     fn update_tdoa(&mut self, ins: &InsAt, m: &UwbTdoa) -> Option<UpdateInfo>;
+    /// Updates with one two-way range (tight coupling); `None` when it does
+    /// not use them (default: the loose filters use the range fixes).
+    fn update_range(&mut self, _ins: &InsAt, _m: &UwbRange) -> Option<UpdateInfo> {
+        None
+    }
     /// Updates with a body-frame velocity (odometry, flow); `None` when it
     /// does not use them (default).
     fn update_velocity(&mut self, _ins: &InsAt, _m: &BodyVelocity) -> Option<UpdateInfo> {

@@ -16,12 +16,12 @@
 //! recording's clock, ticking on every input; unset, it publishes the
 //! updates' fused states only.
 
-use insuwb_msg::check::{ImuGate, Refusals, TdoaGate, VelocityGate};
+use insuwb_msg::check::{ImuGate, RangeGate, Refusals, TdoaGate, VelocityGate};
 use insuwb_msg::{
     BodyVelocity, FilterDiag, FilterKind, FusedState, ImuSample, InsCorrection, NavState, UwbFix,
-    UwbTdoa,
+    UwbRange, UwbTdoa,
 };
-use insuwb_uwb::fix::{FixBuilder, FixStats};
+use insuwb_uwb::fix::{FixBuilder, FixStats, PushError};
 
 use crate::config::{build_estimator, ConfigError, FusionConfig};
 use crate::engine::{FusionCounters, FusionEngine, Measurement, Outputs};
@@ -63,9 +63,39 @@ pub enum Input<'a> {
     /// filter is tightly coupled; corrected by [`FusionConfig::calibration`]
     /// if set).
     Tdoa(&'a UwbTdoa),
+    /// A two-way range (to the fix builder, and to fusion when the filter
+    /// is tightly coupled).
+    Range(&'a UwbRange),
     /// A body-frame velocity (odometry, flow): to fusion, for the filters
     /// that take one.
     Velocity(&'a BodyVelocity),
+}
+
+/// A UWB measurement type the runner takes: a TDOA difference or a
+/// two-way range. The recorded streams are slices of one of them.
+pub trait UwbInput {
+    /// This measurement as a runner input.
+    fn input(&self) -> Input<'_>;
+    /// Its measurement time, ns.
+    fn time_ns(&self) -> u64;
+}
+
+impl UwbInput for UwbTdoa {
+    fn input(&self) -> Input<'_> {
+        Input::Tdoa(self)
+    }
+    fn time_ns(&self) -> u64 {
+        self.header.meas_time_ns
+    }
+}
+
+impl UwbInput for UwbRange {
+    fn input(&self) -> Input<'_> {
+        Input::Range(self)
+    }
+    fn time_ns(&self) -> u64 {
+        self.header.meas_time_ns
+    }
 }
 
 impl Input<'_> {
@@ -75,6 +105,7 @@ impl Input<'_> {
         match self {
             Self::Imu(s) => s.header.meas_time_ns,
             Self::Tdoa(m) => m.header.meas_time_ns,
+            Self::Range(m) => m.header.meas_time_ns,
             Self::Velocity(v) => v.header.meas_time_ns,
         }
     }
@@ -94,17 +125,17 @@ pub enum Ties {
 }
 
 /// Merges two time-sorted streams into one, ties broken as `ties` says.
-pub fn merged<'a>(
+pub fn merged<'a, U: UwbInput>(
     imu: &'a [ImuSample],
-    tdoa: &'a [UwbTdoa],
+    tdoa: &'a [U],
     ties: Ties,
 ) -> impl Iterator<Item = Input<'a>> {
     let (mut i, mut j) = (0usize, 0usize);
     std::iter::from_fn(move || {
         let imu_first = match (imu.get(i), tdoa.get(j)) {
             (Some(a), Some(b)) => match ties {
-                Ties::ImuFirst => a.header.meas_time_ns <= b.header.meas_time_ns,
-                Ties::UwbFirst => a.header.meas_time_ns < b.header.meas_time_ns,
+                Ties::ImuFirst => a.header.meas_time_ns <= b.time_ns(),
+                Ties::UwbFirst => a.header.meas_time_ns < b.time_ns(),
             },
             (Some(_), None) => true,
             (None, Some(_)) => false,
@@ -115,16 +146,16 @@ pub fn merged<'a>(
             imu.get(i - 1).map(Input::Imu)
         } else {
             j += 1;
-            tdoa.get(j - 1).map(Input::Tdoa)
+            tdoa.get(j - 1).map(UwbInput::input)
         }
     })
 }
 
 /// [`merged`] with a third stream, body velocities, each after the IMU
 /// samples and TDOA measurements of its time.
-pub fn merged_aided<'a>(
+pub fn merged_aided<'a, U: UwbInput>(
     imu: &'a [ImuSample],
-    tdoa: &'a [UwbTdoa],
+    tdoa: &'a [U],
     velocity: &'a [BodyVelocity],
     ties: Ties,
 ) -> impl Iterator<Item = Input<'a>> {
@@ -150,6 +181,7 @@ pub fn merged_aided<'a>(
 pub struct Runner {
     imu_gate: ImuGate,
     tdoa_gate: TdoaGate,
+    range_gate: RangeGate,
     vel_gate: VelocityGate,
     ins: InsEngine,
     fixb: FixBuilder,
@@ -181,6 +213,7 @@ impl Runner {
         Ok(Self {
             imu_gate: ImuGate::new(),
             tdoa_gate: TdoaGate::new(),
+            range_gate: RangeGate::new(),
             vel_gate: VelocityGate::new(),
             ins: InsEngine::new(cfg.ins_engine_config())?,
             fixb: FixBuilder::new(cfg.fix.clone())?.with_calibration(cfg.calibration.clone()),
@@ -214,6 +247,7 @@ impl Runner {
         let passed = match input {
             Input::Imu(s) => self.imu_gate.check(s).is_ok(),
             Input::Tdoa(m) => self.tdoa_gate.check(m).is_ok(),
+            Input::Range(m) => self.range_gate.check(m).is_ok(),
             Input::Velocity(v) => self.vel_gate.check(v).is_ok(),
         };
         if !passed {
@@ -247,6 +281,19 @@ impl Runner {
                         .on_measurement(Measurement::Tdoa(m), &mut self.o);
                 }
             }
+            Input::Range(m) => {
+                // Less the tag's range offset estimated so far, as the UWB
+                // driver publishes it: the fix builder and the tight filter
+                // use the same range.
+                let m = self.fixb.correct_range(m);
+                if let Ok(Some(f)) = self.fixb.push_range(&m) {
+                    self.on_fix(f);
+                }
+                if self.tight {
+                    self.fusion
+                        .on_measurement(Measurement::Range(m), &mut self.o);
+                }
+            }
             Input::Velocity(v) => {
                 self.fusion
                     .on_measurement(Measurement::Velocity(*v), &mut self.o);
@@ -275,6 +322,7 @@ impl Runner {
             imu: *self.imu_gate.refusals(),
             tdoa: *self.tdoa_gate.refusals(),
             velocity: *self.vel_gate.refusals(),
+            range: *self.range_gate.refusals(),
         };
         self.out.fix_stats = *self.fixb.stats();
         self.out
@@ -324,9 +372,9 @@ impl Runner {
 ///
 /// # Errors
 /// A configuration that does not validate.
-pub fn run(
+pub fn run<U: UwbInput>(
     imu: &[ImuSample],
-    tdoa: &[UwbTdoa],
+    tdoa: &[U],
     cfg: &FusionConfig,
     kind: FilterKind,
 ) -> Result<RunOutput, ConfigError> {
@@ -339,9 +387,9 @@ pub fn run(
 ///
 /// # Errors
 /// A configuration that does not validate.
-pub fn run_with(
+pub fn run_with<U: UwbInput>(
     imu: &[ImuSample],
-    tdoa: &[UwbTdoa],
+    tdoa: &[U],
     cfg: &FusionConfig,
     est: Box<dyn Estimator>,
 ) -> Result<RunOutput, ConfigError> {
@@ -352,9 +400,9 @@ pub fn run_with(
 ///
 /// # Errors
 /// A configuration that does not validate.
-pub fn run_aided(
+pub fn run_aided<U: UwbInput>(
     imu: &[ImuSample],
-    tdoa: &[UwbTdoa],
+    tdoa: &[U],
     velocity: &[BodyVelocity],
     cfg: &FusionConfig,
     est: Box<dyn Estimator>,
@@ -382,20 +430,24 @@ pub fn run_ins_only(imu: &[ImuSample], cfg: &FusionConfig) -> Result<Vec<NavStat
 }
 
 /// The UWB fixes alone (UWB-only solution): the fixes the UWB driver
-/// publishes, from the measurements its gate passes.
+/// publishes, from the measurements (TDOA differences or ranges) its gate
+/// passes.
 ///
 /// # Errors
 /// A fix-builder configuration that does not validate.
-pub fn run_fixes(tdoa: &[UwbTdoa], cfg: &FusionConfig) -> Result<Vec<UwbFix>, ConfigError> {
+pub fn run_fixes<U: UwbInput>(uwb: &[U], cfg: &FusionConfig) -> Result<Vec<UwbFix>, ConfigError> {
     let mut fixb = FixBuilder::new(cfg.fix.clone())?.with_calibration(cfg.calibration.clone());
-    let mut gate = TdoaGate::new();
+    let mut tdoa_gate = TdoaGate::new();
+    let mut range_gate = RangeGate::new();
     let mut out = Vec::new();
-    for m in tdoa {
-        if gate.check(m).is_err() {
-            continue;
-        }
+    for m in uwb {
         // A refusal is counted in the builder's stats, as in `Runner::push`.
-        if let Ok(Some(f)) = fixb.push(m) {
+        let pushed: Result<Option<UwbFix>, PushError> = match m.input() {
+            Input::Tdoa(t) if tdoa_gate.check(t).is_ok() => fixb.push(t),
+            Input::Range(r) if range_gate.check(r).is_ok() => fixb.push_range(r),
+            _ => continue,
+        };
+        if let Ok(Some(f)) = pushed {
             out.push(f);
         }
     }
@@ -418,7 +470,7 @@ mod tests {
     fn an_error_shows_its_cause_once() {
         let mut cfg = FusionConfig::default();
         cfg.fix.period_s = -1.0;
-        let e = run(&[], &[], &cfg, FilterKind::Kf).unwrap_err();
+        let e = run::<UwbTdoa>(&[], &[], &cfg, FilterKind::Kf).unwrap_err();
         let text = e.to_string();
         assert!(text.starts_with("fix: period_s"), "{text}");
         assert!(std::error::Error::source(&e).is_none(), "{text}");
@@ -433,7 +485,7 @@ mod tests {
             }),
             ..FusionConfig::default()
         };
-        let e = run(&[], &[], &cfg, FilterKind::Kf).unwrap_err();
+        let e = run::<UwbTdoa>(&[], &[], &cfg, FilterKind::Kf).unwrap_err();
         assert_eq!(e.to_string(), "output.coast_rate_hz: must be > 0, got -1");
     }
 
@@ -543,6 +595,7 @@ mod tests {
             .map(|x| match x {
                 Input::Imu(s) => ('i', s.header.meas_time_ns / 10_000_000),
                 Input::Tdoa(m) => ('t', m.header.meas_time_ns / 10_000_000),
+                Input::Range(m) => ('r', m.header.meas_time_ns / 10_000_000),
                 Input::Velocity(v) => ('v', v.header.meas_time_ns / 10_000_000),
             })
             .collect();
@@ -575,6 +628,7 @@ mod tests {
                 .map(|x| match x {
                     Input::Imu(s) => ('i', s.header.meas_time_ns / 10_000_000),
                     Input::Tdoa(m) => ('t', m.header.meas_time_ns / 10_000_000),
+                    Input::Range(m) => ('r', m.header.meas_time_ns / 10_000_000),
                     Input::Velocity(v) => ('v', v.header.meas_time_ns / 10_000_000),
                 })
                 .collect::<Vec<_>>()
@@ -599,10 +653,10 @@ mod tests {
             .iter()
             .all(|s| s.header.layout_version == LAYOUT_VERSION));
         let mut cfg = FusionConfig::default();
-        let out = run(&samples, &[], &cfg, FilterKind::Kf).unwrap();
+        let out = run::<UwbTdoa>(&samples, &[], &cfg, FilterKind::Kf).unwrap();
         assert!(out.fused.is_empty());
         cfg.output = Some(OutputPolicyConfig::default());
-        let out = run(&samples, &[], &cfg, FilterKind::Kf).unwrap();
+        let out = run::<UwbTdoa>(&samples, &[], &cfg, FilterKind::Kf).unwrap();
         let times: Vec<u64> = out
             .fused
             .iter()

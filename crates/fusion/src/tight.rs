@@ -18,7 +18,7 @@ use insuwb_eskf::{
     Covariance, Eskf, EskfConfig, EskfConfigError, MultirotorDynamics, StateVector, TdoaOutcome,
     TdoaUpdateReport, IDX_ATT, IDX_VEL, N_STATES,
 };
-use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbTdoa};
+use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
 use insuwb_nav::vehicle::{model_accel_nav, Mechanisation};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -374,6 +374,25 @@ impl TightEstimator {
     pub fn update_errors(&self) -> u64 {
         self.update_errors
     }
+
+    /// What a TDOA or range update did, for the engine; a refused one
+    /// (a non-finite input, an antenna on an anchor) is counted.
+    fn uwb_info(
+        &mut self,
+        res: Result<insuwb_eskf::TdoaUpdateReport, insuwb_eskf::TdoaUpdateError>,
+    ) -> UpdateInfo {
+        match res {
+            Ok(r) => report_to_info(&r),
+            Err(_) => {
+                self.update_errors += 1;
+                UpdateInfo {
+                    rejected: true,
+                    divergence: self.eskf.needs_reset(),
+                    ..UpdateInfo::default()
+                }
+            }
+        }
+    }
 }
 
 /// The attitude and velocity of an INS state, if finite.
@@ -521,17 +540,19 @@ impl Estimator for TightEstimator {
             m.anchor_b_pos_m,
             m.diff_m,
         );
-        Some(match res {
-            Ok(r) => report_to_info(&r),
-            Err(_) => {
-                self.update_errors += 1;
-                UpdateInfo {
-                    rejected: true,
-                    divergence: self.eskf.needs_reset(),
-                    ..UpdateInfo::default()
-                }
-            }
-        })
+        Some(self.uwb_info(res))
+    }
+
+    fn update_range(&mut self, ins: &InsAt, m: &UwbRange) -> Option<UpdateInfo> {
+        self.propagate();
+        let res = self.eskf.update_range(
+            ins.pos_m,
+            ins.quat,
+            self.cfg.lever_arm_m,
+            m.anchor_pos_m,
+            m.range_m,
+        );
+        Some(self.uwb_info(res))
     }
 
     /// Each measured axis `i` of the body velocity: `z_i = (C e_i) . v`,

@@ -2,7 +2,7 @@
 
 use insuwb_msg::{
     topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample,
-    InsCorrection, NavState, UwbFix, UwbTdoa,
+    InsCorrection, NavState, UwbFix, UwbRange, UwbTdoa,
 };
 use serde::{Deserialize, Serialize};
 
@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 /// The postcard encoding starts with the variant index (a varint); the
 /// indices are part of the format and frozen: `Imu` = 0, `Tdoa` = 1,
 /// `Fix` = 2, `Nav` = 3, `Correction` = 4, `Fused` = 5, `Diag` = 6,
-/// `Truth` = 7, `Health` = 8, `BodyVel` = 9. New variants are only ever
+/// `Truth` = 7, `Health` = 8, `BodyVel` = 9, `Range` = 10. New variants are only ever
 /// appended, so a log written before a variant existed reads unchanged.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum Record {
@@ -35,11 +35,13 @@ pub enum Record {
     Health(Health),
     /// Body-frame velocity: odometry or optical flow ([`topics::BODY_VEL`]).
     BodyVel(BodyVelocity),
+    /// UWB two-way range ([`topics::UWB_RANGE`]).
+    Range(UwbRange),
 }
 
 impl Record {
     /// Every topic a record can carry, in variant-index order.
-    pub const TOPICS: [&'static str; 10] = [
+    pub const TOPICS: [&'static str; 11] = [
         topics::IMU,
         topics::UWB_TDOA,
         topics::UWB_FIX,
@@ -50,6 +52,7 @@ impl Record {
         topics::TRUTH,
         topics::HEALTH,
         topics::BODY_VEL,
+        topics::UWB_RANGE,
     ];
 
     /// The topic name of this record (from [`insuwb_msg::topics`]).
@@ -66,6 +69,7 @@ impl Record {
             Self::Truth(_) => topics::TRUTH,
             Self::Health(_) => topics::HEALTH,
             Self::BodyVel(_) => topics::BODY_VEL,
+            Self::Range(_) => topics::UWB_RANGE,
         }
     }
 
@@ -83,6 +87,7 @@ impl Record {
             Self::Truth(s) => &s.header,
             Self::Health(s) => &s.header,
             Self::BodyVel(s) => &s.header,
+            Self::Range(s) => &s.header,
         }
     }
 
@@ -99,6 +104,7 @@ impl Record {
             Self::Truth(s) => &mut s.header,
             Self::Health(s) => &mut s.header,
             Self::BodyVel(s) => &mut s.header,
+            Self::Range(s) => &mut s.header,
         }
     }
 }
@@ -120,5 +126,6 @@ impl_from_sample!(
     FilterDiag => Diag,
     GroundTruth => Truth,
     Health => Health,
-    BodyVelocity => BodyVel
+    BodyVelocity => BodyVel,
+    UwbRange => Range
 );

@@ -67,6 +67,8 @@ pub const TOPIC_IMU: &str = "/insuwb/imu";
 pub const TOPIC_DIAGNOSTICS: &str = "/diagnostics";
 /// MCAP topic of `uwb_tdoa` as `insuwb_msgs/msg/UwbTdoa`.
 pub const TOPIC_UWB_TDOA: &str = "/insuwb/uwb_tdoa";
+/// MCAP topic of `uwb_range` as `insuwb_msgs/msg/UwbRange`.
+pub const TOPIC_UWB_RANGE: &str = "/insuwb/uwb_range";
 /// MCAP topic of `uwb_fix` as `insuwb_msgs/msg/UwbFix`.
 pub const TOPIC_UWB_FIX: &str = "/insuwb/uwb_fix";
 /// MCAP topic of `nav` as `insuwb_msgs/msg/NavState`.
@@ -88,6 +90,7 @@ pub fn mcap_topics(insuwb_topic: &str) -> &'static [&'static str] {
     match insuwb_topic {
         topics::IMU => &[TOPIC_IMU],
         topics::UWB_TDOA => &[TOPIC_UWB_TDOA],
+        topics::UWB_RANGE => &[TOPIC_UWB_RANGE],
         topics::UWB_FIX => &[TOPIC_UWB_FIX],
         topics::NAV => &[TOPIC_NAV],
         topics::CORRECTION => &[TOPIC_CORRECTION],
@@ -411,6 +414,11 @@ impl<W: Write + Seek> RecordWriter<W> {
             Record::Tdoa(s) => self.put(
                 TOPIC_UWB_TDOA,
                 &msgs::UwbTdoa::from_sample(s, stamp, frame),
+                &h,
+            )?,
+            Record::Range(s) => self.put(
+                TOPIC_UWB_RANGE,
+                &msgs::UwbRange::from_sample(s, stamp, frame),
                 &h,
             )?,
             Record::Fix(s) => self.put(

@@ -1,5 +1,5 @@
 //! The `insuwb_msgs` package: ROS 2 message definitions of the insuwb
-//! samples that have no standard ROS type (`uwb_tdoa`, `uwb_fix`, `nav`,
+//! samples that have no standard ROS type (`uwb_tdoa`, `uwb_range`, `uwb_fix`, `nav`,
 //! `correction`, `diag`, `truth`, `body_vel`) and of the whole fused state, as serde
 //! structs in `.msg` field order, so that CDR encodes them as a ROS 2 node
 //! would and every channel of an export has a `ros2msg` schema.
@@ -80,6 +80,23 @@ pub struct UwbTdoa {
     pub anchor_a_pos_m: Point,
     /// Position of anchor B, m.
     pub anchor_b_pos_m: Point,
+}
+
+/// `insuwb_msgs/UwbRange`: one two-way range (`uwb_range`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct UwbRange {
+    /// Stamp and frame of the anchor position.
+    pub header: Header,
+    /// The insuwb header.
+    pub sample: SampleHeader,
+    /// Anchor id.
+    pub anchor: u32,
+    /// The device's quality, 0-100 (valid with the sample's quality flag).
+    pub quality: u32,
+    /// Range from the tag to the anchor, m.
+    pub range_m: f64,
+    /// Position of the anchor, m.
+    pub anchor_pos_m: Point,
 }
 
 /// `insuwb_msgs/UwbFix`: a multilaterated fix (`uwb_fix`).
@@ -274,6 +291,14 @@ pub static UWB_TDOA: MsgDef = MsgDef {
            float64 diff_m\ngeometry_msgs/Point anchor_a_pos_m\ngeometry_msgs/Point anchor_b_pos_m\n",
     uses: &[&ros::HEADER, &SAMPLE_HEADER, &ros::POINT],
 };
+/// `insuwb_msgs/UwbRange`.
+pub static UWB_RANGE: MsgDef = MsgDef {
+    package: PACKAGE,
+    name: "UwbRange",
+    text: "std_msgs/Header header\nSampleHeader sample\nuint32 anchor\nuint32 quality\n\
+           float64 range_m\ngeometry_msgs/Point anchor_pos_m\n",
+    uses: &[&ros::HEADER, &SAMPLE_HEADER, &ros::POINT],
+};
 /// `insuwb_msgs/UwbFix`.
 pub static UWB_FIX: MsgDef = MsgDef {
     package: PACKAGE,
@@ -378,6 +403,7 @@ macro_rules! ros_message {
 ros_message!(
     SampleHeader => SAMPLE_HEADER,
     UwbTdoa => UWB_TDOA,
+    UwbRange => UWB_RANGE,
     UwbFix => UWB_FIX,
     NavState => NAV_STATE,
     InsCorrection => INS_CORRECTION,
@@ -448,6 +474,21 @@ impl UwbTdoa {
             diff_m: s.diff_m,
             anchor_a_pos_m: point(&s.anchor_a_pos_m),
             anchor_b_pos_m: point(&s.anchor_b_pos_m),
+        }
+    }
+}
+
+impl UwbRange {
+    /// The message of a sample, with its stamp and frame.
+    #[must_use]
+    pub fn from_sample(s: &m::UwbRange, stamp: Time, frame_id: &str) -> Self {
+        Self {
+            header: header(stamp, frame_id),
+            sample: (&s.header).into(),
+            anchor: s.anchor,
+            quality: s.quality,
+            range_m: s.range_m,
+            anchor_pos_m: point(&s.anchor_pos_m),
         }
     }
 }
@@ -592,6 +633,7 @@ mod tests {
     fn every_definition_is_in_the_package_and_names_its_dependencies() {
         for (name, schema) in [
             (UwbTdoa::type_name(), UwbTdoa::schema()),
+            (UwbRange::type_name(), UwbRange::schema()),
             (UwbFix::type_name(), UwbFix::schema()),
             (NavState::type_name(), NavState::schema()),
             (InsCorrection::type_name(), InsCorrection::schema()),

@@ -70,6 +70,13 @@ fn one_of_each(t_ns: u64) -> Vec<Record> {
             pid: 7,
             ..Default::default()
         }),
+        Record::Range(m::UwbRange {
+            header: hdr(11, t_ns),
+            anchor: 4,
+            range_m: 3.5,
+            anchor_pos_m: [1.0, -2.0, 0.5],
+            ..Default::default()
+        }),
         Record::BodyVel(m::BodyVelocity {
             header: hdr(10, t_ns),
             vel_mps: [0.5, -0.25, 0.0],
@@ -124,6 +131,7 @@ fn every_topic_gets_its_channel_and_schema() {
     let want = [
         (TOPIC_IMU, "sensor_msgs/msg/Imu"),
         (TOPIC_UWB_TDOA, "insuwb_msgs/msg/UwbTdoa"),
+        (TOPIC_UWB_RANGE, "insuwb_msgs/msg/UwbRange"),
         (TOPIC_UWB_FIX, "insuwb_msgs/msg/UwbFix"),
         (TOPIC_NAV, "insuwb_msgs/msg/NavState"),
         (TOPIC_CORRECTION, "insuwb_msgs/msg/InsCorrection"),
@@ -152,7 +160,7 @@ fn every_topic_gets_its_channel_and_schema() {
         }
     }
     assert!(stats.skipped.is_empty());
-    assert_eq!(stats.total_messages(), 12);
+    assert_eq!(stats.total_messages(), 13);
 }
 
 #[test]

@@ -3,8 +3,8 @@
 //!
 //! A sample from a source (simulation, replay, a device) passes a gate
 //! before it is published or used: [`ImuGate`] for the IMU stream,
-//! [`TdoaGate`] for the UWB TDOA stream, [`VelocityGate`] for body-frame
-//! velocities (odometry, flow). A gate refuses a sample whose
+//! [`TdoaGate`] for the UWB TDOA stream, [`RangeGate`] for UWB two-way
+//! ranges, [`VelocityGate`] for body-frame velocities (odometry, flow). A gate refuses a sample whose
 //! values cannot be a measurement ([`imu_values`], [`tdoa_values`]) or whose
 //! time does not follow the stream's, counts every refusal by reason
 //! ([`ImuRefusals`], [`TdoaRefusals`]) and says why ([`ImuRefusal`],
@@ -49,6 +49,12 @@
 //!   pair does not), checked for the first [`MAX_PAIRS_PER_TIME`] pairs of
 //!   a time.
 //!
+//! - Range: a NaN or infinite range or anchor coordinate; a negative range,
+//!   or one at or above [`MAX_RANGE_M`]; a quality above 100; a time before
+//!   the previous accepted range's; the same anchor again at the time of an
+//!   accepted range, checked for the first [`MAX_PAIRS_PER_TIME`] anchors
+//!   of a time.
+//!
 //! - Body velocity: a NaN or infinite velocity or sigma; a negative sigma;
 //!   no axis measured (every sigma 0); a measured axis at or above
 //!   [`MAX_BODY_SPEED_MPS`]; an unknown source; a time before the previous
@@ -60,7 +66,7 @@
 //! sample type gets its value check, its gate, its refusal enum and its
 //! counts the same way.
 
-use crate::{BodyVelocity, ImuSample, UwbTdoa};
+use crate::{BodyVelocity, ImuSample, UwbRange, UwbTdoa};
 use serde::{Deserialize, Serialize};
 
 /// Largest plausible accelerometer magnitude per axis, m/s^2 (excluded).
@@ -69,6 +75,11 @@ pub const MAX_ACCEL_MPS2: f64 = 400.0;
 pub const MAX_RATE_RPS: f64 = 70.0;
 /// Largest plausible body-frame speed per axis, m/s (excluded).
 pub const MAX_BODY_SPEED_MPS: f64 = 50.0;
+/// Longest plausible UWB range, m (excluded): the radios reach a few
+/// hundred metres line of sight.
+pub const MAX_RANGE_M: f64 = 1000.0;
+/// Largest quality figure a range may carry (percent).
+pub const MAX_RANGE_QUALITY: u32 = 100;
 /// Anchor pairs a [`TdoaGate`] remembers at one time to find repeats;
 /// further pairs of that time are not checked.
 pub const MAX_PAIRS_PER_TIME: usize = 64;
@@ -290,6 +301,117 @@ impl TdoaRefusals {
     }
 }
 
+/// Why a range measurement's values cannot be a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum InvalidRange {
+    /// A value is NaN or infinite.
+    #[error("range {field} is not finite ({value})")]
+    NonFinite {
+        /// `range_m` or `anchor_pos_m`.
+        field: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// The range is negative or not below [`MAX_RANGE_M`].
+    #[error("range to anchor {anchor} = {range_m} m is out of range (0 <= range < {limit_m} m)")]
+    OutOfRange {
+        /// The anchor id.
+        anchor: u32,
+        /// The measured range, m.
+        range_m: f64,
+        /// [`MAX_RANGE_M`].
+        limit_m: f64,
+    },
+    /// The quality figure is above [`MAX_RANGE_QUALITY`].
+    #[error("range to anchor {anchor}: quality {quality} is above {MAX_RANGE_QUALITY}")]
+    Quality {
+        /// The anchor id.
+        anchor: u32,
+        /// The quality given.
+        quality: u32,
+    },
+}
+
+/// Why a [`RangeGate`] refused a range measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum RangeRefusal {
+    /// Its values cannot be a measurement.
+    #[error(transparent)]
+    Invalid(#[from] InvalidRange),
+    /// Its time is before the previous accepted measurement's.
+    #[error("range time {time_ns} ns is before the previous measurement's {last_ns} ns")]
+    TimeBackwards {
+        /// Time of the refused measurement, ns.
+        time_ns: u64,
+        /// Time of the previous accepted measurement, ns.
+        last_ns: u64,
+    },
+    /// Its anchor was measured already at this time.
+    #[error("range to anchor {anchor} repeated at {time_ns} ns")]
+    AnchorRepeated {
+        /// The anchor id.
+        anchor: u32,
+        /// The time of both measurements, ns.
+        time_ns: u64,
+    },
+}
+
+impl RangeRefusal {
+    /// Whether the measurement was refused for its time or as a repeat
+    /// (`Health::dropped_time`), not its values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn is_time(&self) -> bool {
+        !matches!(self, Self::Invalid(_))
+    }
+}
+
+/// Range measurements refused, by reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct RangeRefusals {
+    /// A NaN or infinite value ([`InvalidRange::NonFinite`]).
+    pub non_finite: u64,
+    /// A negative or too long range ([`InvalidRange::OutOfRange`]).
+    pub out_of_range: u64,
+    /// A quality above 100 ([`InvalidRange::Quality`]).
+    pub quality: u64,
+    /// A time before the previous measurement's ([`RangeRefusal::TimeBackwards`]).
+    pub time_backwards: u64,
+    /// An anchor again at one time ([`RangeRefusal::AnchorRepeated`]).
+    pub anchor_repeated: u64,
+}
+
+impl RangeRefusals {
+    /// Counts `r` under its reason.
+    pub fn count(&mut self, r: &RangeRefusal) {
+        let n = match r {
+            RangeRefusal::Invalid(InvalidRange::NonFinite { .. }) => &mut self.non_finite,
+            RangeRefusal::Invalid(InvalidRange::OutOfRange { .. }) => &mut self.out_of_range,
+            RangeRefusal::Invalid(InvalidRange::Quality { .. }) => &mut self.quality,
+            RangeRefusal::TimeBackwards { .. } => &mut self.time_backwards,
+            RangeRefusal::AnchorRepeated { .. } => &mut self.anchor_repeated,
+        };
+        *n += 1;
+    }
+
+    /// Refused for their values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn invalid(&self) -> u64 {
+        self.non_finite + self.out_of_range + self.quality
+    }
+
+    /// Refused for their time or as repeats (`Health::dropped_time`).
+    #[must_use]
+    pub fn time(&self) -> u64 {
+        self.time_backwards + self.anchor_repeated
+    }
+
+    /// Refused in all.
+    #[must_use]
+    pub fn total(&self) -> u64 {
+        self.invalid() + self.time()
+    }
+}
+
 /// Why a body-velocity measurement's values cannot be a measurement.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum InvalidVelocity {
@@ -412,6 +534,44 @@ pub struct Refusals {
     /// Body-velocity measurements (odometry, flow).
     #[serde(default)]
     pub velocity: VelocityRefusals,
+    /// UWB two-way ranges.
+    #[serde(default)]
+    pub range: RangeRefusals,
+}
+
+/// Checks a range measurement's values: finite, `0 <= range_m <`
+/// [`MAX_RANGE_M`], a quality (when flagged) of at most
+/// [`MAX_RANGE_QUALITY`].
+///
+/// # Errors
+/// The first failed check, in that order.
+pub fn range_values(m: &UwbRange) -> Result<(), InvalidRange> {
+    if !m.range_m.is_finite() {
+        return Err(InvalidRange::NonFinite {
+            field: "range_m",
+            value: m.range_m,
+        });
+    }
+    if let Some(&value) = m.anchor_pos_m.iter().find(|v| !v.is_finite()) {
+        return Err(InvalidRange::NonFinite {
+            field: "anchor_pos_m",
+            value,
+        });
+    }
+    if !(0.0..MAX_RANGE_M).contains(&m.range_m) {
+        return Err(InvalidRange::OutOfRange {
+            anchor: m.anchor,
+            range_m: m.range_m,
+            limit_m: MAX_RANGE_M,
+        });
+    }
+    if m.header.flags & UwbRange::FLAG_QUALITY != 0 && m.quality > MAX_RANGE_QUALITY {
+        return Err(InvalidRange::Quality {
+            anchor: m.anchor,
+            quality: m.quality,
+        });
+    }
+    Ok(())
 }
 
 /// Checks a body-velocity measurement's values: finite, sigmas >= 0 with
@@ -652,6 +812,90 @@ impl TdoaGate {
     }
 }
 
+/// The gate of a range stream: values ([`range_values`]), then a time not
+/// before the previous accepted measurement's and no anchor twice at one
+/// time (a ranging round stamps its anchors at once). Holds its anchor
+/// table inline: no allocation.
+#[derive(Debug, Clone)]
+pub struct RangeGate {
+    last_ns: Option<u64>,
+    anchors: [u32; MAX_PAIRS_PER_TIME],
+    n_anchors: usize,
+    refusals: RangeRefusals,
+}
+
+impl Default for RangeGate {
+    fn default() -> Self {
+        Self {
+            last_ns: None,
+            anchors: [0; MAX_PAIRS_PER_TIME],
+            n_anchors: 0,
+            refusals: RangeRefusals::default(),
+        }
+    }
+}
+
+impl RangeGate {
+    /// A gate that has seen nothing.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Checks `m`; an accepted measurement's time and anchor are what the
+    /// next is compared with.
+    ///
+    /// # Errors
+    /// Why `m` is refused (also counted in [`RangeGate::refusals`]).
+    pub fn check(&mut self, m: &UwbRange) -> Result<(), RangeRefusal> {
+        let r = self.verdict(m);
+        match &r {
+            Ok(()) => {
+                let t = m.header.meas_time_ns;
+                if self.last_ns != Some(t) {
+                    self.last_ns = Some(t);
+                    self.n_anchors = 0;
+                }
+                if let Some(slot) = self.anchors.get_mut(self.n_anchors) {
+                    *slot = m.anchor;
+                    self.n_anchors += 1;
+                }
+            }
+            Err(e) => self.refusals.count(e),
+        }
+        r
+    }
+
+    fn verdict(&self, m: &UwbRange) -> Result<(), RangeRefusal> {
+        range_values(m)?;
+        let time_ns = m.header.meas_time_ns;
+        match self.last_ns {
+            Some(last_ns) if time_ns < last_ns => {
+                Err(RangeRefusal::TimeBackwards { time_ns, last_ns })
+            }
+            Some(last_ns)
+                if time_ns == last_ns
+                    && self
+                        .anchors
+                        .get(..self.n_anchors)
+                        .is_some_and(|a| a.contains(&m.anchor)) =>
+            {
+                Err(RangeRefusal::AnchorRepeated {
+                    anchor: m.anchor,
+                    time_ns,
+                })
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The measurements refused so far, by reason.
+    #[must_use]
+    pub fn refusals(&self) -> &RangeRefusals {
+        &self.refusals
+    }
+}
+
 /// The gate of a body-velocity stream: values ([`velocity_values`]), then a
 /// time strictly after the previous accepted measurement's.
 #[derive(Debug, Clone, Default)]
@@ -710,6 +954,50 @@ mod tests {
             source: BodyVelocity::SOURCE_FLOW,
             reserved: 0,
         }
+    }
+
+    #[test]
+    fn range_gate_refuses_each_bad_value_and_time_with_its_counter() {
+        let r = |t_ns: u64, anchor: u32, range_m: f64| UwbRange {
+            header: Header::new(0, t_ns),
+            anchor,
+            range_m,
+            anchor_pos_m: [1.0, 2.0, 3.0],
+            ..UwbRange::default()
+        };
+        let mut g = RangeGate::new();
+        assert_eq!(g.check(&r(10, 1, 3.0)), Ok(()));
+        assert_eq!(g.check(&r(10, 2, 4.0)), Ok(()));
+        let mut bad_pos = r(20, 3, 1.0);
+        bad_pos.anchor_pos_m[1] = f64::INFINITY;
+        let mut bad_quality = r(20, 3, 1.0);
+        bad_quality.header.flags = UwbRange::FLAG_QUALITY;
+        bad_quality.quality = 101;
+        let cases = [
+            r(20, 3, f64::NAN),
+            bad_pos,
+            r(20, 3, -0.01),
+            r(20, 3, MAX_RANGE_M),
+            bad_quality,
+            r(5, 3, 1.0),
+            r(10, 2, 4.0),
+        ];
+        for c in &cases {
+            assert!(g.check(c).is_err(), "{c:?}");
+        }
+        // A quality that is not flagged is not read; 0 m is a range.
+        let mut unflagged = r(20, 3, 0.0);
+        unflagged.quality = 500;
+        assert_eq!(g.check(&unflagged), Ok(()));
+        let n = g.refusals();
+        assert_eq!((n.non_finite, n.out_of_range, n.quality), (2, 2, 1));
+        assert_eq!((n.time_backwards, n.anchor_repeated), (1, 1));
+        assert_eq!((n.invalid(), n.time(), n.total()), (5, 2, 7));
+        assert!(RangeRefusal::AnchorRepeated {
+            anchor: 1,
+            time_ns: 1
+        }
+        .is_time());
     }
 
     #[test]

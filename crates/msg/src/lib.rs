@@ -127,6 +127,43 @@ impl UwbTdoa {
     pub const FLAG_CALIBRATED: u32 = 2;
 }
 
+/// One UWB two-way-ranging measurement (topic [`topics::UWB_RANGE`]): the
+/// distance from the tag's antenna to one anchor, as a DWM1001 tag, a
+/// LinkTrack tag or a Crazyflie Loco deck in TWR mode reports it.
+///
+/// `range_m = |p - anchor|`. The anchor's surveyed position travels with
+/// the sample, as a TDOA measurement's do. A device that reports a quality
+/// per range (the DWM1001's quality factor, 0-100) sets
+/// [`UwbRange::FLAG_QUALITY`] and `quality`; otherwise both are zero.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::UwbRange")]
+pub struct UwbRange {
+    /// Common header.
+    pub header: Header,
+    /// Id of the anchor.
+    pub anchor: u32,
+    /// The device's quality of this range, 0-100 (valid with
+    /// [`UwbRange::FLAG_QUALITY`]).
+    pub quality: u32,
+    /// Distance from the tag to the anchor, metres.
+    pub range_m: f64,
+    /// Surveyed position of the anchor (ENU, m).
+    pub anchor_pos_m: [f64; 3],
+}
+
+impl UwbRange {
+    /// Last range of a group taken at the same instant (every anchor of a
+    /// ranging round stamped at once): the fix builder may close the epoch.
+    pub const FLAG_EPOCH_END: u32 = 1;
+    /// `quality` holds the device's quality figure.
+    pub const FLAG_QUALITY: u32 = 2;
+    /// `range_m` has had the tag's common range offset (its antenna
+    /// delay, estimated by the fix builder) removed: a range so flagged is
+    /// never corrected again (`insuwb_uwb::fix`).
+    pub const FLAG_OFFSET_REMOVED: u32 = 4;
+}
+
 /// A velocity measured in the body frame (topic [`topics::BODY_VEL`]): a
 /// wheeled base's odometry (the twist of `nav_msgs/Odometry`), or optical
 /// flow scaled by the height above the floor (a flow deck).
@@ -620,6 +657,8 @@ pub mod topics {
     pub const TRUTH: &str = "truth";
     /// Body-frame velocity measurements ([`crate::BodyVelocity`]).
     pub const BODY_VEL: &str = "body_vel";
+    /// Raw UWB two-way ranges ([`crate::UwbRange`]).
+    pub const UWB_RANGE: &str = "uwb_range";
 }
 
 /// Anything carrying a [`Header`].
@@ -641,6 +680,7 @@ macro_rules! impl_has_header {
 impl_has_header!(
     ImuSample,
     UwbTdoa,
+    UwbRange,
     BodyVelocity,
     UwbFix,
     NavState,
@@ -735,6 +775,12 @@ mod layout_tests {
         assert_eq!(offset_of!(UwbTdoa, anchor_a_pos_m), 56);
         assert_eq!(offset_of!(UwbTdoa, anchor_b_pos_m), 80);
 
+        assert_eq!(size_of::<UwbRange>(), 80);
+        assert_eq!(offset_of!(UwbRange, anchor), 40);
+        assert_eq!(offset_of!(UwbRange, quality), 44);
+        assert_eq!(offset_of!(UwbRange, range_m), 48);
+        assert_eq!(offset_of!(UwbRange, anchor_pos_m), 56);
+
         assert_eq!(size_of::<UwbFix>(), 248);
         assert_eq!(offset_of!(UwbFix, pos_m), 40);
         assert_eq!(offset_of!(UwbFix, vel_mps), 64);
@@ -771,6 +817,7 @@ mod layout_tests {
         for a in [
             align_of::<ImuSample>(),
             align_of::<UwbTdoa>(),
+            align_of::<UwbRange>(),
             align_of::<UwbFix>(),
             align_of::<NavState>(),
             align_of::<InsCorrection>(),

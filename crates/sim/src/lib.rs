@@ -1,9 +1,11 @@
-//! Deterministic simulator: trajectories, IMU errors, UWB TDOA with noise and
-//! NLOS outlier bursts, wheel odometry and optical flow.
+//! Deterministic simulator: trajectories, IMU errors, UWB TDOA or two-way
+//! ranging (TWR) with noise and NLOS outlier bursts, wheel odometry and
+//! optical flow.
 //!
 //! A [`Scenario`] (the `[sim]` table of a scenario file) and a seed give,
 //! through [`simulate`], bit-identical [`insuwb_msg::ImuSample`],
-//! [`insuwb_msg::UwbTdoa`], [`insuwb_msg::GroundTruth`] and, when the
+//! [`insuwb_msg::UwbTdoa`] (or, with `[sim.uwb] kind = "twr"`,
+//! [`insuwb_msg::UwbRange`]), [`insuwb_msg::GroundTruth`] and, when the
 //! scenario has `[sim.odometry]` or `[sim.flow]`,
 //! [`insuwb_msg::BodyVelocity`] streams (times in ns from 0, `seq` from 0
 //! per stream). The randomness comes from one
@@ -23,6 +25,12 @@
 //! assert_eq!(out.imu.len(), 1500);
 //! assert_eq!(out.truth.len(), 1500);
 //! assert_eq!(out.tdoa.len(), 1500 * 3);
+//!
+//! // The same room with two-way ranges: one range per anchor and epoch.
+//! let sc = insuwb_sim::Scenario::builtin("twr-3.4").unwrap();
+//! let out = insuwb_sim::simulate(&sc, sc.seed).unwrap();
+//! assert_eq!(out.range.len(), 1500 * 4);
+//! assert!(out.tdoa.is_empty());
 //! ```
 #![warn(missing_docs)]
 
@@ -32,12 +40,13 @@ pub mod scenario;
 pub mod trajectory;
 
 pub use run::{
-    simulate, ImuErrorRealisation, InitialState, SimError, SimOutput, SimRecord, TdoaTruth,
+    simulate, ImuErrorRealisation, InitialState, RangeTruth, SimError, SimOutput, SimRecord,
+    TdoaTruth,
 };
 pub use scenario::{
     Anchor, AnchorSet, Dimension, Dropout, FlowConfig, ImuErrors, InitialError, NoiseModel,
     OdometryConfig, OutlierBurst, PairMode, RandomNlos, Scenario, ScenarioConfigError,
-    ScenarioError, UwbConfig,
+    ScenarioError, UwbConfig, UwbKind,
 };
 pub use trajectory::{
     CirclePath, Figure8Path, Kinematics, LissajousPath, StaticPose, Trajectory, TrajectoryError,
@@ -45,7 +54,7 @@ pub use trajectory::{
 };
 
 /// The built-in scenarios: `(name, TOML text)`; the files live in `config/scenarios/`.
-const BUILTINS: [(&str, &str); 5] = [
+const BUILTINS: [(&str, &str); 6] = [
     (
         "paper-3.4",
         include_str!("../../../config/scenarios/paper-3.4.toml"),
@@ -66,15 +75,20 @@ const BUILTINS: [(&str, &str); 5] = [
         "ground-outage",
         include_str!("../../../config/scenarios/ground-outage.toml"),
     ),
+    (
+        "twr-3.4",
+        include_str!("../../../config/scenarios/twr-3.4.toml"),
+    ),
 ];
 
 /// Names of the built-in scenarios (the file names without `.toml`).
-const BUILTIN_NAMES: [&str; 5] = [
+const BUILTIN_NAMES: [&str; 6] = [
     BUILTINS[0].0,
     BUILTINS[1].0,
     BUILTINS[2].0,
     BUILTINS[3].0,
     BUILTINS[4].0,
+    BUILTINS[5].0,
 ];
 
 /// The TOML text of a built-in scenario, by name (e.g. `"paper-3.4"`).

@@ -1,18 +1,19 @@
 //! The simulation run: samples the trajectory into ground truth and ideal
-//! IMU readings, adds the IMU errors, measures UWB TDOA differences with
-//! noise, anchor biases, NLOS excess paths and dropouts, and, when the
-//! scenario has them, body velocities from wheel odometry and optical flow.
+//! IMU readings, adds the IMU errors, measures UWB TDOA differences or
+//! two-way ranges with noise, anchor biases, NLOS excess paths and
+//! dropouts, and, when the scenario has them, body velocities from wheel
+//! odometry and optical flow.
 //!
 //! Every random quantity draws from its own stream of the seed
 //! ([`crate::rng::stream`]); the output is a pure function of the
 //! scenario and the seed.
 
-use insuwb_msg::{BodyVelocity, GroundTruth, Header, ImuSample, UwbTdoa};
+use insuwb_msg::{BodyVelocity, GroundTruth, Header, ImuSample, UwbRange, UwbTdoa};
 use thiserror::Error;
 
 use crate::rng::{self, Noise};
 use crate::scenario::{
-    sample_count, velocity_times, Dropout, NoiseModel, Scenario, ScenarioConfigError,
+    sample_count, velocity_times, Dropout, NoiseModel, Scenario, ScenarioConfigError, UwbKind,
 };
 use crate::trajectory::{TrajectoryError, TrajectoryModel};
 
@@ -20,7 +21,7 @@ use crate::trajectory::{TrajectoryError, TrajectoryModel};
 const STREAM_IMU_BIAS: u64 = 1;
 /// Random stream of the IMU white noise and bias walks.
 const STREAM_IMU_NOISE: u64 = 2;
-/// Random stream of the UWB noise.
+/// Random stream of the UWB noise (TDOA or TWR: a run has one of them).
 const STREAM_UWB_NOISE: u64 = 3;
 /// Random stream of the scheduled outlier bursts.
 const STREAM_OUTLIERS: u64 = 4;
@@ -72,6 +73,20 @@ pub struct TdoaTruth {
     pub noise_m: f64,
 }
 
+/// How each UWB two-way range was made:
+/// `range_m = geometric_m + anchor_bias_m + nlos_m + noise_m`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RangeTruth {
+    /// Error-free distance `|p - anchor|`, m.
+    pub geometric_m: f64,
+    /// The anchor's constant range bias (`range_bias_m`), m.
+    pub anchor_bias_m: f64,
+    /// NLOS excess path, m (`>= 0`: NLOS only lengthens a range).
+    pub nlos_m: f64,
+    /// Contribution of the noise, m.
+    pub noise_m: f64,
+}
+
 /// The IMU error values drawn for a run (the turn-on biases, before any bias walk).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ImuErrorRealisation {
@@ -88,12 +103,20 @@ pub struct SimOutput {
     /// IMU samples (specific force and body rate with errors).
     pub imu: Vec<ImuSample>,
     /// TDOA differences; those of one epoch share `meas_time_ns`, the last
-    /// one carries [`UwbTdoa::FLAG_EPOCH_END`].
+    /// one carries [`UwbTdoa::FLAG_EPOCH_END`]. Empty when the scenario's
+    /// UWB is two-way ranging.
     pub tdoa: Vec<UwbTdoa>,
     /// Ground truth at the IMU times (`FLAG_VEL_VALID` set).
     pub truth: Vec<GroundTruth>,
     /// Decomposition of each entry of `tdoa` (same index).
     pub tdoa_truth: Vec<TdoaTruth>,
+    /// Two-way ranges (`[sim.uwb] kind = "twr"`): per epoch one range per
+    /// anchor, in anchor order, sharing `meas_time_ns`, the last one
+    /// carrying [`UwbRange::FLAG_EPOCH_END`]; no quality
+    /// ([`UwbRange::FLAG_QUALITY`] clear). Empty for a TDOA scenario.
+    pub range: Vec<UwbRange>,
+    /// Decomposition of each entry of `range` (same index).
+    pub range_truth: Vec<RangeTruth>,
     /// Body-frame velocities of the wheel odometry
     /// ([`BodyVelocity::SOURCE_ODOMETRY`]) and the optical flow
     /// ([`BodyVelocity::SOURCE_FLOW`]) when the scenario has them, merged
@@ -114,6 +137,8 @@ pub enum SimRecord {
     Imu(ImuSample),
     /// TDOA difference.
     Tdoa(UwbTdoa),
+    /// Two-way range.
+    Range(UwbRange),
     /// Body-frame velocity (odometry, flow).
     Velocity(BodyVelocity),
 }
@@ -126,34 +151,42 @@ impl SimRecord {
             Self::Truth(s) => s.header.meas_time_ns,
             Self::Imu(s) => s.header.meas_time_ns,
             Self::Tdoa(s) => s.header.meas_time_ns,
+            Self::Range(s) => s.header.meas_time_ns,
             Self::Velocity(s) => s.header.meas_time_ns,
         }
     }
 
-    /// Tie-break rank at equal times: truth 0, IMU 1, UWB 2, velocity 3.
+    /// Tie-break rank at equal times: truth 0, IMU 1, UWB (TDOA 2, range
+    /// 3), velocity 4.
     fn rank(&self) -> u8 {
         match self {
             Self::Truth(_) => 0,
             Self::Imu(_) => 1,
             Self::Tdoa(_) => 2,
-            Self::Velocity(_) => 3,
+            Self::Range(_) => 3,
+            Self::Velocity(_) => 4,
         }
     }
 }
 
 impl SimOutput {
     /// All samples in one stream ordered by measurement time; at equal times
-    /// truth comes first, then IMU, then UWB, then body velocities (each
-    /// stream keeps its own order).
+    /// truth comes first, then IMU, then UWB (TDOA differences, then
+    /// ranges), then body velocities (each stream keeps its own order).
     #[must_use]
     pub fn merged(&self) -> Vec<SimRecord> {
         let mut out = Vec::with_capacity(
-            self.imu.len() + self.tdoa.len() + self.truth.len() + self.velocity.len(),
+            self.imu.len()
+                + self.tdoa.len()
+                + self.range.len()
+                + self.truth.len()
+                + self.velocity.len(),
         );
-        let (mut t, mut i, mut u, mut v) = (
+        let (mut t, mut i, mut u, mut r, mut v) = (
             self.truth.iter().peekable(),
             self.imu.iter().peekable(),
             self.tdoa.iter().peekable(),
+            self.range.iter().peekable(),
             self.velocity.iter().peekable(),
         );
         loop {
@@ -161,6 +194,7 @@ impl SimOutput {
                 t.peek().map(|s| SimRecord::Truth(**s)),
                 i.peek().map(|s| SimRecord::Imu(**s)),
                 u.peek().map(|s| SimRecord::Tdoa(**s)),
+                r.peek().map(|s| SimRecord::Range(**s)),
                 v.peek().map(|s| SimRecord::Velocity(**s)),
             ];
             let best = cands
@@ -178,6 +212,9 @@ impl SimOutput {
                 }
                 SimRecord::Tdoa(_) => {
                     u.next();
+                }
+                SimRecord::Range(_) => {
+                    r.next();
                 }
                 SimRecord::Velocity(_) => {
                     v.next();
@@ -261,13 +298,15 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Result<SimOutput, SimError> {
             }
         })?;
     let (imu, truth, imu_errors) = simulate_imu(scenario, &model, seed)?;
-    let (tdoa, tdoa_truth) = simulate_uwb(scenario, &model, seed)?;
+    let uwb = simulate_uwb(scenario, &model, seed)?;
     let velocity = simulate_velocity(scenario, &model, seed)?;
     Ok(SimOutput {
         imu,
-        tdoa,
+        tdoa: uwb.tdoa,
         truth,
-        tdoa_truth,
+        tdoa_truth: uwb.tdoa_truth,
+        range: uwb.range,
+        range_truth: uwb.range_truth,
         velocity,
         imu_errors,
     })
@@ -490,17 +529,39 @@ fn random_nlos_events(sc: &Scenario, seed: u64) -> Vec<NlosEvent> {
     events
 }
 
-type UwbRun = (Vec<UwbTdoa>, Vec<TdoaTruth>);
+/// The UWB measurements of a run: TDOA differences or two-way ranges
+/// (the other pair of vectors empty).
+#[derive(Default)]
+struct UwbRun {
+    tdoa: Vec<UwbTdoa>,
+    tdoa_truth: Vec<TdoaTruth>,
+    range: Vec<UwbRange>,
+    range_truth: Vec<RangeTruth>,
+}
 
+/// The UWB epochs of the run. Per epoch, in this order: one noise draw per
+/// anchor (anchor order; TDOA `per_anchor`: `tdoa_sigma_m / sqrt(2)`, TWR:
+/// `range_sigma_m`), the outlier bursts' draws, then for TDOA
+/// `per_difference` one draw per difference. Each anchor's NLOS excess
+/// (bursts plus random events) is positive: it lengthens that anchor's
+/// range, and biases a difference by `excess_b - excess_a`.
 fn simulate_uwb(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<UwbRun, SimError> {
     let u = &sc.uwb;
-    let pairs = u.pair_indices();
+    let twr = u.kind == UwbKind::Twr;
+    let pairs = if twr { Vec::new() } else { u.pair_indices() };
     let na = u.anchors.len();
     let rate = sc.uwb_rate_hz;
     let n = sample_count(sc.duration_s, rate);
-    let cap = usize::try_from(n).unwrap_or(0).saturating_mul(pairs.len());
-    let mut tdoa = Vec::with_capacity(cap);
-    let mut annot = Vec::with_capacity(cap);
+    let per_epoch = if twr { na } else { pairs.len() };
+    let cap = usize::try_from(n).unwrap_or(0).saturating_mul(per_epoch);
+    let mut run = UwbRun::default();
+    if twr {
+        run.range.reserve(cap);
+        run.range_truth.reserve(cap);
+    } else {
+        run.tdoa.reserve(cap);
+        run.tdoa_truth.reserve(cap);
+    }
 
     let bursts: Vec<(u64, u64)> = u
         .outliers
@@ -516,9 +577,10 @@ fn simulate_uwb(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Uwb
 
     let mut noise_rng = rng::stream(seed, STREAM_UWB_NOISE);
     let mut burst_rng = rng::stream(seed, STREAM_OUTLIERS);
-    let (anchor_sigma, diff_sigma) = match u.noise_model {
-        NoiseModel::PerAnchor => (u.tdoa_sigma_m / core::f64::consts::SQRT_2, 0.0),
-        NoiseModel::PerDifference => (0.0, u.tdoa_sigma_m),
+    let (anchor_sigma, diff_sigma) = match (u.kind, u.noise_model) {
+        (UwbKind::Twr, _) => (u.range_sigma_m, 0.0),
+        (UwbKind::Tdoa, NoiseModel::PerAnchor) => (u.tdoa_sigma_m / core::f64::consts::SQRT_2, 0.0),
+        (UwbKind::Tdoa, NoiseModel::PerDifference) => (0.0, u.tdoa_sigma_m),
     };
     let mut range = vec![0.0; na];
     let mut excess = vec![0.0; na];
@@ -546,16 +608,43 @@ fn simulate_uwb(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Uwb
             }
             for (j, a) in u.anchors.iter().enumerate() {
                 if o.anchors.contains(a.id) && burst_rng.bernoulli(o.probability) {
-                    excess[j] += burst_rng.uniform_in(o.bias_m[0], o.bias_m[1]);
+                    // An excess path: never negative (validation keeps
+                    // bias_m >= 0; the absolute value makes it certain).
+                    excess[j] += burst_rng.uniform_in(o.bias_m[0], o.bias_m[1]).abs();
                 }
             }
         }
         for ev in &random {
             if ev.start_ns <= t_ns && t_ns < ev.end_ns {
                 if let Some(x) = excess.get_mut(ev.anchor) {
-                    *x += ev.excess_m;
+                    *x += ev.excess_m.abs();
                 }
             }
+        }
+        if twr {
+            let last = na.saturating_sub(1);
+            for (j, a) in u.anchors.iter().enumerate() {
+                let tr = RangeTruth {
+                    geometric_m: range[j],
+                    anchor_bias_m: a.range_bias_m,
+                    nlos_m: excess[j],
+                    noise_m: noise[j],
+                };
+                let mut m = UwbRange {
+                    header: Header::new(seq, t_ns),
+                    anchor: a.id,
+                    quality: 0,
+                    range_m: tr.geometric_m + tr.anchor_bias_m + tr.nlos_m + tr.noise_m,
+                    anchor_pos_m: a.pos_m,
+                };
+                if j == last {
+                    m.header.flags |= UwbRange::FLAG_EPOCH_END;
+                }
+                seq += 1;
+                run.range.push(m);
+                run.range_truth.push(tr);
+            }
+            continue;
         }
         let last = pairs.len().saturating_sub(1);
         for (pi, &(ia, ib)) in pairs.iter().enumerate() {
@@ -578,9 +667,9 @@ fn simulate_uwb(sc: &Scenario, model: &TrajectoryModel, seed: u64) -> Result<Uwb
                 m.header.flags |= UwbTdoa::FLAG_EPOCH_END;
             }
             seq += 1;
-            tdoa.push(m);
-            annot.push(tr);
+            run.tdoa.push(m);
+            run.tdoa_truth.push(tr);
         }
     }
-    Ok((tdoa, annot))
+    Ok(run)
 }

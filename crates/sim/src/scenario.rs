@@ -1,7 +1,7 @@
 //! The scenario: everything the simulator needs (duration, rates, trajectory,
-//! IMU errors, UWB anchors, noise, NLOS outliers, dropouts, the optional
-//! wheel odometry and optical flow, initial INS errors), its TOML form, and
-//! its validation.
+//! IMU errors, UWB kind (TDOA or TWR), anchors, noise, NLOS outliers,
+//! dropouts, the optional wheel odometry and optical flow, initial INS
+//! errors), its TOML form, and its validation.
 //!
 //! A scenario file keeps the simulator's part in a `[sim]` table; other
 //! top-level tables (a filter preset, evaluation settings) belong to other
@@ -58,7 +58,8 @@ pub struct Scenario {
     pub trajectory: Trajectory,
     /// IMU error model (default: paper section 3.4 values).
     pub imu: ImuErrors,
-    /// UWB TDOA system (default: the paper's section 3.4 anchors, 0.05 m noise).
+    /// UWB system, TDOA or two-way ranging (default: TDOA with the paper's
+    /// section 3.4 anchors, 0.05 m noise).
     pub uwb: UwbConfig,
     /// Initial INS errors (default: 1 m and 1 m/s per axis, paper section 3.4).
     pub initial_error: InitialError,
@@ -167,6 +168,22 @@ pub enum PairMode {
     Consecutive,
 }
 
+/// What the UWB system measures (`[sim.uwb] kind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UwbKind {
+    /// Time differences of arrival between anchor pairs ([`insuwb_msg::UwbTdoa`],
+    /// [`crate::SimOutput::tdoa`]): the pairs of `pairs`, the noise of
+    /// `tdoa_sigma_m` and `noise_model`.
+    #[default]
+    Tdoa,
+    /// Two-way ranging: one distance per anchor and epoch
+    /// ([`insuwb_msg::UwbRange`], [`crate::SimOutput::range`]), the noise of
+    /// `range_sigma_m`; `pairs`, `reference_id`, `tdoa_sigma_m` and
+    /// `noise_model` do not affect the ranges (they are still validated).
+    Twr,
+}
+
 /// How the TDOA noise is generated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -184,7 +201,7 @@ pub enum NoiseModel {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Anchor {
-    /// Anchor id (written to `UwbTdoa::anchor_a`/`anchor_b`).
+    /// Anchor id (written to `UwbTdoa::anchor_a`/`anchor_b`, `UwbRange::anchor`).
     pub id: u32,
     /// Surveyed position (ENU), m.
     pub pos_m: [f64; 3],
@@ -256,8 +273,9 @@ impl<'de> Deserialize<'de> for AnchorSet {
 
 /// A burst of NLOS outliers: while it lasts, each affected anchor's range gets,
 /// at each epoch with probability `probability`, a positive excess path drawn
-/// uniformly in `bias_m`. Every difference involving that anchor is biased
-/// (positively when it is `anchor_b`, negatively when it is `anchor_a`).
+/// uniformly in `bias_m`. With TDOA every difference involving that anchor is
+/// biased (positively when it is `anchor_b`, negatively when it is
+/// `anchor_a`); with TWR the anchor's range is lengthened by the excess.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OutlierBurst {
@@ -281,7 +299,8 @@ fn one() -> f64 {
 
 /// Random NLOS: per anchor, events start as a Poisson process and last an
 /// exponentially distributed time; each event adds a constant excess path
-/// drawn uniformly in `bias_m` to that anchor's range.
+/// drawn uniformly in `bias_m` to that anchor's range (a TWR range is
+/// lengthened by it, a TDOA difference biased as for [`OutlierBurst`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RandomNlos {
@@ -320,10 +339,12 @@ pub struct Dropout {
     pub duration_s: f64,
 }
 
-/// The UWB TDOA system.
+/// The UWB system: TDOA (the default) or two-way ranging.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct UwbConfig {
+    /// What is measured: "tdoa" or "twr" (default "tdoa").
+    pub kind: UwbKind,
     /// Fix dimension: "2d" or "3d" (default "2d": the paper's model is planar).
     pub dimension: Dimension,
     /// Anchors (default: (-5,-5), (5,-5), (-5,5), (5,5) at z = 0, ids 0..3:
@@ -335,8 +356,12 @@ pub struct UwbConfig {
     pub reference_id: Option<u32>,
     /// Standard deviation of each TDOA difference, m (default 0.05: chosen).
     pub tdoa_sigma_m: f64,
-    /// Noise generation (default "per_anchor").
+    /// Noise generation of the TDOA differences (default "per_anchor").
     pub noise_model: NoiseModel,
+    /// Standard deviation of each TWR range, m: independent white noise
+    /// per range (default 0.05: chosen, the order of a DW1000 range's
+    /// line-of-sight noise).
+    pub range_sigma_m: f64,
     /// Scheduled NLOS outlier bursts (default none).
     pub outliers: Vec<OutlierBurst>,
     /// Random NLOS events (default none).
@@ -353,6 +378,7 @@ impl Default for UwbConfig {
             range_bias_m: 0.0,
         };
         Self {
+            kind: UwbKind::Tdoa,
             dimension: Dimension::TwoD,
             anchors: vec![
                 a(0, -5.0, -5.0),
@@ -364,6 +390,7 @@ impl Default for UwbConfig {
             reference_id: None,
             tdoa_sigma_m: 0.05,
             noise_model: NoiseModel::PerAnchor,
+            range_sigma_m: 0.05,
             outliers: Vec::new(),
             random_nlos: None,
             dropouts: Vec::new(),
@@ -944,6 +971,7 @@ impl Scenario {
             }
         }
         non_negative(&format!("{P}.uwb.tdoa_sigma_m"), u.tdoa_sigma_m)?;
+        non_negative(&format!("{P}.uwb.range_sigma_m"), u.range_sigma_m)?;
         if u.outliers.len() > MAX_INTERVALS {
             return Err(ScenarioConfigError::TooMany {
                 key: format!("{P}.uwb.outliers"),

@@ -72,6 +72,30 @@
 //! refuse one. With [`FixConfig::average_pairs`] an epoch is solved from
 //! each pair's mean, weighted by its count.
 //!
+//! # Ranges
+//!
+//! Two-way ranges ([`UwbRange`], [`FixBuilder::push_range`]) are grouped
+//! into the same epochs, one entry per anchor (the latest range, or with
+//! [`FixConfig::average_pairs`] the mean of its ranges in the epoch,
+//! weighted `range_sigma_m / sqrt(n)`), and solved by [`crate::range`];
+//! `min_pairs` is then the fewest anchors, `n_meas` the anchors used. A
+//! builder takes one kind: an epoch that holds ranges is solved from its
+//! ranges (a robot's UWB is either TDOA or TWR). The value checks are
+//! [`insuwb_msg::check::range_values`]; the site calibration applies to
+//! TDOA only.
+//!
+//! Every range of a tag carries its antenna delay, one common offset. With
+//! [`FixConfig::range_offset_tau_s`] > 0 the builder estimates it: each
+//! epoch with two anchors more than the fix's unknowns is also solved for
+//! position and offset together ([`crate::range::solve_ranges_with_offset`]),
+//! and the offsets so found are averaged, each weighted by its inverse
+//! variance, older epochs forgotten with that time constant. Ranges are
+//! corrected by the average on [`FixBuilder::push_range`] (before the
+//! first estimate they pass unchanged) and flagged
+//! [`UwbRange::FLAG_OFFSET_REMOVED`]; [`FixBuilder::correct_range`] gives a
+//! range as `push_range` uses it, for callers that forward it (to the tight
+//! filter, onto a topic).
+//!
 //! # Site calibration
 //!
 //! With a [`SiteCalibration`] ([`FixBuilder::with_calibration`]) every
@@ -83,13 +107,14 @@
 //! callers that forward the measurement too (to the tight filter, onto a
 //! topic) forward that one, then push it.
 
-use insuwb_msg::check::{self, InvalidTdoa};
-use insuwb_msg::{Header, UwbFix, UwbTdoa};
+use insuwb_msg::check::{self, InvalidRange, InvalidTdoa};
+use insuwb_msg::{Header, UwbFix, UwbRange, UwbTdoa};
 use serde::{Deserialize, Serialize};
 
 use std::sync::Arc;
 
 use crate::calibration::SiteCalibration;
+use crate::range::{self as ranging, RangeObs};
 use crate::solve::{self, Seed, SolveError, SolverConfig, SolverConfigError, TdoaObs};
 use crate::velocity::{VelocityConfig, VelocityConfigError, VelocityEstimator};
 
@@ -146,6 +171,11 @@ pub struct FixConfig {
     /// holds about five measurements of each pair, whose independent part
     /// the mean averages.
     pub average_pairs: bool,
+    /// Time constant of the tag's range-offset average, s (see "Ranges" in
+    /// the module doc); 0 leaves ranges as they are. Default 30 (the
+    /// offset is the tag's antenna delay, a constant: a long average, that
+    /// still follows a change of tag within a minute).
+    pub range_offset_tau_s: f64,
 }
 
 impl Default for FixConfig {
@@ -158,6 +188,7 @@ impl Default for FixConfig {
             velocity: VelocityConfig::default(),
             solver: SolverConfig::default(),
             average_pairs: false,
+            range_offset_tau_s: 30.0,
         }
     }
 }
@@ -219,6 +250,13 @@ impl FixConfig {
             };
             return fail("min_pairs", req, self.min_pairs as f64);
         }
+        if !(self.range_offset_tau_s.is_finite() && self.range_offset_tau_s >= 0.0) {
+            return fail(
+                "range_offset_tau_s",
+                "finite and >= 0",
+                self.range_offset_tau_s,
+            );
+        }
         self.velocity.validate()?;
         self.solver.validate()?;
         Ok(())
@@ -247,7 +285,8 @@ pub struct FixStats {
     /// Measurements dropped because the epoch's pair table was full.
     pub dropped_capacity: u64,
     /// Measurements dropped as physically impossible: a range difference
-    /// longer than the distance between its two anchors.
+    /// longer than the distance between its two anchors, a negative or too
+    /// long range, a range quality above 100.
     #[serde(default)]
     pub dropped_impossible: u64,
     /// Non-empty epochs closed.
@@ -327,6 +366,9 @@ pub enum PushError {
         /// Anchor B id.
         b: u32,
     },
+    /// A range is negative, too long, or carries a quality above 100.
+    #[error(transparent)]
+    InvalidRange(InvalidRange),
     /// The epoch's pair table is full.
     #[error("epoch pair table full ({max} pairs); pair ({a}, {b}) dropped")]
     PairCapacity {
@@ -337,6 +379,15 @@ pub enum PushError {
         /// Anchor B id.
         b: u32,
     },
+}
+
+impl From<InvalidRange> for PushError {
+    fn from(e: InvalidRange) -> Self {
+        match e {
+            InvalidRange::NonFinite { field, value } => Self::NonFinite { field, value },
+            other => Self::InvalidRange(other),
+        }
+    }
 }
 
 impl From<InvalidTdoa> for PushError {
@@ -377,6 +428,15 @@ pub struct FixBuilder {
     sums: Vec<(f64, u32)>,
     /// Per pair of the open epoch: the sigma of its mean (`average_pairs`).
     sigmas: Vec<f64>,
+    /// Anchor ids of the open epoch's ranges.
+    range_keys: Vec<u32>,
+    /// Range observations of the open epoch, one per anchor.
+    ranges: Vec<RangeObs>,
+    /// Per anchor of the open epoch: the ranges averaged so far (sum, count).
+    range_sums: Vec<(f64, u32)>,
+    /// The tag's range offset: the weighted average, its weight (1/m^2)
+    /// and the time of the last epoch that moved it.
+    range_offset: Option<(f64, f64, u64)>,
     /// Epoch index of the open group.
     epoch: Option<u64>,
     /// Time of the latest accepted measurement.
@@ -406,6 +466,10 @@ impl FixBuilder {
             obs: Vec::with_capacity(cfg.max_pairs),
             sums: Vec::with_capacity(cfg.max_pairs),
             sigmas: Vec::with_capacity(cfg.max_pairs),
+            range_keys: Vec::with_capacity(cfg.max_pairs),
+            ranges: Vec::with_capacity(cfg.max_pairs),
+            range_sums: Vec::with_capacity(cfg.max_pairs),
+            range_offset: None,
             epoch: None,
             last_time_ns: None,
             prev_pos_m: None,
@@ -465,7 +529,7 @@ impl FixBuilder {
     /// Pairs held in the open epoch.
     #[must_use]
     pub fn pending_pairs(&self) -> usize {
-        self.keys.len()
+        self.keys.len() + self.range_keys.len()
     }
 
     /// Forgets the open epoch, the time order, the seed and the velocity
@@ -474,6 +538,9 @@ impl FixBuilder {
         self.keys.clear();
         self.obs.clear();
         self.sums.clear();
+        self.range_keys.clear();
+        self.ranges.clear();
+        self.range_sums.clear();
         self.epoch = None;
         self.last_time_ns = None;
         self.prev_pos_m = None;
@@ -495,21 +562,11 @@ impl FixBuilder {
         let corrected = self.calibrate(m);
         let m = &corrected;
         if let Err(e) = self.check(m) {
-            match e {
-                PushError::NonFinite { .. } => self.stats.dropped_non_finite += 1,
-                PushError::SameAnchor { .. } => self.stats.dropped_same_anchor += 1,
-                PushError::TimeBackwards { .. } => self.stats.dropped_time_backwards += 1,
-                PushError::PairCapacity { .. } => self.stats.dropped_capacity += 1,
-                PushError::Impossible { .. } => self.stats.dropped_impossible += 1,
-            }
+            self.count_drop(&e);
             return Err(e);
         }
         let t = m.header.meas_time_ns;
-        let k = self.window_of(t);
-        let mut out = None;
-        if self.epoch.is_some_and(|e| k > e) {
-            out = self.close();
-        }
+        let (k, out) = self.enter_epoch(t);
         let (key, o) = if m.anchor_a < m.anchor_b {
             ((m.anchor_a, m.anchor_b), TdoaObs::from_msg(m))
         } else {
@@ -535,14 +592,138 @@ impl FixBuilder {
                 self.obs.push(o);
             }
         }
+        Ok(self.accepted(k, t, m.header.flags & UwbTdoa::FLAG_EPOCH_END != 0, out))
+    }
+
+    /// Counts a dropped measurement under its reason.
+    fn count_drop(&mut self, e: &PushError) {
+        let s = &mut self.stats;
+        match e {
+            PushError::NonFinite { .. } => s.dropped_non_finite += 1,
+            PushError::SameAnchor { .. } => s.dropped_same_anchor += 1,
+            PushError::TimeBackwards { .. } => s.dropped_time_backwards += 1,
+            PushError::PairCapacity { .. } => s.dropped_capacity += 1,
+            PushError::Impossible { .. } | PushError::InvalidRange(_) => s.dropped_impossible += 1,
+        }
+    }
+
+    /// The epoch window of a measurement at `t`, and the fix of the open
+    /// epoch when `t` is in a later one (which closes it).
+    fn enter_epoch(&mut self, t: u64) -> (u64, Option<UwbFix>) {
+        let k = self.window_of(t);
+        let out = if self.epoch.is_some_and(|e| k > e) {
+            self.close()
+        } else {
+            None
+        };
+        (k, out)
+    }
+
+    /// Books an accepted measurement of window `k` at `t`; closes its
+    /// epoch when it ends one. The fix to return: `closed`, else this one's.
+    fn accepted(
+        &mut self,
+        k: u64,
+        t: u64,
+        epoch_end: bool,
+        closed: Option<UwbFix>,
+    ) -> Option<UwbFix> {
         self.stats.accepted += 1;
         self.epoch = Some(k);
         self.last_time_ns = Some(t);
-        if m.header.flags & UwbTdoa::FLAG_EPOCH_END != 0 {
+        if epoch_end {
             let own = self.close();
-            out = out.or(own);
+            return closed.or(own);
         }
-        Ok(out)
+        closed
+    }
+
+    /// The tag's range offset estimated so far, m (`None`: not yet, or
+    /// not estimated).
+    #[must_use]
+    pub fn range_offset_m(&self) -> Option<f64> {
+        self.range_offset.map(|(b, _, _)| b)
+    }
+
+    /// `m` as [`FixBuilder::push_range`] uses it now: less the tag's range
+    /// offset estimated so far, flagged; unchanged before the first
+    /// estimate, without estimation, or when already flagged.
+    #[must_use]
+    pub fn correct_range(&self, m: &UwbRange) -> UwbRange {
+        match self.range_offset {
+            Some((b, _, _)) if m.header.flags & UwbRange::FLAG_OFFSET_REMOVED == 0 => {
+                let mut out = *m;
+                out.range_m -= b;
+                out.header.flags |= UwbRange::FLAG_OFFSET_REMOVED;
+                out
+            }
+            _ => *m,
+        }
+    }
+
+    /// Adds one two-way range, corrected as [`FixBuilder::correct_range`]
+    /// says (see "Ranges" in the module doc); returns the fix of the epoch
+    /// it closed, if any, as [`FixBuilder::push`] does.
+    ///
+    /// # Errors
+    /// The range was dropped (and counted); nothing else changed.
+    pub fn push_range(&mut self, m: &UwbRange) -> Result<Option<UwbFix>, PushError> {
+        let corrected = self.correct_range(m);
+        let m = &corrected;
+        if let Err(e) = self.check_range(m) {
+            self.count_drop(&e);
+            return Err(e);
+        }
+        let t = m.header.meas_time_ns;
+        let (k, out) = self.enter_epoch(t);
+        let o = RangeObs::from_msg(m);
+        match self.range_keys.iter().position(|q| *q == m.anchor) {
+            Some(i) => {
+                if let (Some(slot), Some(sum)) =
+                    (self.ranges.get_mut(i), self.range_sums.get_mut(i))
+                {
+                    if self.cfg.average_pairs {
+                        sum.0 += o.range_m;
+                        sum.1 += 1;
+                        slot.range_m = sum.0 / f64::from(sum.1);
+                    } else {
+                        *slot = o;
+                    }
+                }
+                self.stats.superseded += 1;
+            }
+            None => {
+                self.range_keys.push(m.anchor);
+                self.range_sums.push((o.range_m, 1));
+                self.ranges.push(o);
+            }
+        }
+        Ok(self.accepted(k, t, m.header.flags & UwbRange::FLAG_EPOCH_END != 0, out))
+    }
+
+    /// The range's value check, its time order, room in the epoch's table
+    /// and an epoch not already holding TDOA differences.
+    fn check_range(&self, m: &UwbRange) -> Result<(), PushError> {
+        check::range_values(m)?;
+        let t = m.header.meas_time_ns;
+        if let Some(last_ns) = self.last_time_ns.filter(|last| t < *last) {
+            return Err(PushError::TimeBackwards {
+                time_ns: t,
+                last_ns,
+            });
+        }
+        let same_epoch = self.epoch.is_some_and(|e| e == self.window_of(t));
+        if same_epoch
+            && self.range_keys.len() + self.keys.len() >= self.cfg.max_pairs
+            && !self.range_keys.contains(&m.anchor)
+        {
+            return Err(PushError::PairCapacity {
+                max: self.cfg.max_pairs,
+                a: m.anchor,
+                b: m.anchor,
+            });
+        }
+        Ok(())
     }
 
     /// Aligns the epoch windows to a recording replayed from `epoch_ns`
@@ -591,15 +772,22 @@ impl FixBuilder {
 
     /// Solves the open group, if any, and empties it.
     fn close(&mut self) -> Option<UwbFix> {
-        if self.obs.is_empty() {
+        if self.obs.is_empty() && self.ranges.is_empty() {
             return None;
         }
         self.stats.epochs += 1;
         let time_ns = self.last_time_ns.unwrap_or_default();
-        let result = self.solve_group();
+        let result = if self.ranges.is_empty() {
+            self.solve_group()
+        } else {
+            self.solve_ranges()
+        };
         self.keys.clear();
         self.obs.clear();
         self.sums.clear();
+        self.range_keys.clear();
+        self.ranges.clear();
+        self.range_sums.clear();
         match result {
             Ok((fix, seed)) => {
                 if seed != Seed::Init && self.prev_pos_m.is_some() {
@@ -654,6 +842,57 @@ impl FixBuilder {
                 None
             }
         }
+    }
+
+    fn solve_ranges(&mut self) -> Result<(solve::Fix, Seed), SkipReason> {
+        if self.ranges.len() < self.cfg.min_pairs {
+            return Err(SkipReason::TooFewPairs {
+                count: self.ranges.len(),
+                min: self.cfg.min_pairs,
+            });
+        }
+        let solver = &self.cfg.solver;
+        let height = match self.cfg.mode {
+            FixMode::Mode2d { height_m } => Some(height_m),
+            FixMode::Mode3d => None,
+        };
+        let sigmas = if self.cfg.average_pairs {
+            // The mean of n ranges has sigma / sqrt(n).
+            self.sigmas.clear();
+            self.sigmas.extend(
+                self.range_sums
+                    .iter()
+                    .map(|s| solver.range_sigma_m / f64::from(s.1.max(1)).sqrt()),
+            );
+            Some(self.sigmas.as_slice())
+        } else {
+            None
+        };
+        if self.cfg.range_offset_tau_s > 0.0 {
+            // The offset left in the corrected ranges, added to the average.
+            if let Ok(f) = ranging::solve_ranges_with_offset(
+                &self.ranges,
+                sigmas,
+                height,
+                self.prev_pos_m,
+                solver,
+            ) {
+                let t = self.last_time_ns.unwrap_or_default();
+                let w = 1.0 / f.offset_var_m2;
+                self.range_offset = Some(match self.range_offset {
+                    None => (f.offset_m, w, t),
+                    Some((b, w0, t0)) => {
+                        let dt_s = t.saturating_sub(t0) as f64 * 1e-9;
+                        let w_old = w0 * (-dt_s / self.cfg.range_offset_tau_s).exp();
+                        let sum = w_old + w;
+                        (b + f.offset_m * w / sum, sum, t)
+                    }
+                });
+            }
+        }
+        let fix =
+            ranging::solve_ranges_weighted(&self.ranges, sigmas, height, self.prev_pos_m, solver)?;
+        Ok((fix, fix.seed))
     }
 
     fn solve_group(&mut self) -> Result<(solve::Fix, Seed), SkipReason> {

@@ -1,10 +1,13 @@
-//! UWB geometry: TDOA multilateration (2D and 3D, Gauss-Newton seeded in
-//! closed form), DOP covariance, epoch grouping of a TDOA stream into fixes,
-//! and velocity from successive fixes.
+//! UWB geometry: TDOA and two-way-ranging multilateration (2D and 3D,
+//! Gauss-Newton seeded in closed form), DOP covariance, epoch grouping of a
+//! TDOA or range stream into fixes, and velocity from successive fixes.
 //!
 //! - [`solve`]: position from range differences (`diff = |p - b| - |p - a|`,
 //!   the convention of [`insuwb_msg::UwbTdoa`]).
-//! - [`fix`]: [`fix::FixBuilder`] turns [`insuwb_msg::UwbTdoa`] samples into
+//! - [`range`]: position from two-way ranges (`range = |p - a|`, the
+//!   convention of [`insuwb_msg::UwbRange`]), robustly weighted.
+//! - [`fix`]: [`fix::FixBuilder`] turns [`insuwb_msg::UwbTdoa`] or
+//!   [`insuwb_msg::UwbRange`] samples into
 //!   [`insuwb_msg::UwbFix`] samples, deterministically.
 //! - [`velocity`]: sliding-window regression velocity and its covariance.
 //! - [`calibration`]: a site calibration of the per-pair TDOA biases,
@@ -16,6 +19,7 @@
 
 pub mod calibration;
 pub mod fix;
+pub mod range;
 pub mod solve;
 pub mod velocity;
 

@@ -161,6 +161,14 @@ pub struct SolverConfig {
     /// (`cov[2][2]` is its square), m. Default 0.0: the height is taken as
     /// known (the paper's filter uses east/north only, READING.md erratum 17).
     pub fixed_height_sigma_m: f64,
+    /// Standard deviation of one two-way range, m ([`crate::range`]).
+    /// Default 0.1: the robust spread of the UTIL two-way-ranging log's
+    /// ranges against motion capture is 0.05-0.15 m per anchor.
+    pub range_sigma_m: f64,
+    /// Huber threshold of the range fix's re-weighting, in sigmas
+    /// ([`crate::range`]). Default 2.0 (engineering choice: ranges within
+    /// two sigmas count fully, a non-line-of-sight range far less).
+    pub range_huber_k: f64,
 }
 
 impl Default for SolverConfig {
@@ -174,6 +182,8 @@ impl Default for SolverConfig {
             max_condition_number: 1e6,
             max_anchor_spread_condition: 1e4,
             fixed_height_sigma_m: 0.0,
+            range_sigma_m: 0.1,
+            range_huber_k: 2.0,
         }
     }
 }
@@ -264,6 +274,18 @@ impl SolverConfig {
             "solver.fixed_height_sigma_m",
             "finite and >= 0",
             self.fixed_height_sigma_m,
+        )?;
+        check(
+            pos(self.range_sigma_m),
+            "solver.range_sigma_m",
+            "finite and > 0",
+            self.range_sigma_m,
+        )?;
+        check(
+            pos(self.range_huber_k),
+            "solver.range_huber_k",
+            "finite and > 0",
+            self.range_huber_k,
         )
     }
 }

@@ -1,15 +1,16 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The protocol codecs against frames built by hand from the specifications
-//! (and, for MAVLink, by pymavlink 2.4.50 as an independent reference),
-//! encoder to decoder round trips, resynchronisation after garbage and
-//! corruption, and frames split across `push` calls at every point.
+//! (and, for MAVLink, by pymavlink 2.4.50 as an independent reference; for
+//! the DWM1001, the example lines of Qorvo's API guide), encoder to decoder
+//! round trips, resynchronisation after garbage and corruption, and frames
+//! split across `push` calls at every point.
 
 use std::f64::consts::PI;
 
 use insuwb_devices::frame::{
     wire_time_ns, AnyDecoder, DecoderStats, DeviceTime, Protocol, Reading, STANDARD_GRAVITY,
 };
-use insuwb_devices::{eliko, mavlink, nlink, witmotion};
+use insuwb_devices::{dwm1001, eliko, mavlink, nlink, witmotion};
 use rand::{RngExt as _, SeedableRng as _};
 use rand_xoshiro::Xoshiro256StarStar;
 
@@ -282,6 +283,22 @@ fn nlink_frame_built_by_hand() {
                 ranges_m: [3.0, 4.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
                 device_time: time,
             },
+            Reading::Range {
+                anchor: 0,
+                range_m: 3.0,
+                anchor_pos_m: None,
+                quality: None,
+                last_of_round: false,
+                device_time: time,
+            },
+            Reading::Range {
+                anchor: 1,
+                range_m: 4.5,
+                anchor_pos_m: None,
+                quality: None,
+                last_of_round: true,
+                device_time: time,
+            },
         ]
     );
     assert_eq!((stats.frames_ok, stats.checksum_errors), (1, 0));
@@ -356,6 +373,137 @@ fn eliko_lines_written_by_hand() {
     assert_eq!(s.seq_gaps, 2);
     assert_eq!(s.bytes_skipped, long.len() as u64);
     assert_eq!(s.bytes_in, stream.len() as u64);
+}
+
+/// The `lec` and `les` examples of Qorvo's "DWM1001 Firmware API Guide".
+const DWM_LEC: &str = "DIST,4,AN0,0C2B,0.00,0.00,0.00,1.38,AN1,9825,3.00,0.00,0.00,2.26,\
+AN2,14D0,3.00,3.00,0.00,2.86,AN3,18A9,0.00,3.00,0.00,2.76,POS,1.45,1.45,0.82,64\r\n";
+const DWM_LES: &str = "1151[5.00,8.00,2.25]=6.48 0CA8[0.00,8.00,2.25]=6.51 \
+111C[5.00,0.00,2.25]=3.18 1150[0.00,0.00,2.25]=3.16 le_us=2576 est[2.57,1.98,1.68,100]\r\n";
+
+fn dwm_range(anchor: u32, pos: [f64; 3], range_m: f64, last: bool) -> Reading {
+    Reading::Range {
+        anchor,
+        range_m,
+        anchor_pos_m: Some(pos),
+        quality: None,
+        last_of_round: last,
+        device_time: None,
+    }
+}
+
+fn dwm_position(tag: u32, pos_m: [f64; 3]) -> Reading {
+    Reading::Position {
+        tag,
+        pos_m,
+        vel_mps: None,
+        device_time: None,
+        seq: None,
+    }
+}
+
+#[test]
+fn dwm1001_lines_of_the_api_guide() {
+    assert_eq!(DWM_LEC.len(), dwm1001::NOMINAL_LINE_LEN);
+    assert_eq!(Protocol::Dwm1001.nominal_frame_len(), DWM_LEC.len());
+    let stream = ["dwm> lec\r\n", DWM_LEC, "\r\n", "dwm> les\n", DWM_LES].concat();
+    let mut decoder = dwm1001::Decoder::with_tag(7);
+    let mut readings = Vec::new();
+    decoder.push(stream.as_bytes(), &mut |r| readings.push(r));
+    assert_eq!(
+        readings,
+        vec![
+            dwm_range(0x0C2B, [0.0, 0.0, 0.0], 1.38, false),
+            dwm_range(0x9825, [3.0, 0.0, 0.0], 2.26, false),
+            dwm_range(0x14D0, [3.0, 3.0, 0.0], 2.86, false),
+            dwm_range(0x18A9, [0.0, 3.0, 0.0], 2.76, true),
+            dwm_position(7, [1.45, 1.45, 0.82]),
+            dwm_range(0x1151, [5.0, 8.0, 2.25], 6.48, false),
+            dwm_range(0x0CA8, [0.0, 8.0, 2.25], 6.51, false),
+            dwm_range(0x111C, [5.0, 0.0, 2.25], 3.18, false),
+            dwm_range(0x1150, [0.0, 0.0, 2.25], 3.16, true),
+            dwm_position(7, [2.57, 1.98, 1.68]),
+        ]
+    );
+    let s = decoder.stats();
+    assert_eq!((s.frames_ok, s.unknown, s.malformed), (2, 3, 0), "{s:?}");
+    assert_eq!((s.bytes_framed, s.bytes_skipped), (stream.len() as u64, 0));
+    assert_eq!(decoder.bytes_since_last_valid_frame(), 0);
+}
+
+#[test]
+fn dwm1001_lines_without_a_position_and_positions_alone() {
+    let stream = concat!(
+        "DIST,2,AN0,0001,1.00,2.00,3.00,4.00,AN1,ABCD,-1.50,0.00,10.25,0.05\n",
+        "POS,-1.45,2.00,0.82,64\r\n",
+        "POS,1.00,1.00,1.00,0\r\n", // quality 0: no position
+        "0001[1.00,2.00,3.00]=4.00 le_us=12\r\n",
+        "est[1.00,2.00,3.00,5]\r\n",
+        "DIST,0\r\n", // no anchor: nothing
+    );
+    let (readings, s) = decode(Protocol::Dwm1001, stream.as_bytes());
+    assert_eq!(
+        readings,
+        vec![
+            dwm_range(1, [1.0, 2.0, 3.0], 4.0, false),
+            dwm_range(0xABCD, [-1.5, 0.0, 10.25], 0.05, true),
+            dwm_position(0, [-1.45, 2.0, 0.82]),
+            dwm_range(1, [1.0, 2.0, 3.0], 4.0, true),
+            dwm_position(0, [1.0, 2.0, 3.0]),
+        ]
+    );
+    assert_eq!((s.frames_ok, s.no_fix, s.malformed), (4, 2, 0), "{s:?}");
+}
+
+#[test]
+fn dwm1001_malformed_lines_give_nothing() {
+    let good = "DIST,1,AN0,0001,1.00,2.00,3.00,4.00\r\n";
+    let anchors = |n: usize| -> String {
+        (0..n)
+            .map(|i| format!(",AN{i},{i:04X},1.00,2.00,3.00,4.00"))
+            .collect()
+    };
+    let les_anchors = |n: usize| -> String {
+        (0..n)
+            .map(|i| format!("{i:04X}[1.00,2.00,3.00]=4.00 "))
+            .collect()
+    };
+    let malformed = [
+        "DIST,2,AN0,0001,1.00,2.00,3.00,4.00\r\n".to_owned(), // count too high
+        "DIST,0,AN0,0001,1.00,2.00,3.00,4.00\r\n".to_owned(), // count too low
+        "DIST,1,AN1,0001,1.00,2.00,3.00,4.00\r\n".to_owned(), // wrong index
+        "DIST,1,AN0,001,1.00,2.00,3.00,4.00\r\n".to_owned(),  // id of 3 digits
+        "DIST,1,AN0,0001,1.00,2.00,3.00,nan\r\n".to_owned(),
+        "DIST,1,AN0,0001,1.00,x,3.00,4.00\r\n".to_owned(),
+        "DIST,1,AN0,0001,1.00,2.00,3.00\r\n".to_owned(),
+        "DIST,1,AN0,0001,1.00,2.00,3.00,4.00,\r\n".to_owned(),
+        "DIST,1,AN0,0001,1.00,2.00,3.00,4.00,POS,1,2,3\r\n".to_owned(),
+        "DIST,1,AN0,0001,1.00,2.00,3.00,4.00,POS,1,2,3,101\r\n".to_owned(),
+        "DIST,1,AN0,0001,1.00,2.00,3.00,4.00,POS,1,2,3,50,7\r\n".to_owned(),
+        "DIST,x\r\n".to_owned(),
+        format!("DIST,17{}\r\n", anchors(17)),
+        "POS,1.00,2.00,inf,50\r\n".to_owned(),
+        "POS,1.00,2.00,3.00\r\n".to_owned(),
+        "0001[1.00,2.00,3.00]=NaN\r\n".to_owned(),
+        "0001[1.00,2.00]=4.00\r\n".to_owned(),
+        "0001[1.00,2.00,3.00,4.00]=4.00\r\n".to_owned(),
+        "0001[1.00,2.00,3.00]=4.00 est[1,2,3,50] 0002[1.00,2.00,3.00]=4.00\r\n".to_owned(),
+        "0001[1.00,2.00,3.00]=4.00 le_us=x\r\n".to_owned(),
+        "0001[1.00,2.00,3.00]=4.00 est[1,2,3]\r\n".to_owned(),
+        format!("{}\r\n", les_anchors(17)),
+        "DIST,1,AN0,0001,1.00,2.00,3.00,4.é\r\n".to_owned(),
+    ];
+    for line in &malformed {
+        let stream = [line.as_str(), good].concat();
+        let (readings, s) = decode(Protocol::Dwm1001, stream.as_bytes());
+        assert_eq!(readings.len(), 1, "{line:?} gave {readings:?}");
+        assert_eq!((s.malformed, s.frames_ok), (1, 1), "{line:?}: {s:?}");
+    }
+    // An over-long line is dropped whole, up to its end.
+    let long = format!("DIST,1{}\r\n", "9".repeat(dwm1001::MAX_LINE_LEN));
+    let (readings, s) = decode(Protocol::Dwm1001, [long.as_str(), good].concat().as_bytes());
+    assert_eq!((readings.len(), s.oversize, s.malformed), (1, 1, 0));
+    assert_eq!(s.bytes_skipped, long.len() as u64);
 }
 
 // ------------------------------------------------------------- round trips
@@ -481,6 +629,83 @@ fn nlink_and_eliko_round_trip_to_the_millimetre() {
     }
 }
 
+#[test]
+fn dwm1001_lines_round_trip_to_the_centimetre() {
+    let mut out = Vec::new();
+    for k in 0..50u32 {
+        let x = f64::from(k) * 0.731 - 12.0;
+        let anchors: Vec<dwm1001::AnchorRange> = (0..k % 17)
+            .map(|i| dwm1001::AnchorRange {
+                id: (k * 977 + i * 131) & 0xFFFF,
+                pos_m: [x + f64::from(i), -x, 2.5],
+                range_m: f64::from(i) * 1.37 + 0.004,
+            })
+            .collect();
+        let pos = (k % 3 != 0).then_some(([x, 2.0 * x, 0.5], (k * 7 % 101) as u8));
+        for les in [false, true] {
+            out.clear();
+            let n = if les {
+                let le_us = (k % 2 == 0).then_some(k * 100);
+                match dwm1001::encode_les(&anchors, pos, le_us, &mut out) {
+                    Err(dwm1001::EncodeError::Empty) => continue,
+                    other => other.unwrap(),
+                }
+            } else {
+                dwm1001::encode_lec(&anchors, pos, &mut out).unwrap()
+            };
+            assert_eq!(n, out.len());
+            let (readings, s) = decode(Protocol::Dwm1001, &out);
+            let mut want: Vec<Reading> = anchors
+                .iter()
+                .enumerate()
+                .map(|(i, a)| dwm_range(a.id, a.pos_m, a.range_m, i + 1 == anchors.len()))
+                .collect();
+            if let Some((p, q)) = pos.filter(|(_, q)| *q > 0) {
+                assert!(q <= 100);
+                want.push(dwm_position(0, p));
+            }
+            assert_eq!(
+                readings.len(),
+                want.len(),
+                "{}",
+                String::from_utf8_lossy(&out)
+            );
+            for (got, want) in readings.iter().zip(&want) {
+                match (got, want) {
+                    (
+                        Reading::Range {
+                            anchor,
+                            range_m,
+                            anchor_pos_m: Some(p),
+                            last_of_round,
+                            ..
+                        },
+                        Reading::Range {
+                            anchor: a,
+                            range_m: r,
+                            anchor_pos_m: Some(wp),
+                            last_of_round: l,
+                            ..
+                        },
+                    ) => {
+                        assert_eq!((anchor, last_of_round), (a, l));
+                        assert!(close(*range_m, *r, 0.005 + 1e-9), "{got:?} {want:?}");
+                        assert_close3(*p, *wp, 0.005 + 1e-9);
+                    }
+                    (Reading::Position { pos_m, .. }, Reading::Position { pos_m: w, .. }) => {
+                        assert_close3(*pos_m, *w, 0.005 + 1e-9);
+                    }
+                    _ => panic!("{got:?} for {want:?}"),
+                }
+            }
+            assert_eq!(s.malformed, 0);
+        }
+    }
+    out.clear();
+    dwm1001::encode_lep([1.0, -2.0, 0.125], 64, &mut out).unwrap();
+    assert_eq!(out, b"POS,1.00,-2.00,0.12,64\r\n");
+}
+
 // --------------------------------------------------- streams of many frames
 
 /// `count` units of `protocol`, each carrying one distinct reading (a
@@ -529,6 +754,22 @@ fn units(protocol: Protocol, count: u32) -> Vec<Vec<u8>> {
                     )
                     .unwrap();
                     line[..n].to_vec()
+                }
+                Protocol::Dwm1001 => {
+                    // lec and les lines in turn.
+                    let anchors = [0x0C2B, 0x9825].map(|id| dwm1001::AnchorRange {
+                        id,
+                        pos_m: [3.0, 0.0, 1.5],
+                        range_m: 2.0 + x * 0.01,
+                    });
+                    let pos = Some(([x, 2.0, 1.0], 90));
+                    let mut line = Vec::new();
+                    if k % 2 == 0 {
+                        dwm1001::encode_lec(&anchors, pos, &mut line).unwrap();
+                    } else {
+                        dwm1001::encode_les(&anchors, pos, Some(k), &mut line).unwrap();
+                    }
+                    line
                 }
             }
         })
@@ -621,7 +862,7 @@ fn protocols_by_name() {
     let err = "ubx".parse::<Protocol>().unwrap_err().to_string();
     assert_eq!(
         err,
-        "unknown device protocol \"ubx\"; known: witmotion, mavlink, nlink, eliko"
+        "unknown device protocol \"ubx\"; known: witmotion, mavlink, nlink, eliko, dwm1001"
     );
 }
 

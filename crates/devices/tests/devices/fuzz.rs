@@ -1,10 +1,11 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-//! Fuzzing of the four decoders with proptest (stable Rust): arbitrary
+//! Fuzzing of the five decoders with proptest (stable Rust): arbitrary
 //! bytes and mutated valid streams, pushed in arbitrary chunks. For every
 //! input: no panic; every byte accounted for (framed, skipped or buffered);
 //! the buffer never exceeds the protocol's largest frame; the same readings
 //! and counts whatever the chunking; readings consistent with the counts and
-//! within the protocol's value ranges.
+//! within the protocol's value ranges. DWM1001 shell lines also go through
+//! garbage and cut lines: every whole line after them still decodes.
 //!
 //! 4096 cases per target by default; `PROPTEST_CASES=1000000` for a long
 //! run.
@@ -15,7 +16,7 @@
 use std::path::PathBuf;
 
 use insuwb_devices::frame::{AnyDecoder, DecoderStats, Protocol, Reading, STANDARD_GRAVITY};
-use insuwb_devices::{eliko, mavlink, nlink, witmotion};
+use insuwb_devices::{dwm1001, eliko, mavlink, nlink, witmotion};
 use proptest::prelude::*;
 use proptest::sample::Index;
 use rand::SeedableRng as _;
@@ -29,7 +30,7 @@ fn corpus_path(protocol: Protocol) -> PathBuf {
         .join(format!("{}.bin", protocol.name()))
 }
 
-const CORPUS: [(Protocol, &[u8]); 4] = [
+const CORPUS: [(Protocol, &[u8]); 5] = [
     (
         Protocol::WitMotion,
         include_bytes!("../corpus/witmotion.bin"),
@@ -37,6 +38,7 @@ const CORPUS: [(Protocol, &[u8]); 4] = [
     (Protocol::Mavlink, include_bytes!("../corpus/mavlink.bin")),
     (Protocol::Nlink, include_bytes!("../corpus/nlink.bin")),
     (Protocol::Eliko, include_bytes!("../corpus/eliko.bin")),
+    (Protocol::Dwm1001, include_bytes!("../corpus/dwm1001.bin")),
 ];
 
 fn corpus(protocol: Protocol) -> &'static [u8] {
@@ -123,6 +125,33 @@ fn generate(protocol: Protocol) -> Vec<u8> {
                 out.extend_from_slice(&line[..n]);
             }
         }
+        Protocol::Dwm1001 => {
+            // lec, les and lep lines in turn, 1 to 4 anchors, every fifth
+            // position of quality 0 (none), between shell prompts.
+            out.extend_from_slice(b"dwm> lec\r\n");
+            for k in 0..12u32 {
+                let x = f64::from(k);
+                let anchors: Vec<dwm1001::AnchorRange> = (0..1 + k % 4)
+                    .map(|i| dwm1001::AnchorRange {
+                        id: 0x1150 + i * 0x0101,
+                        pos_m: [5.0 * f64::from(i % 2), 8.0 * f64::from(i / 2), 2.25],
+                        range_m: 3.0 + x * 0.1 + f64::from(i),
+                    })
+                    .collect();
+                let quality = if k % 5 == 4 { 0 } else { 100 - k as u8 };
+                let pos = ([x * 0.25, 1.98, 1.68], quality);
+                match k % 3 {
+                    0 => dwm1001::encode_lec(&anchors, Some(pos), &mut out),
+                    1 => dwm1001::encode_les(&anchors, Some(pos), Some(2000 + k), &mut out),
+                    _ => dwm1001::encode_lep(pos.0, pos.1, &mut out),
+                }
+                .unwrap();
+                if k == 5 {
+                    out.extend_from_slice(b"\r\ndwm> les\r\n");
+                }
+            }
+            out.extend_from_slice(b"dwm> ");
+        }
     }
     out
 }
@@ -151,8 +180,9 @@ fn corpus_matches_the_generator() {
         let expected = match protocol {
             Protocol::WitMotion => 36,
             Protocol::Mavlink => 12,
-            Protocol::Nlink => 12,
+            Protocol::Nlink => 36,
             Protocol::Eliko => 13,
+            Protocol::Dwm1001 => 30,
         };
         assert_eq!(readings.len(), expected, "{protocol}");
     }
@@ -198,6 +228,7 @@ fn check_readings(protocol: Protocol, readings: &[Reading], s: &DecoderStats) {
         Protocol::Mavlink => 8,
         Protocol::Nlink => 128,
         Protocol::Eliko => 2,
+        Protocol::Dwm1001 => 1,
     };
     assert!(frames * min_frame <= s.bytes_framed, "{protocol}: {s:?}");
     let n = readings.len() as u64;
@@ -210,7 +241,30 @@ fn check_readings(protocol: Protocol, readings: &[Reading], s: &DecoderStats) {
             assert!(n - imus + 2 * imus <= s.frames_ok, "{s:?}");
         }
         Protocol::Mavlink | Protocol::Eliko => assert_eq!(n, s.frames_ok, "{protocol}: {s:?}"),
-        Protocol::Nlink => assert_eq!(n, 2 * s.frames_ok, "{s:?}"),
+        Protocol::Nlink => {
+            let ranges = count(readings, |r| matches!(r, Reading::Range { .. }));
+            assert_eq!(n - ranges, 2 * s.frames_ok, "{s:?}");
+            assert!(ranges <= 8 * s.frames_ok, "{s:?}");
+        }
+        Protocol::Dwm1001 => {
+            // A decoded line ends a round of ranges, has a position, or both.
+            let ends = count(readings, |r| {
+                matches!(
+                    r,
+                    Reading::Range {
+                        last_of_round: true,
+                        ..
+                    }
+                )
+            });
+            let positions = count(readings, |r| matches!(r, Reading::Position { .. }));
+            assert!(ends <= s.frames_ok && positions <= s.frames_ok, "{s:?}");
+            assert!(s.frames_ok <= ends + positions, "{s:?}");
+            assert!(
+                n <= s.frames_ok * (dwm1001::MAX_ANCHORS as u64 + 1),
+                "{s:?}"
+            );
+        }
     }
     for r in readings {
         let ok = match (protocol, r) {
@@ -256,6 +310,38 @@ fn check_readings(protocol: Protocol, readings: &[Reading], s: &DecoderStats) {
                 ranges_m.iter().all(|d| d.abs() <= 8388.608)
             }
             (
+                Protocol::Nlink,
+                Reading::Range {
+                    anchor,
+                    range_m,
+                    anchor_pos_m: None,
+                    quality: None,
+                    device_time: Some(_),
+                    ..
+                },
+            ) => *anchor < 8 && *range_m != 0.0 && range_m.abs() <= 8388.608,
+            (
+                Protocol::Dwm1001,
+                Reading::Range {
+                    anchor,
+                    range_m,
+                    anchor_pos_m: Some(pos),
+                    quality: None,
+                    device_time: None,
+                    ..
+                },
+            ) => *anchor <= 0xFFFF && range_m.is_finite() && pos.iter().all(|p| p.is_finite()),
+            (
+                Protocol::Dwm1001,
+                Reading::Position {
+                    pos_m,
+                    vel_mps: None,
+                    device_time: None,
+                    seq: None,
+                    ..
+                },
+            ) => pos_m.iter().all(|p| p.is_finite()),
+            (
                 Protocol::Eliko,
                 Reading::Position {
                     pos_m,
@@ -268,6 +354,10 @@ fn check_readings(protocol: Protocol, readings: &[Reading], s: &DecoderStats) {
         };
         assert!(ok, "{protocol}: {r:?}");
     }
+}
+
+fn count(readings: &[Reading], pred: impl Fn(&Reading) -> bool) -> u64 {
+    readings.iter().filter(|r| pred(r)).count() as u64
 }
 
 /// Decodes with the given chunking and in one push: the results must agree.
@@ -379,6 +469,84 @@ fuzz_targets! {
     Protocol::Mavlink => mavlink_arbitrary_bytes, mavlink_mutated_stream;
     Protocol::Nlink => nlink_arbitrary_bytes, nlink_mutated_stream;
     Protocol::Eliko => eliko_arbitrary_bytes, eliko_mutated_stream;
+    Protocol::Dwm1001 => dwm1001_arbitrary_bytes, dwm1001_mutated_stream;
+}
+
+// ------------------------------------------- DWM1001 lines after garbage
+
+/// The corpus's report lines, each with what it decodes to alone.
+fn dwm1001_lines() -> Vec<(Vec<u8>, Vec<Reading>)> {
+    corpus(Protocol::Dwm1001)
+        .split_inclusive(|b| *b == b'\n')
+        .filter(|l| l.ends_with(b"\n"))
+        .map(|l| (l.to_vec(), run(Protocol::Dwm1001, l, &[usize::MAX]).0))
+        .filter(|(_, readings)| !readings.is_empty())
+        .collect()
+}
+
+/// Whether `next` restarts a line that holds `cut` (the start of another
+/// report); see the resynchronisation rules of `dwm1001`.
+fn restarts(cut: &[u8], next: &[u8]) -> bool {
+    let starts_les = |b: &[u8]| {
+        b.get(4) == Some(&b'[') && b.len() > 4 && b[..4].iter().all(u8::is_ascii_hexdigit)
+    };
+    if cut.ends_with(b"\r") || next.starts_with(b"DIST,") {
+        true
+    } else if next.starts_with(b"POS,") {
+        !cut.starts_with(b"DIST,") && !cut.ends_with(b",")
+    } else {
+        !starts_les(cut) && !cut.ends_with(b" ")
+    }
+}
+
+/// Garbage without the bytes a report continues with (`,` `[` space `=`).
+fn dwm1001_garbage() -> impl Strategy<Value = Vec<u8>> {
+    prop::collection::vec(
+        any::<u8>().prop_map(|b| if b",[ =".contains(&b) { b'x' } else { b }),
+        0..40,
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: cases(),
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    })]
+
+    /// Report lines after garbage, after the start of another report cut
+    /// anywhere (where the rules can tell the two apart), pushed in
+    /// arbitrary chunks, byte by byte and whole: each gives exactly what it
+    /// gives alone.
+    #[test]
+    fn dwm1001_lines_survive_garbage_and_cut_lines(
+        items in prop::collection::vec(
+            (any::<Index>(), dwm1001_garbage(), any::<Option<(Index, Index)>>()),
+            1..12,
+        ),
+        c in chunks(),
+    ) {
+        let lines = dwm1001_lines();
+        let mut stream = Vec::new();
+        let mut expected = Vec::new();
+        for (line, garbage, cut) in &items {
+            let (line, readings) = &lines[line.index(lines.len())];
+            stream.extend_from_slice(garbage);
+            if let Some((cut_line, cut_len)) = cut {
+                let cut_line = &lines[cut_line.index(lines.len())].0;
+                let cut = &cut_line[..1 + cut_len.index(cut_line.len() - 1)];
+                if restarts(cut, line) {
+                    stream.extend_from_slice(cut);
+                }
+            }
+            stream.extend_from_slice(line);
+            expected.extend_from_slice(readings);
+        }
+        for chunking in [&c[..], &[1], &[usize::MAX]] {
+            let (readings, _) = run(Protocol::Dwm1001, &stream, chunking);
+            prop_assert_eq!(&readings, &expected);
+        }
+    }
 }
 
 // --------------------------------------------------- recovery after damage
@@ -403,9 +571,15 @@ fn frames_untouched_by_damage_come_through() {
             stream[at] ^= rng.random_range(1..=255_u8);
         }
         let (readings, stats) = run(protocol, &stream, &[4096]);
-        // A flip costs the readings of the frame it hits (NLink: 2, the
-        // others 1); allow 10 % more for false frames that pass a checksum.
-        let per_frame = if protocol == Protocol::Nlink { 2 } else { 1 };
+        // A flip costs the readings of the frame it hits (NLink: 2 and a
+        // range per heard anchor, 4 in the corpus; a DWM1001 line: up to 4
+        // ranges and a position; the others 1); allow 10 % more for false
+        // frames that pass a checksum.
+        let per_frame = match protocol {
+            Protocol::Nlink => 6,
+            Protocol::Dwm1001 => 5,
+            _ => 1,
+        };
         let floor = expected - per_frame * flips * 11 / 10;
         println!(
             "{protocol}: {} of {expected} readings after {flips} flips ({:?} checksum errors)",

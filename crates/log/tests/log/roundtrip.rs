@@ -137,6 +137,7 @@ fn variant_indices_are_frozen() {
         (topics::TRUTH, 7),
         (topics::HEALTH, 8),
         (topics::BODY_VEL, 9),
+        (topics::UWB_RANGE, 10),
     ];
     let mut enc = RecordEncoder::new();
     let recs = one_of_each(1);

@@ -144,7 +144,7 @@ fn merged_stream_is_time_ordered_with_truth_then_imu_then_uwb() {
     let rank = |r: &SimRecord| match r {
         SimRecord::Truth(_) => 0,
         SimRecord::Imu(_) => 1,
-        SimRecord::Tdoa(_) => 2,
+        SimRecord::Tdoa(_) | SimRecord::Range(_) => 2,
         SimRecord::Velocity(_) => 3,
     };
     for w in m.windows(2) {
@@ -564,7 +564,8 @@ fn builtins_parse_validate_and_run() {
             "paper-4.3-static",
             "paper-4.4-dynamic",
             "nlos-long",
-            "ground-outage"
+            "ground-outage",
+            "twr-3.4"
         ]
     );
     for name in builtin_names() {
@@ -579,7 +580,7 @@ fn builtins_parse_validate_and_run() {
         assert_eq!(sc.name, *name);
         sc.validate().unwrap();
         let out = simulate(&sc, sc.seed).unwrap();
-        assert!(!out.imu.is_empty() && !out.tdoa.is_empty());
+        assert!(!out.imu.is_empty() && (!out.tdoa.is_empty() || !out.range.is_empty()));
         sc.initial_ins_state(sc.seed).unwrap();
     }
     assert_eq!(builtin("nope"), None);

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use insuwb_log::Record;
 use insuwb_msg::{
     fixed_name, BodyVelocity, DeviceCounters, FilterDiag, FusedState, GroundTruth, Header, Health,
-    HealthState, ImuSample, InsCorrection, NavState, StageCounters, UwbFix, UwbTdoa,
+    HealthState, ImuSample, InsCorrection, NavState, StageCounters, UwbFix, UwbRange, UwbTdoa,
 };
 
 /// A scratch directory under the system temp dir, removed on drop.
@@ -185,6 +185,13 @@ pub fn one_of_each(seq: u64) -> Vec<Record> {
             sigma_mps: [0.05, 0.0625, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
             reserved: 0,
+        }),
+        Record::Range(UwbRange {
+            header: h,
+            anchor: 7,
+            quality: 42,
+            range_m: 4.375,
+            anchor_pos_m: ramp(-1.5),
         }),
     ]
 }
