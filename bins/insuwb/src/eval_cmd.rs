@@ -53,7 +53,7 @@ pub struct EvalArgs {
     #[arg(long, requires = "flights")]
     pub jobs: Option<std::num::NonZeroUsize>,
     /// Simulate a scenario instead: a built-in name (paper-3.4, paper-4.3-static,
-    /// paper-4.4-dynamic, nlos-long, ground-outage) or a TOML file; `model-true` runs the
+    /// paper-4.4-dynamic, nlos-long, ground-outage, twr-3.4) or a TOML file; `model-true` runs the
     /// consistency check on data drawn from the filter's own model.
     #[arg(long, conflicts_with = "file")]
     pub scenario: Option<String>,

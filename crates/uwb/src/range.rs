@@ -143,38 +143,19 @@ pub fn solve_ranges_weighted(
     init: Option<[f64; 3]>,
     cfg: &SolverConfig,
 ) -> Result<Fix, SolveError> {
-    cfg.validate()?;
-    let sigmas = check_input(obs, sigma_m, height_m, init, cfg)?;
-    let dims = if height_m.is_some() { 2 } else { 3 };
-    let anchors = distinct_anchors(obs)?;
-    let required = dims + 1;
-    if anchors.len() < required {
-        return Err(SolveError::TooFewAnchors {
-            count: anchors.len(),
-            required,
-        });
-    }
-    spread_check(&anchors, dims, cfg)?;
-    let (lo, hi) = bounding_box(&anchors);
-    let mut seeds: Vec<([f64; 3], Seed)> = Vec::with_capacity(3);
-    if let Some(p) = init {
-        seeds.push((with_height(p, height_m), Seed::Init));
-    }
-    if let Some(p) = linear_seed(obs, height_m) {
-        seeds.push((p, Seed::ClosedForm));
-    }
-    let n = anchors.len() as f64;
-    let centroid = anchors.iter().fold([0.0; 3], |c, a| {
-        [c[0] + a[0] / n, c[1] + a[1] / n, c[2] + a[2] / n]
-    });
-    seeds.push((with_height(centroid, height_m), Seed::Centroid));
+    let Prepared {
+        sigmas,
+        dims,
+        bbox,
+        seeds,
+    } = prepare(obs, sigma_m, height_m, init, cfg, 1)?;
     let mut iterations = 0;
     let mut last_err = SolveError::NoConvergence {
         iterations: 0,
         last_step_m: f64::INFINITY,
     };
     for (seed_pos, seed) in seeds {
-        match attempt(obs, &sigmas, dims, seed_pos, (lo, hi), cfg) {
+        match attempt(obs, &sigmas, dims, seed_pos, bbox, cfg) {
             Ok((pos, w, it)) => {
                 iterations += it;
                 match covariance(obs, &sigmas, &w, pos, dims, cfg) {
@@ -236,33 +217,18 @@ pub fn solve_ranges_with_offset(
     init: Option<[f64; 3]>,
     cfg: &SolverConfig,
 ) -> Result<OffsetFix, SolveError> {
-    cfg.validate()?;
-    let sigmas = check_input(obs, sigma_m, height_m, init, cfg)?;
-    let dims = if height_m.is_some() { 2 } else { 3 };
-    let anchors = distinct_anchors(obs)?;
-    let required = dims + 2;
-    if anchors.len() < required {
-        return Err(SolveError::TooFewAnchors {
-            count: anchors.len(),
-            required,
-        });
-    }
-    spread_check(&anchors, dims, cfg)?;
-    let bbox = bounding_box(&anchors);
-    let mut seeds: Vec<[f64; 3]> = Vec::with_capacity(3);
-    seeds.extend(init.map(|p| with_height(p, height_m)));
-    seeds.extend(linear_seed(obs, height_m));
-    let n = anchors.len() as f64;
-    let centroid = anchors.iter().fold([0.0; 3], |c, a| {
-        [c[0] + a[0] / n, c[1] + a[1] / n, c[2] + a[2] / n]
-    });
-    seeds.push(with_height(centroid, height_m));
+    let Prepared {
+        sigmas,
+        dims,
+        bbox,
+        seeds,
+    } = prepare(obs, sigma_m, height_m, init, cfg, 2)?;
     let mut last_err = SolveError::NoConvergence {
         iterations: 0,
         last_step_m: f64::INFINITY,
     };
     let mut iterations = 0;
-    for seed in seeds {
+    for (seed, _) in seeds {
         match gauss_newton(obs, &sigmas, dims, seed, bbox, cfg, true) {
             Ok((pos_m, offset_m, offset_var_m2, it)) => {
                 return Ok(OffsetFix {
@@ -420,6 +386,53 @@ fn gauss_newton(
         return Err(singular(it));
     }
     Ok((p, b, var, it))
+}
+
+/// What both solves check and start from.
+struct Prepared {
+    sigmas: Vec<f64>,
+    dims: usize,
+    bbox: ([f64; 3], [f64; 3]),
+    seeds: Vec<([f64; 3], Seed)>,
+}
+
+/// The checks of a solve (settings, input, at least `extra` distinct
+/// anchors more than the position's unknowns, their spread) and its seeds
+/// in order: `init`, the linear seed, the anchor centroid.
+fn prepare(
+    obs: &[RangeObs],
+    sigma_m: Option<&[f64]>,
+    height_m: Option<f64>,
+    init: Option<[f64; 3]>,
+    cfg: &SolverConfig,
+    extra: usize,
+) -> Result<Prepared, SolveError> {
+    cfg.validate()?;
+    let sigmas = check_input(obs, sigma_m, height_m, init, cfg)?;
+    let dims = if height_m.is_some() { 2 } else { 3 };
+    let anchors = distinct_anchors(obs)?;
+    let required = dims + extra;
+    if anchors.len() < required {
+        return Err(SolveError::TooFewAnchors {
+            count: anchors.len(),
+            required,
+        });
+    }
+    spread_check(&anchors, dims, cfg)?;
+    let mut seeds: Vec<([f64; 3], Seed)> = Vec::with_capacity(3);
+    seeds.extend(init.map(|p| (with_height(p, height_m), Seed::Init)));
+    seeds.extend(linear_seed(obs, height_m).map(|p| (p, Seed::ClosedForm)));
+    let n = anchors.len() as f64;
+    let centroid = anchors.iter().fold([0.0; 3], |c, a| {
+        [c[0] + a[0] / n, c[1] + a[1] / n, c[2] + a[2] / n]
+    });
+    seeds.push((with_height(centroid, height_m), Seed::Centroid));
+    Ok(Prepared {
+        sigmas,
+        dims,
+        bbox: bounding_box(&anchors),
+        seeds,
+    })
 }
 
 fn with_height(p: [f64; 3], height_m: Option<f64>) -> [f64; 3] {
