@@ -59,7 +59,7 @@
 //! `cov[2][2] = fixed_height_sigma_m^2`). A `J^T J` whose condition number
 //! exceeds [`SolverConfig::max_condition_number`] is refused as degenerate.
 
-use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix2, Matrix3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::solve::{Fix, GeometryCheck, Seed, SolveError, SolverConfig, MAX_ANCHORS};
@@ -583,11 +583,10 @@ fn box_distance(p: &[f64; 3], (lo, hi): ([f64; 3], [f64; 3]), dims: usize) -> f6
 
 /// The linear least-squares seed (module doc, step 2); `None` when singular.
 fn linear_seed(obs: &[RangeObs], height_m: Option<f64>) -> Option<[f64; 3]> {
-    let n = obs.len();
-    if n < 3 {
+    if obs.len() < 3 {
         return None;
     }
-    let nf = n as f64;
+    let nf = obs.len() as f64;
     let mean_a = obs
         .iter()
         .fold(Vector3::zeros(), |m, o| m + Vector3::from(o.anchor_m) / nf);
@@ -597,25 +596,28 @@ fn linear_seed(obs: &[RangeObs], height_m: Option<f64>) -> Option<[f64; 3]> {
         .sum::<f64>()
         / nf;
     let mean_r2 = obs.iter().map(|o| o.range_m * o.range_m).sum::<f64>() / nf;
-    let dims = if height_m.is_some() { 2 } else { 3 };
-    let mut a = DMatrix::<f64>::zeros(n, dims);
-    let mut b = DVector::<f64>::zeros(n);
-    for (i, o) in obs.iter().enumerate() {
+    // Normal equations of the linear system, accumulated on the stack (no
+    // allocation per fix); in 2D the height is held.
+    let mut ata = Matrix3::<f64>::zeros();
+    let mut atb = Vector3::<f64>::zeros();
+    for o in obs {
         let ai = Vector3::from(o.anchor_m);
-        let d = ai - mean_a;
+        let mut row = 2.0 * (ai - mean_a);
         let mut rhs = ai.norm_squared() - mean_a2 - (o.range_m * o.range_m - mean_r2);
-        for j in 0..dims {
-            a[(i, j)] = 2.0 * d[j];
-        }
         if let Some(h) = height_m {
-            rhs -= 2.0 * d[2] * h;
+            rhs -= row[2] * h;
+            row[2] = 0.0;
         }
-        b[i] = rhs;
+        ata += row * row.transpose();
+        atb += rhs * row;
     }
-    let sol = a.svd(true, true).solve(&b, 1e-9).ok()?;
+    if height_m.is_some() {
+        ata[(2, 2)] = 1.0;
+    }
+    let sol = ata.cholesky()?.solve(&atb);
     let p = match height_m {
-        Some(h) => [*sol.get(0)?, *sol.get(1)?, h],
-        None => [*sol.get(0)?, *sol.get(1)?, *sol.get(2)?],
+        Some(h) => [sol[0], sol[1], h],
+        None => [sol[0], sol[1], sol[2]],
     };
     p.iter().all(|v| v.is_finite()).then_some(p)
 }
