@@ -9,7 +9,7 @@ use anyhow::{bail, Result};
 use insuwb_devices::emulator::{DeviceSink, Faults, PlayReport, Player, PtyEmulator, TcpEmulator};
 use insuwb_devices::Protocol;
 use insuwb_group::robot::{choose_start_epoch, RobotConfig};
-use insuwb_msg::{GroundTruth, StageRole};
+use insuwb_msg::{GroundTruth, StageRole, UwbKind};
 use insuwb_runtime::monotonic_ns;
 
 use crate::group_run::{run_group_with, GroupExtras, GroupReport, RunOptions};
@@ -26,7 +26,10 @@ pub struct DemoArgs {
     /// Print one JSON object on standard output.
     #[arg(long)]
     pub json: bool,
-    /// Feed the drivers through emulated devices: the IMU driver reads WitMotion frames from a pseudo-terminal, the UWB driver Eliko `$PEKIO` lines from a loopback TCP port, both played from the same scenario and seed.
+    /// What the simulated UWB system measures: tdoa (differences, scenario nlos-long) or twr (two-way ranges, scenario nlos-long-twr: the same run with one range per anchor).
+    #[arg(long, default_value_t = UwbKind::Tdoa)]
+    pub uwb: UwbKind,
+    /// Feed the drivers through emulated devices: the IMU driver reads WitMotion frames from a pseudo-terminal, the UWB driver Eliko `$PEKIO` lines from a loopback TCP port (with --uwb twr: DWM1001 `lec` range lines from a second pseudo-terminal), all played from the same scenario and seed.
     #[arg(long)]
     pub via_devices: bool,
     /// Run the Foxglove live view too (stage `foxglove`) and print its address: open it in the Foxglove app (Open connection, Foxglove WebSocket).
@@ -46,16 +49,24 @@ pub struct DemoArgs {
 /// The emulated devices of `insuwb demo --via-devices`, playing.
 struct DemoDevices {
     imu: Player<PtyEmulator>,
-    uwb: Player<TcpEmulator>,
+    uwb: UwbPlayer,
+}
+
+/// The emulated UWB system: an Eliko server (positions) or a DWM1001 tag
+/// on a pseudo-terminal (ranges).
+enum UwbPlayer {
+    Eliko(Player<TcpEmulator>),
+    Dwm1001(Player<PtyEmulator>),
 }
 
 impl DemoDevices {
     /// Stops both players and prints what they played.
     fn finish(self) {
-        for (name, report) in [
-            ("IMU (witmotion, pty)", self.imu.stop_and_join()),
-            ("UWB (eliko, tcp)", self.uwb.stop_and_join()),
-        ] {
+        let uwb = match self.uwb {
+            UwbPlayer::Eliko(p) => ("UWB (eliko, tcp)", p.stop_and_join()),
+            UwbPlayer::Dwm1001(p) => ("UWB (dwm1001, pty)", p.stop_and_join()),
+        };
+        for (name, report) in [("IMU (witmotion, pty)", self.imu.stop_and_join()), uwb] {
             match report {
                 Ok(r) => eprintln!("insuwb demo: {name}: {}", crate::emulate_cmd::summary(&r)),
                 Err(e) => eprintln!("insuwb demo: {name}: {e}"),
@@ -76,44 +87,80 @@ impl<S: DeviceSink> StopAndJoin for Player<S> {
     }
 }
 
-/// The `[sources]` and `[devices.*]` of the device demo, and its devices
-/// started: a WitMotion IMU on a pseudo-terminal (symlink `run_dir/imu`) and
-/// an Eliko server on a loopback port, both playing the demo scenario from
-/// `epoch`. Returns the config text, the devices, and the scenario's truth
-/// at CLOCK_MONOTONIC times.
+/// The `[sources]`, `[devices.*]` and `[uwb]` of the device demo, and its
+/// devices started: a WitMotion IMU on a pseudo-terminal (symlink
+/// `run_dir/imu`) and an Eliko server on a loopback port (`kind` tdoa) or a
+/// DWM1001 tag printing `lec` lines on a second pseudo-terminal (symlink
+/// `run_dir/uwb`, `kind` twr), both playing the demo scenario from `epoch`.
+/// Returns the config text, the devices, and the scenario's truth at
+/// CLOCK_MONOTONIC times.
 fn start_demo_devices(
     run_dir: &Path,
     epoch: u64,
+    kind: UwbKind,
 ) -> Result<(String, DemoDevices, Vec<GroundTruth>)> {
     use insuwb_devices::play::{self, Encoding};
     use insuwb_group::recording;
-    let rec = recording::from_scenario(DEMO_SCENARIO, DEMO_SEED)?;
+    let scenario = demo_scenario(kind);
+    let rec = recording::from_scenario(scenario, DEMO_SEED)?;
     let imu_enc = Encoding::new(Protocol::WitMotion);
-    let uwb_enc = Encoding {
-        tag: DEMO_TAG,
-        ..Encoding::new(Protocol::Eliko)
-    };
     let imu_chunks = play::imu_chunks(&rec.imu, &imu_enc)?;
-    let uwb_chunks = play::uwb_chunks(&rec.fixes, &uwb_enc)?;
     let link = run_dir.join("imu");
     let pty = crate::emulate_cmd::open_pty(Some(&link))?;
-    let tcp = crate::emulate_cmd::start_eliko(0)?;
-    let port = tcp.port();
+    let (uwb_text, uwb_note, uwb) = match kind {
+        UwbKind::Tdoa => {
+            let uwb_enc = Encoding {
+                tag: DEMO_TAG,
+                ..Encoding::new(Protocol::Eliko)
+            };
+            let chunks = play::uwb_chunks(&rec.fixes, &uwb_enc)?;
+            let tcp = crate::emulate_cmd::start_eliko(0)?;
+            let port = tcp.port();
+            let n = chunks.len();
+            (
+                format!(
+                    "[devices.uwb]\nsource = \"tcp:127.0.0.1:{port}\"\nprotocol = \"eliko\"\ntag_id = {DEMO_TAG}\n"
+                ),
+                format!("Eliko server on tcp:127.0.0.1:{port} ({n} COORD lines)"),
+                UwbPlayer::Eliko(Player::start(tcp, chunks, epoch, monotonic_ns, Faults::none())?),
+            )
+        }
+        UwbKind::Twr => {
+            let sim = insuwb_fusion::scenario::ScenarioFile::load(scenario)?.simulate(DEMO_SEED)?;
+            let uwb_enc = Encoding::new(Protocol::Dwm1001);
+            let chunks = play::range_chunks(&sim.range, &uwb_enc)?;
+            let uwb_link = run_dir.join("uwb");
+            let uwb_pty = crate::emulate_cmd::open_pty(Some(&uwb_link))?;
+            let n = chunks.len();
+            (
+                format!(
+                    "[devices.uwb]\nsource = \"serial:{}\"\nprotocol = \"dwm1001\"\nbaud = {}\n[uwb]\nkind = \"twr\"\n",
+                    uwb_link.display(),
+                    uwb_enc.baud
+                ),
+                format!("DWM1001 tag on serial:{} ({n} lec lines)", uwb_link.display()),
+                UwbPlayer::Dwm1001(Player::start(
+                    uwb_pty,
+                    chunks,
+                    epoch,
+                    monotonic_ns,
+                    Faults::none(),
+                )?),
+            )
+        }
+    };
     let text = format!(
-        "[sources]\nimu = \"device\"\nuwb = \"device\"\nscenario = \"{DEMO_SCENARIO}\"\nseed = {DEMO_SEED}\n\
-         [devices.imu]\nsource = \"serial:{}\"\nprotocol = \"witmotion\"\nbaud = {}\n\
-         [devices.uwb]\nsource = \"tcp:127.0.0.1:{port}\"\nprotocol = \"eliko\"\ntag_id = {DEMO_TAG}\n",
+        "[sources]\nimu = \"device\"\nuwb = \"device\"\nscenario = \"{scenario}\"\nseed = {DEMO_SEED}\n\
+         [devices.imu]\nsource = \"serial:{}\"\nprotocol = \"witmotion\"\nbaud = {}\n{uwb_text}",
         link.display(),
         imu_enc.baud,
     );
     eprintln!(
-        "insuwb demo: devices: WitMotion IMU on serial:{} ({} cycles), Eliko server on tcp:127.0.0.1:{port} ({} COORD lines)",
+        "insuwb demo: devices: WitMotion IMU on serial:{} ({} cycles), {uwb_note}",
         link.display(),
         imu_chunks.len(),
-        uwb_chunks.len()
     );
     let imu = Player::start(pty, imu_chunks, epoch, monotonic_ns, Faults::none())?;
-    let uwb = Player::start(tcp, uwb_chunks, epoch, monotonic_ns, Faults::none())?;
     let truth = rec
         .truth
         .iter()
@@ -126,8 +173,14 @@ fn start_demo_devices(
     Ok((text, DemoDevices { imu, uwb }, truth))
 }
 
-/// The demo's scenario and seed (the plain and the device demo alike).
-const DEMO_SCENARIO: &str = "nlos-long";
+/// The demo's scenario of UWB `kind` (the plain and the device demo alike).
+const fn demo_scenario(kind: UwbKind) -> &'static str {
+    match kind {
+        UwbKind::Tdoa => "nlos-long",
+        UwbKind::Twr => "nlos-long-twr",
+    }
+}
+/// The demo's seed.
 const DEMO_SEED: u64 = 1;
 /// The Eliko tag id of the device demo.
 const DEMO_TAG: u32 = 1;
@@ -146,8 +199,8 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
         insuwb_fleet::keys::check_robot_id(&a.robot)
             .map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
     }
-    if a.via_devices && a.filter == insuwb_msg::FilterKind::IakfTdoa {
-        bail!("--via-devices needs a loosely coupled filter (kf, shaf, stf, iakf): the devices report positions, not TDOA");
+    if a.via_devices && a.uwb == UwbKind::Tdoa && a.filter == insuwb_msg::FilterKind::IakfTdoa {
+        bail!("--via-devices needs a loosely coupled filter (kf, shaf, stf, iakf) or --uwb twr: the Eliko server reports positions, not TDOA");
     }
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
     let run_dir = std::env::temp_dir().join(format!("insuwb-demo-{id}"));
@@ -186,14 +239,16 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
     let mut extras = GroupExtras::default();
     let (sources, devices) = if a.via_devices {
         let epoch = choose_start_epoch(monotonic_ns() + 500_000_000);
-        let (text, devices, truth) = start_demo_devices(run_dir, epoch)?;
+        let (text, devices, truth) = start_demo_devices(run_dir, epoch, a.uwb)?;
         extras.start_epoch_ns = Some(epoch);
         extras.truth = truth;
         (text, Some(devices))
     } else {
         (
             format!(
-                "[sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{DEMO_SCENARIO}\"\nseed = {DEMO_SEED}\nspeed = 1.0\n"
+                "[sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{}\"\nseed = {DEMO_SEED}\nspeed = 1.0\n[uwb]\nkind = \"{}\"\n",
+                demo_scenario(a.uwb),
+                a.uwb
             ),
             None,
         )
@@ -245,8 +300,9 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
         .and_then(|()| Ok(RobotConfig::load(&cfg_path)?))
         .and_then(|cfg| {
             eprintln!(
-                "insuwb demo: {} stages on the simulated scenario {DEMO_SCENARIO}{} for {} s (run directory {})",
+                "insuwb demo: {} stages on the simulated scenario {}{} for {} s (run directory {})",
                 cfg.stages.len(),
+                demo_scenario(a.uwb),
                 if a.via_devices { " through emulated devices" } else { "" },
                 a.duration,
                 run_dir.display()

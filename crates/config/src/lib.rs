@@ -217,6 +217,7 @@ pub const SCENARIOS: &[Builtin] = &[
         "config/scenarios/paper-4.4-dynamic.toml"
     ),
     builtin_file!("nlos-long", "config/scenarios/nlos-long.toml"),
+    builtin_file!("nlos-long-twr", "config/scenarios/nlos-long-twr.toml"),
     builtin_file!("ground-outage", "config/scenarios/ground-outage.toml"),
     builtin_file!("twr-3.4", "config/scenarios/twr-3.4.toml"),
 ];

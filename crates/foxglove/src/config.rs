@@ -24,9 +24,20 @@ pub const DEFAULT_BIND: &str = "127.0.0.1:8765";
 
 /// The topics of the live view, under [`FoxgloveConfig::topic_prefix`]
 /// (`truth` and `error` only for a source with ground truth, `body_vel`
-/// from the first body velocity on).
-pub const TOPICS: [&str; 11] = [
-    "pose", "tf", "path", "uwb_fix", "truth", "error", "anchors", "robot", "diag", "body_vel",
+/// from the first body velocity on, `uwb_range` from the first UWB
+/// two-way range on).
+pub const TOPICS: [&str; 12] = [
+    "pose",
+    "tf",
+    "path",
+    "uwb_fix",
+    "truth",
+    "error",
+    "anchors",
+    "robot",
+    "diag",
+    "body_vel",
+    "uwb_range",
     "health",
 ];
 

@@ -13,9 +13,10 @@
 //! - Quaternions: insuwb's `[w, x, y, z]` becomes Foxglove's `x, y, z, w`,
 //!   normalised.
 //! - `diag`, the position error against ground truth, body velocities
-//!   (odometry, optical flow) and stage health are JSON messages with a
-//!   JSON schema ([`DIAG_SCHEMA`], [`ERROR_SCHEMA`], [`BODY_VEL_SCHEMA`],
-//!   [`HEALTH_SCHEMA`]): every number is a plottable field.
+//!   (odometry, optical flow), UWB two-way ranges and stage health are
+//!   JSON messages with a JSON schema ([`DIAG_SCHEMA`], [`ERROR_SCHEMA`],
+//!   [`BODY_VEL_SCHEMA`], [`UWB_RANGE_SCHEMA`], [`HEALTH_SCHEMA`]): every
+//!   number is a plottable field.
 //!
 //! ```
 //! use insuwb_foxglove::convert::fused_pose;
@@ -35,10 +36,10 @@ use foxglove::messages::{
     PosesInFrame, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
     Vector3,
 };
-use insuwb_msg::check::{velocity_values, InvalidVelocity};
+use insuwb_msg::check::{range_values, velocity_values, InvalidRange, InvalidVelocity};
 use insuwb_msg::{
     name_str, BodyVelocity, FilterDiag, FilterKind, FusedState, GroundTruth, Health, StageCounters,
-    UwbFix,
+    UwbFix, UwbRange,
 };
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::StageCondition;
@@ -63,12 +64,17 @@ pub enum ConvertError {
     /// range, an unknown source).
     #[error("ConvertError::Velocity: {0}")]
     Velocity(#[from] InvalidVelocity),
+    /// A UWB range that cannot be a measurement (`insuwb_msg::check`'s
+    /// value check: a non-finite range or anchor position, a range out of
+    /// range, a quality above 100).
+    #[error("ConvertError::Range: {0}")]
+    Range(#[from] InvalidRange),
 }
 
 /// One UWB anchor on the map.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Anchor {
-    /// Its id (`UwbTdoa::anchor_a` / `anchor_b`).
+    /// Its id (`UwbTdoa::anchor_a` / `anchor_b`, `UwbRange::anchor`).
     pub id: u32,
     /// Its surveyed position, ENU, m.
     pub pos_m: [f64; 3],
@@ -547,6 +553,58 @@ pub fn body_velocity_json(
         source: velocity_source_name(v.source),
         vel_mps: [axis(0), axis(1), axis(2)],
         sigma_mps: v.sigma_mps,
+    })
+}
+
+/// One UWB two-way range (topic `uwb_range`; schema [`UWB_RANGE_SCHEMA`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct UwbRangeJson {
+    /// The measurement's time.
+    pub timestamp: JsonTime,
+    /// The anchor's id.
+    pub anchor: u32,
+    /// Distance from the tag to the anchor, m.
+    pub range_m: f64,
+    /// The device's quality figure, 0-100; `null` when it gives none.
+    pub quality: Option<u32>,
+    /// The tag's common range offset (antenna delay) has been removed.
+    pub offset_removed: bool,
+    /// The anchor's surveyed position, ENU in `frame_id`, m.
+    pub anchor_pos_m: [f64; 3],
+}
+
+/// The JSON schema of [`UwbRangeJson`].
+pub const UWB_RANGE_SCHEMA: &str = r#"{
+  "title": "insuwb.UwbRange",
+  "description": "One UWB two-way range from the tag to an anchor",
+  "type": "object",
+  "properties": {
+    "timestamp": {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}}},
+    "anchor": {"type": "integer", "description": "the anchor's id"},
+    "range_m": {"type": "number", "description": "distance from the tag to the anchor, m"},
+    "quality": {"type": ["integer", "null"], "description": "the device's quality, 0-100; null: none given"},
+    "offset_removed": {"type": "boolean", "description": "the tag's range offset (antenna delay) removed"},
+    "anchor_pos_m": {"type": "array", "items": {"type": "number"}, "description": "the anchor's position, ENU, m"}
+  }
+}"#;
+
+/// A UWB range as [`UwbRangeJson`], after the value check the gates use
+/// ([`range_values`]).
+///
+/// # Errors
+/// [`ConvertError::Range`] for values that cannot be a measurement,
+/// [`ConvertError::Sample`] for a stamp out of range.
+pub fn uwb_range_json(r: &UwbRange, clock: &ClockOffset) -> Result<UwbRangeJson, ConvertError> {
+    range_values(r)?;
+    let t = stamp_ns(r.header.meas_time_ns, clock)?;
+    let flags = r.header.flags;
+    Ok(UwbRangeJson {
+        timestamp: timestamp(t).into(),
+        anchor: r.anchor,
+        range_m: r.range_m,
+        quality: (flags & UwbRange::FLAG_QUALITY != 0).then_some(r.quality),
+        offset_removed: flags & UwbRange::FLAG_OFFSET_REMOVED != 0,
+        anchor_pos_m: r.anchor_pos_m,
     })
 }
 
@@ -1086,6 +1144,70 @@ mod tests {
             "ConvertError::Velocity: body velocity source 7 is unknown"
         );
         assert_eq!(velocity_source_name(7), "unknown");
+    }
+
+    #[test]
+    fn a_uwb_range_shows_its_anchor_range_and_flags() {
+        let mut r = UwbRange {
+            header: Header::new(9, 3_125_000_000),
+            anchor: 4,
+            quality: 87,
+            range_m: 5.25,
+            anchor_pos_m: [1.0, -2.0, 2.5],
+        };
+        r.header.flags = UwbRange::FLAG_QUALITY | UwbRange::FLAG_OFFSET_REMOVED;
+        let clock = ClockOffset { offset_ns: 1_000 };
+        let j = uwb_range_json(&r, &clock).unwrap();
+        assert_eq!((j.timestamp.sec, j.timestamp.nsec), (3, 125_001_000));
+        assert_eq!((j.anchor, j.range_m, j.quality), (4, 5.25, Some(87)));
+        assert!(j.offset_removed);
+        assert_eq!(j.anchor_pos_m, [1.0, -2.0, 2.5]);
+        let json = serde_json::to_value(j).unwrap();
+        assert_eq!(json["quality"], 87);
+        assert_eq!(json["anchor_pos_m"][2], 2.5);
+        assert_schema_covers(UWB_RANGE_SCHEMA, &json);
+        // Without the flag the quality field means nothing: null.
+        r.header.flags = UwbRange::FLAG_EPOCH_END;
+        r.quality = 0;
+        let j = uwb_range_json(&r, &clock).unwrap();
+        assert_eq!((j.quality, j.offset_removed), (None, false));
+        let json = serde_json::to_value(j).unwrap();
+        assert!(json["quality"].is_null(), "{json}");
+        assert_schema_covers(UWB_RANGE_SCHEMA, &json);
+        // The gates' value check: refused with its reason.
+        r.range_m = f64::NAN;
+        assert!(matches!(
+            uwb_range_json(&r, &clock),
+            Err(ConvertError::Range(InvalidRange::NonFinite {
+                field: "range_m",
+                ..
+            }))
+        ));
+        r.range_m = 5.25;
+        r.anchor_pos_m[1] = f64::INFINITY;
+        let e = uwb_range_json(&r, &clock).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("ConvertError::Range: range anchor_pos_m is not finite"),
+            "{e}"
+        );
+        r.anchor_pos_m[1] = -2.0;
+        r.range_m = -0.5;
+        assert!(matches!(
+            uwb_range_json(&r, &clock),
+            Err(ConvertError::Range(InvalidRange::OutOfRange {
+                anchor: 4,
+                ..
+            }))
+        ));
+        r.range_m = 5.25;
+        let before = ClockOffset {
+            offset_ns: -4_000_000_000,
+        };
+        assert!(matches!(
+            uwb_range_json(&r, &before),
+            Err(ConvertError::Sample(SampleError::StampOutOfRange(_)))
+        ));
     }
 
     #[test]

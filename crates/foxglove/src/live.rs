@@ -1,7 +1,7 @@
 //! The live-view loop: subscribes to `fused`, `uwb_fix`, `uwb_tdoa`,
-//! `diag`, `truth`, `body_vel` and `health` over iceoryx2 and serves them to the
-//! Foxglove app over the Foxglove WebSocket protocol (the `foxglove` SDK's
-//! server, subprotocol `foxglove.sdk.v1`):
+//! `uwb_range`, `diag`, `truth`, `body_vel` and `health` over iceoryx2 and
+//! serves them to the Foxglove app over the Foxglove WebSocket protocol
+//! (the `foxglove` SDK's server, subprotocol `foxglove.sdk.v1`):
 //!
 //! | topic (prefix `/insuwb`) | schema | encoding | from |
 //! |---|---|---|---|
@@ -15,17 +15,19 @@
 //! | `/robot` | `foxglove.SceneUpdate` | protobuf | the robot's model in `base_link`, each health period |
 //! | `/diag` | `insuwb.FilterDiag` | json | each filter update: innovations, outlier weights, fading |
 //! | `/body_vel` | `insuwb.BodyVelocity` | json | each body velocity (odometry, optical flow) in `base_link`, once one came |
+//! | `/uwb_range` | `insuwb.UwbRange` | json | each UWB two-way range: anchor, range, quality, offset removed, anchor position; once one came |
 //! | `/health` | `insuwb.GroupHealth` | json | each health period: one entry per stage |
 //!
 //! The anchors are the configured ones ([`LiveSetup::anchors`]) and any
-//! other a TDOA sample names. The channels of truth and error exist where
-//! the source publishes truth ([`LiveSetup::truth`]): every channel is
-//! made before the server starts, so that each client gets them all in its
-//! first advertisement. The one exception is `body_vel`: no setting says
-//! whether a velocity source publishes, so its channel is made (and
-//! advertised to the clients connected then) at the first body velocity,
-//! and a group without one shows no empty channel. Timestamps and log
-//! times: see [`crate::convert`].
+//! other a TDOA sample or a range names. The channels of truth and error
+//! exist where the source publishes truth ([`LiveSetup::truth`]): every
+//! channel is made before the server starts, so that each client gets them
+//! all in its first advertisement. The exceptions are `body_vel` and
+//! `uwb_range`: no setting says whether a velocity source or a two-way
+//! ranging tag publishes, so each channel is made (and advertised to the
+//! clients connected then) at its first sample, and a group without one
+//! shows no empty channel. Timestamps and log times: see
+//! [`crate::convert`].
 //!
 //! The loop ([`insuwb_report::report_loop`], the ROS 2 bridge's) sleeps in
 //! the stage's `Waiter`: it wakes for each fused state, drains every other
@@ -50,7 +52,7 @@ use foxglove::messages::{FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate}
 use foxglove::{Channel, Context, PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
 use insuwb_msg::{
     topics, BodyVelocity, FilterDiag, FoxgloveCounters, FusedState, GroundTruth, Health,
-    StageCounters, UwbFix, UwbTdoa,
+    StageCounters, UwbFix, UwbRange, UwbTdoa,
 };
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, RuntimeConfig, Stage, StageError, Sub,
@@ -135,6 +137,8 @@ pub struct LiveStats {
     pub diags: u64,
     /// Body velocities.
     pub velocities: u64,
+    /// UWB two-way ranges.
+    pub ranges: u64,
     /// Health messages.
     pub health: u64,
     /// Samples no conversion accepted.
@@ -166,6 +170,7 @@ struct Inputs {
     fused: Sub<FusedState>,
     fix: Sub<UwbFix>,
     tdoa: Sub<UwbTdoa>,
+    range: Sub<UwbRange>,
     diag: Sub<FilterDiag>,
     truth: Sub<GroundTruth>,
     body_vel: Sub<BodyVelocity>,
@@ -175,7 +180,32 @@ struct Inputs {
 /// A channel of JSON messages with a JSON schema.
 struct JsonChannel(Arc<RawChannel>);
 
-/// A channel made at its first message (`body_vel`).
+/// What a [`LazyChannel`] is made as.
+struct LazySpec {
+    /// The topic, without the prefix (one of [`TOPICS`]).
+    topic: &'static str,
+    /// The JSON schema's name and text.
+    schema_name: &'static str,
+    schema: &'static str,
+    /// What its messages are, for the warning when making it fails.
+    what: &'static str,
+}
+
+const BODY_VEL_CHANNEL: LazySpec = LazySpec {
+    topic: "body_vel",
+    schema_name: "insuwb.BodyVelocity",
+    schema: convert::BODY_VEL_SCHEMA,
+    what: "body velocities",
+};
+
+const UWB_RANGE_CHANNEL: LazySpec = LazySpec {
+    topic: "uwb_range",
+    schema_name: "insuwb.UwbRange",
+    schema: convert::UWB_RANGE_SCHEMA,
+    what: "UWB ranges",
+};
+
+/// A channel made at its first message (`body_vel`, `uwb_range`).
 enum LazyChannel {
     /// No message yet.
     NotYet,
@@ -209,6 +239,8 @@ struct Outputs {
     health: JsonChannel,
     /// Body velocities, from the first one on.
     body_vel: LazyChannel,
+    /// UWB two-way ranges, from the first one on.
+    uwb_range: LazyChannel,
     /// Truth and position error, where the source has truth.
     truth: Option<(Channel<PoseInFrame>, JsonChannel)>,
     // Dropped in order: the server before its runtime.
@@ -270,6 +302,7 @@ impl LiveView {
             fused: stage.subscriber::<FusedState>(topics::FUSED)?,
             fix: stage.subscriber::<UwbFix>(topics::UWB_FIX)?,
             tdoa: stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?,
+            range: stage.subscriber::<UwbRange>(topics::UWB_RANGE)?,
             diag: stage.subscriber::<FilterDiag>(topics::DIAG)?,
             truth: stage.subscriber::<GroundTruth>(topics::TRUTH)?,
             body_vel: stage.subscriber::<BodyVelocity>(topics::BODY_VEL)?,
@@ -353,6 +386,7 @@ impl LiveView {
                 diag,
                 health: health_ch,
                 body_vel: LazyChannel::NotYet,
+                uwb_range: LazyChannel::NotYet,
                 truth,
                 server: Some(server),
                 runtime: Some(runtime),
@@ -480,6 +514,38 @@ impl ReportOutputs for Outputs {
                 changed |= note_anchor(anchors, Anchor { id, pos_m });
             }
         })?;
+        let Self {
+            stats,
+            uwb_range,
+            _ctx: ctx,
+            setup,
+            ..
+        } = self;
+        inputs.range.drain(|r| {
+            changed |= note_anchor(
+                anchors,
+                Anchor {
+                    id: r.anchor,
+                    pos_m: r.anchor_pos_m,
+                },
+            );
+            if r.header.pub_time_ns < opened_ns {
+                stats.old += 1;
+                return;
+            }
+            match convert::uwb_range_json(&r, clock) {
+                Ok(j) => {
+                    let t =
+                        u64::from(j.timestamp.sec) * 1_000_000_000 + u64::from(j.timestamp.nsec);
+                    if let Some(ch) = uwb_range.get(ctx, &setup.foxglove, &UWB_RANGE_CHANNEL) {
+                        if ch.log(&j, t) {
+                            stats.ranges += 1;
+                        }
+                    }
+                }
+                Err(e) => invalid(stats, "UWB range", r.header.seq, &e),
+            }
+        })?;
         self.anchors_changed |= changed;
         let Self {
             stats,
@@ -498,7 +564,7 @@ impl ReportOutputs for Outputs {
                 Ok(j) => {
                     let t =
                         u64::from(j.timestamp.sec) * 1_000_000_000 + u64::from(j.timestamp.nsec);
-                    if let Some(ch) = body_vel.get(ctx, &setup.foxglove) {
+                    if let Some(ch) = body_vel.get(ctx, &setup.foxglove, &BODY_VEL_CHANNEL) {
                         if ch.log(&j, t) {
                             stats.velocities += 1;
                         }
@@ -549,6 +615,7 @@ impl ReportOutputs for Outputs {
             inputs.fused.stats(),
             inputs.fix.stats(),
             inputs.tdoa.stats(),
+            inputs.range.stats(),
             inputs.diag.stats(),
             inputs.truth.stats(),
             inputs.body_vel.stats(),
@@ -557,7 +624,8 @@ impl ReportOutputs for Outputs {
             c.add_sub(&st);
         }
         let s = &self.stats;
-        c.published = s.poses + s.fixes + s.truth + s.errors + s.diags + s.velocities + s.health;
+        c.published =
+            s.poses + s.fixes + s.truth + s.errors + s.diags + s.velocities + s.ranges + s.health;
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
         let clients = self.server.as_ref().map_or(0, |h| h.client_count());
@@ -572,21 +640,24 @@ impl ReportOutputs for Outputs {
 }
 
 impl LazyChannel {
-    /// The channel, made now if this is its first message; `None` when
-    /// making it failed (said once, as a warning).
-    fn get(&mut self, ctx: &Arc<Context>, c: &FoxgloveConfig) -> Option<&JsonChannel> {
+    /// The channel, made as `spec` says now if this is its first message;
+    /// `None` when making it failed (said once, as a warning).
+    fn get(
+        &mut self,
+        ctx: &Arc<Context>,
+        c: &FoxgloveConfig,
+        spec: &LazySpec,
+    ) -> Option<&JsonChannel> {
         if matches!(self, Self::NotYet) {
-            let topic = "body_vel";
-            debug_assert!(TOPICS.contains(&topic), "{topic} missing in TOPICS");
-            *self = match json_channel(
-                ctx,
-                c.topic(topic),
-                "insuwb.BodyVelocity",
-                convert::BODY_VEL_SCHEMA,
-            ) {
+            debug_assert!(
+                TOPICS.contains(&spec.topic),
+                "{} missing in TOPICS",
+                spec.topic
+            );
+            *self = match json_channel(ctx, c.topic(spec.topic), spec.schema_name, spec.schema) {
                 Ok(ch) => Self::Open(ch),
                 Err(e) => {
-                    tracing::warn!("body velocities not shown: {e}");
+                    tracing::warn!("{} not shown: {e}", spec.what);
                     Self::Failed
                 }
             };
@@ -718,6 +789,9 @@ fn invalid(stats: &mut LiveStats, what: &str, seq: u64, e: &ConvertError) {
     stats.invalid += 1;
     tracing::debug!("{what} {seq} not shown: {e}");
 }
+
+#[cfg(test)]
+mod websocket_tests;
 
 #[cfg(test)]
 mod tests {

@@ -23,7 +23,7 @@ use std::path::{Component, Path, PathBuf};
 use insuwb_config::{invalid, ConfigError};
 use insuwb_fusion::config::FusionConfig;
 use insuwb_launch::RestartPolicy;
-use insuwb_msg::{FilterKind, StageRole};
+use insuwb_msg::{FilterKind, StageRole, UwbKind};
 use insuwb_runtime::realtime::RealtimeConfig;
 use serde::{Deserialize, Serialize};
 
@@ -246,10 +246,20 @@ impl Default for FusionProcessConfig {
     }
 }
 
+/// The log header entry naming what the log's UWB measurements are
+/// ([`UwbKind::name`]), written by the logger and `insuwb import`.
+pub const LOG_UWB_KIND: &str = "uwb_kind";
+
 /// UWB driver settings (`[uwb]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct UwbStageConfig {
+    /// What the robot's UWB system measures: `tdoa` (differences between
+    /// anchor pairs, on `uwb_tdoa`, or a device's own positions) or `twr`
+    /// (two-way ranges to each anchor, on `uwb_range`). The source must
+    /// agree: the scenario's `[sim.uwb] kind`, a replayed log's `uwb_kind`,
+    /// a device protocol that reports ranges.
+    pub kind: UwbKind,
     /// A site calibration of the TDOA differences (`insuwb calibrate`),
     /// relative to the robot config's folder; empty: none. The UWB driver
     /// corrects every difference with it before the fixes and publishes
@@ -309,6 +319,11 @@ pub struct DeviceConfig {
     pub lever_arm_m: [f64; 3],
     /// UWB: standard deviation of a position fix the device reports, m.
     pub position_sigma_m: f64,
+    /// UWB two-way ranging: the surveyed anchors (`[[devices.uwb.anchors]]`
+    /// `id = 0x1A2B`, `pos_m = [x, y, z]`), ENU, m. A configured position
+    /// wins over one the device reports (DWM1001 `lec`); a range to an
+    /// anchor whose position neither gives is dropped and counted.
+    pub anchors: Vec<AnchorConfig>,
     /// No valid frame within this many bytes read: the baud rate (or the
     /// protocol) is wrong, and the error says so.
     pub wrong_baud_bytes: u64,
@@ -328,11 +343,23 @@ impl Default for DeviceConfig {
             rotation_deg: [0.0; 3],
             lever_arm_m: [0.0; 3],
             position_sigma_m: 0.1,
+            anchors: Vec::new(),
             wrong_baud_bytes: 4096,
             reconnect_initial_ms: 50,
             reconnect_max_ms: 500,
         }
     }
+}
+
+/// One surveyed UWB anchor of a ranging device (`[[devices.uwb.anchors]]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AnchorConfig {
+    /// The anchor's id as the device reports it (DWM1001: its 16-bit short
+    /// address; NLink: its index 0-7).
+    pub id: u32,
+    /// Its position, ENU, m.
+    pub pos_m: [f64; 3],
 }
 
 /// The device sources (`[devices]`).
@@ -454,7 +481,82 @@ impl RobotConfig {
         check_launch(&self.launch, origin)?;
         self.check_bridges(base, origin)?;
         self.logger.check_segments(origin)?;
-        self.sources.check_scenario(origin)
+        self.sources.check_scenario(origin)?;
+        self.check_uwb_kind(origin)
+    }
+
+    /// `[uwb] kind` agrees with the UWB source: the scenario's `[sim.uwb]
+    /// kind`, a replayed log's header entry `uwb_kind` (a log without one
+    /// is not checked), a device protocol that reports what it names; a
+    /// site calibration (of TDOA differences) only with `tdoa`.
+    fn check_uwb_kind(&self, origin: &str) -> Result<(), ConfigError> {
+        let kind = self.uwb.kind;
+        let other = match kind {
+            UwbKind::Tdoa => UwbKind::Twr,
+            UwbKind::Twr => UwbKind::Tdoa,
+        };
+        let mismatch = |what: String| {
+            Err(invalid(
+                origin,
+                "uwb.kind",
+                format!("is \"{kind}\", but {what}: set [uwb] kind = \"{other}\""),
+            ))
+        };
+        match &self.sources.uwb {
+            Source::Sim => {
+                let sc = ScenarioFile::load(&self.sources.scenario)
+                    .map_err(|e| invalid(origin, "sources.scenario", e.to_string()))?;
+                if sc.sim.uwb.kind != kind {
+                    return mismatch(format!(
+                        "scenario '{}' simulates [sim.uwb] kind = \"{}\"",
+                        self.sources.scenario, sc.sim.uwb.kind
+                    ));
+                }
+            }
+            Source::Replay(file) => {
+                let header = insuwb_log::read_header_file(file).map_err(|e| {
+                    invalid(origin, "sources.uwb", format!("{}: {e}", file.display()))
+                })?;
+                if let Some(k) = header.meta.entries.get(LOG_UWB_KIND) {
+                    if k != kind.name() {
+                        return mismatch(format!(
+                            "the log {} holds uwb_kind = \"{k}\"",
+                            file.display()
+                        ));
+                    }
+                }
+            }
+            Source::Device => {
+                if let Some(d) = &self.devices.uwb {
+                    let ok = match d.protocol.as_str() {
+                        "dwm1001" => kind == UwbKind::Twr,
+                        "eliko" => kind == UwbKind::Tdoa,
+                        _ => true,
+                    };
+                    if !ok {
+                        return mismatch(format!(
+                            "[devices.uwb] protocol = \"{}\" reports {}",
+                            d.protocol,
+                            if kind == UwbKind::Twr {
+                                "positions, not ranges"
+                            } else {
+                                "ranges"
+                            }
+                        ));
+                    }
+                }
+            }
+            Source::Ros2 { .. } => {}
+        }
+        if kind == UwbKind::Twr && !self.uwb.calibration.is_empty() {
+            return Err(invalid(
+                origin,
+                "uwb.calibration",
+                "a site calibration corrects TDOA differences; [uwb] kind = \"twr\" has none"
+                    .to_owned(),
+            ));
+        }
+        Ok(())
     }
 
     /// The `[ros2]`, `[foxglove]` and `[zenoh]` tables, each as its bridge
@@ -672,22 +774,24 @@ fn resolve_source(
 impl DevicesConfig {
     /// Each table present, and one for each driver whose source is `device`.
     fn check(&self, sources: &SourcesConfig, origin: &str) -> Result<(), ConfigError> {
+        let imu_protocols: &[&str] = &["witmotion", "mavlink"];
+        let uwb_protocols: &[&str] = &["nlink", "eliko", "dwm1001"];
         for (name, wanted, dev, protocols) in [
             (
                 "imu",
                 sources.imu == Source::Device,
                 &self.imu,
-                ["witmotion", "mavlink"],
+                imu_protocols,
             ),
             (
                 "uwb",
                 sources.uwb == Source::Device,
                 &self.uwb,
-                ["nlink", "eliko"],
+                uwb_protocols,
             ),
         ] {
             match dev {
-                Some(d) => d.check(name, &protocols, origin)?,
+                Some(d) => d.check(name, protocols, origin)?,
                 None if wanted => {
                     return Err(invalid(
                         origin,
@@ -746,6 +850,20 @@ impl DeviceConfig {
                 &table,
                 "rotation_deg and lever_arm_m must be finite".to_owned(),
             );
+        }
+        for (i, a) in self.anchors.iter().enumerate() {
+            if a.pos_m.iter().any(|v| !v.is_finite()) {
+                return bad(
+                    &format!("{table}.anchors[{i}].pos_m"),
+                    format!("anchor {} has a position that is not finite", a.id),
+                );
+            }
+            if self.anchors.iter().take(i).any(|b| b.id == a.id) {
+                return bad(
+                    &format!("{table}.anchors[{i}].id"),
+                    format!("anchor {} is listed twice", a.id),
+                );
+            }
         }
         Ok(())
     }
@@ -946,6 +1064,65 @@ mod tests {
             "robot.toml",
             Path::new("/tmp"),
         )
+    }
+
+    /// `[uwb] kind` must agree with its source: the scenario, the device's
+    /// protocol; the error names the key and the fix.
+    #[test]
+    fn the_uwb_kind_agrees_with_its_source() {
+        let at = |text: &str| RobotConfig::from_str(text, "robot.toml", Path::new("/tmp"));
+        let sim = |scenario: &str, kind: &str| {
+            at(&format!(
+                "[sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{scenario}\"\n[uwb]\nkind = \"{kind}\"\n"
+            ))
+        };
+        assert_eq!(sim("nlos-long", "tdoa").unwrap().uwb.kind, UwbKind::Tdoa);
+        assert_eq!(sim("nlos-long-twr", "twr").unwrap().uwb.kind, UwbKind::Twr);
+        let e = sim("nlos-long-twr", "tdoa").unwrap_err().to_string();
+        assert!(
+            e.contains("uwb.kind") && e.contains("nlos-long-twr") && e.contains("kind = \"twr\""),
+            "{e}"
+        );
+        let e = sim("nlos-long", "twr").unwrap_err().to_string();
+        assert!(
+            e.contains("uwb.kind") && e.contains("kind = \"tdoa\""),
+            "{e}"
+        );
+        let e = sim("nlos-long", "aoa").unwrap_err().to_string();
+        assert!(e.contains("aoa"), "{e}");
+        let device = |protocol: &str, kind: &str, anchors: &str| {
+            at(&format!(
+                "[sources]\nuwb = \"device\"\n[uwb]\nkind = \"{kind}\"\n[devices.uwb]\nsource = \"serial:/dev/ttyACM0\"\nprotocol = \"{protocol}\"\n{anchors}"
+            ))
+        };
+        let anchor = "[[devices.uwb.anchors]]\nid = 0x1A2B\npos_m = [1.0, 2.0, 3.0]\n";
+        let c = device("dwm1001", "twr", anchor).unwrap();
+        let d = c.devices.uwb.unwrap();
+        assert_eq!(
+            d.anchors,
+            [AnchorConfig {
+                id: 0x1A2B,
+                pos_m: [1.0, 2.0, 3.0]
+            }]
+        );
+        device("nlink", "twr", "").unwrap();
+        device("nlink", "tdoa", "").unwrap();
+        let e = device("dwm1001", "tdoa", "").unwrap_err().to_string();
+        assert!(e.contains("uwb.kind") && e.contains("dwm1001"), "{e}");
+        let e = device("eliko", "twr", "").unwrap_err().to_string();
+        assert!(e.contains("uwb.kind") && e.contains("eliko"), "{e}");
+        let e = device("dwm1001", "twr", &format!("{anchor}{anchor}"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("devices.uwb.anchors[1].id"), "{e}");
+        let e = device(
+            "dwm1001",
+            "twr",
+            "[[devices.uwb.anchors]]\nid = 1\npos_m = [1.0, nan, 3.0]\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("devices.uwb.anchors[0].pos_m"), "{e}");
     }
 
     /// Nothing is opened on the network by default: the ROS 2 bridge runs

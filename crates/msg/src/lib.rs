@@ -409,6 +409,40 @@ impl FilterKind {
     }
 }
 
+/// What a UWB system measures, one per robot (robot.toml `[uwb] kind`, a
+/// scenario's `[sim.uwb] kind`, a log's header entry `uwb_kind`): `tdoa` or
+/// `twr`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UwbKind {
+    /// Time differences of arrival between anchor pairs ([`UwbTdoa`] on
+    /// [`topics::UWB_TDOA`]).
+    #[default]
+    Tdoa,
+    /// Two-way ranging: one distance per anchor ([`UwbRange`] on
+    /// [`topics::UWB_RANGE`]).
+    Twr,
+}
+
+impl UwbKind {
+    /// Both kinds.
+    pub const ALL: [Self; 2] = [Self::Tdoa, Self::Twr];
+
+    /// Its name: `tdoa` or `twr`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Tdoa => "tdoa",
+            Self::Twr => "twr",
+        }
+    }
+}
+
+/// A name that is not one of [`UwbKind::ALL`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown UWB kind '{0}' (known: tdoa, twr)")]
+pub struct UnknownUwbKind(pub String);
+
 /// A name that is not one of [`FilterKind::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("unknown filter '{0}' (known: kf, shaf, stf, iakf, iakf_tdoa)")]
@@ -562,6 +596,7 @@ macro_rules! named_enum {
 
 named_enum!(FilterKind, UnknownFilterKind);
 named_enum!(StageRole, UnknownStageRole);
+named_enum!(UwbKind, UnknownUwbKind);
 
 /// Filter diagnostics after each update (topic [`topics::DIAG`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
@@ -707,6 +742,14 @@ mod name_tests {
         assert_eq!(
             e.to_string(),
             "unknown filter 'ekf' (known: kf, shaf, stf, iakf, iakf_tdoa)"
+        );
+        for k in UwbKind::ALL {
+            assert_eq!(k.name().parse::<UwbKind>(), Ok(k));
+            assert_eq!(k.to_string(), k.name());
+        }
+        assert_eq!(
+            "aoa".parse::<UwbKind>().unwrap_err().to_string(),
+            "unknown UWB kind 'aoa' (known: tdoa, twr)"
         );
         for r in StageRole::ALL {
             assert_eq!(r.name().parse::<StageRole>(), Ok(r));

@@ -50,7 +50,7 @@ pub fn for_topic(topic: &str) -> ServiceQos {
             subscriber_max_buffer_size: IMU_HISTORY,
             ..BASE
         },
-        topics::UWB_TDOA | topics::BODY_VEL => ServiceQos {
+        topics::UWB_TDOA | topics::UWB_RANGE | topics::BODY_VEL => ServiceQos {
             history_size: 1024,
             subscriber_max_buffer_size: 1024,
             ..BASE

@@ -54,7 +54,7 @@ pub use trajectory::{
 };
 
 /// The built-in scenarios: `(name, TOML text)`; the files live in `config/scenarios/`.
-const BUILTINS: [(&str, &str); 6] = [
+const BUILTINS: [(&str, &str); 7] = [
     (
         "paper-3.4",
         include_str!("../../../config/scenarios/paper-3.4.toml"),
@@ -72,6 +72,10 @@ const BUILTINS: [(&str, &str); 6] = [
         include_str!("../../../config/scenarios/nlos-long.toml"),
     ),
     (
+        "nlos-long-twr",
+        include_str!("../../../config/scenarios/nlos-long-twr.toml"),
+    ),
+    (
         "ground-outage",
         include_str!("../../../config/scenarios/ground-outage.toml"),
     ),
@@ -82,13 +86,14 @@ const BUILTINS: [(&str, &str); 6] = [
 ];
 
 /// Names of the built-in scenarios (the file names without `.toml`).
-const BUILTIN_NAMES: [&str; 6] = [
+const BUILTIN_NAMES: [&str; 7] = [
     BUILTINS[0].0,
     BUILTINS[1].0,
     BUILTINS[2].0,
     BUILTINS[3].0,
     BUILTINS[4].0,
     BUILTINS[5].0,
+    BUILTINS[6].0,
 ];
 
 /// The TOML text of a built-in scenario, by name (e.g. `"paper-3.4"`).

@@ -168,21 +168,7 @@ pub enum PairMode {
     Consecutive,
 }
 
-/// What the UWB system measures (`[sim.uwb] kind`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum UwbKind {
-    /// Time differences of arrival between anchor pairs ([`insuwb_msg::UwbTdoa`],
-    /// [`crate::SimOutput::tdoa`]): the pairs of `pairs`, the noise of
-    /// `tdoa_sigma_m` and `noise_model`.
-    #[default]
-    Tdoa,
-    /// Two-way ranging: one distance per anchor and epoch
-    /// ([`insuwb_msg::UwbRange`], [`crate::SimOutput::range`]), the noise of
-    /// `range_sigma_m`; `pairs`, `reference_id`, `tdoa_sigma_m` and
-    /// `noise_model` do not affect the ranges (they are still validated).
-    Twr,
-}
+pub use insuwb_msg::UwbKind;
 
 /// How the TDOA noise is generated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -14,7 +14,7 @@ use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
 use insuwb_fusion::output::{OutputPolicy, OutputPolicyConfig};
 use insuwb_msg::{
     topics, BodyVelocity, FilterDiag, FusedState, FusionCounters, HealthState, InsCorrection,
-    NavState, StageCounters, StageRole, UwbFix, UwbTdoa,
+    NavState, StageCounters, StageRole, UwbFix, UwbKind, UwbRange, UwbTdoa,
 };
 use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
@@ -158,11 +158,18 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     }
     let nav_sub = stage.subscriber::<NavState>(topics::NAV)?;
     let fix_sub = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
-    // Only a tightly coupled filter reads the TDOA differences: a loose one
-    // would be woken by every one of them just to drop it, on the CPUs the
-    // INS needs at a fix epoch.
-    let tdoa_sub = if tight {
+    // Only a tightly coupled filter reads the measurements of the robot's
+    // kind (TDOA differences or two-way ranges): a loose one would be woken
+    // by every one of them just to drop it, on the CPUs the INS needs at a
+    // fix epoch.
+    let ranging = cfg.uwb.kind == UwbKind::Twr;
+    let tdoa_sub = if tight && !ranging {
         Some(stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?)
+    } else {
+        None
+    };
+    let range_sub = if tight && ranging {
+        Some(stage.subscriber::<UwbRange>(topics::UWB_RANGE)?)
     } else {
         None
     };
@@ -181,6 +188,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     let nav_a = waiter.attach(&nav_sub)?;
     let fix_a = waiter.attach(&fix_sub)?;
     let tdoa_a = tdoa_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
+    let range_a = range_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
     let vel_a = vel_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
     let tick_period = Duration::from_secs_f64((0.5 / policy_cfg.coast_rate_hz).min(0.05));
     let tick = waiter.attach_interval(tick_period)?;
@@ -221,6 +229,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
         if f.contains(&nav_a)
             || f.contains(&fix_a)
             || tdoa_a.as_ref().is_some_and(|a| f.contains(a))
+            || range_a.as_ref().is_some_and(|a| f.contains(a))
             || vel_a.as_ref().is_some_and(|a| f.contains(a))
         {
             // The INS states are taken first and handed over last: a
@@ -248,6 +257,13 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
                 tdoa_sub.drain(|m| {
                     if fresh(m.header.pub_time_ns) {
                         engine.on_measurement(Measurement::Tdoa(m), &mut out);
+                    }
+                })?;
+            }
+            if let Some(range_sub) = &range_sub {
+                range_sub.drain(|m| {
+                    if fresh(m.header.pub_time_ns) {
+                        engine.on_measurement(Measurement::Range(m), &mut out);
                     }
                 })?;
             }

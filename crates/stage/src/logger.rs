@@ -29,7 +29,7 @@ use crossbeam_channel::{bounded, RecvTimeoutError, TryRecvError, TrySendError};
 use insuwb_log::{Metadata, Record, SegmentWriter};
 use insuwb_msg::{
     topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Health, HealthState, ImuSample,
-    InsCorrection, LoggerCounters, NavState, StageCounters, StageRole, UwbFix, UwbTdoa,
+    InsCorrection, LoggerCounters, NavState, StageCounters, StageRole, UwbFix, UwbRange, UwbTdoa,
 };
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage};
@@ -107,7 +107,8 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         toml::to_string(&FusionWrap {
             fusion: cfg.fusion_config()?,
         })?,
-    );
+    )
+    .with(insuwb_group::robot::LOG_UWB_KIND, cfg.uwb.kind.name());
     let writer = SegmentWriter::open(&dir, meta, cfg.logger.segments.clone(), monotonic_ns())
         .map_err(|e| {
             let full = if e.io_kind() == Some(std::io::ErrorKind::StorageFull) {
@@ -158,6 +159,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         })?;
     let imu = stage.subscriber::<ImuSample>(topics::IMU)?;
     let tdoa = stage.subscriber::<UwbTdoa>(topics::UWB_TDOA)?;
+    let range = stage.subscriber::<UwbRange>(topics::UWB_RANGE)?;
     let fix = stage.subscriber::<UwbFix>(topics::UWB_FIX)?;
     let nav = stage.subscriber::<NavState>(topics::NAV)?;
     let corr = stage.subscriber::<InsCorrection>(topics::CORRECTION)?;
@@ -203,6 +205,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             })?;
             imu.drain(|s| send(Record::Imu(s)))?;
             tdoa.drain(|s| send(Record::Tdoa(s)))?;
+            range.drain(|s| send(Record::Range(s)))?;
             fix.drain(|s| send(Record::Fix(s)))?;
             nav.drain(|s| send(Record::Nav(s)))?;
             corr.drain(|s| send(Record::Correction(s)))?;
@@ -216,7 +219,13 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
         }
         if next.beat {
             counters = HealthCounters::default();
-            for st in [imu.stats(), tdoa.stats(), fused.stats(), nav.stats()] {
+            for st in [
+                imu.stats(),
+                tdoa.stats(),
+                range.stats(),
+                fused.stats(),
+                nav.stats(),
+            ] {
                 counters.add_sub(&st);
             }
             counters.stage = StageCounters::Logger(LoggerCounters { sent, dropped });

@@ -8,7 +8,7 @@
 use anyhow::{bail, Context, Result};
 use insuwb_group::sources;
 use insuwb_log::Record;
-use insuwb_msg::{BodyVelocity, GroundTruth, ImuSample, UwbTdoa};
+use insuwb_msg::{BodyVelocity, GroundTruth, ImuSample, UwbRange, UwbTdoa};
 
 /// One sample from a source.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -17,6 +17,8 @@ pub enum Item {
     Imu(ImuSample),
     /// A TDOA measurement.
     Tdoa(UwbTdoa),
+    /// A two-way range.
+    Range(UwbRange),
     /// Ground truth (simulation and replay only; fusion never reads it).
     Truth(GroundTruth),
     /// A body-frame velocity (odometry, flow), from the IMU driver.
@@ -30,6 +32,7 @@ impl Item {
         match self {
             Self::Imu(s) => s.header.meas_time_ns,
             Self::Tdoa(s) => s.header.meas_time_ns,
+            Self::Range(s) => s.header.meas_time_ns,
             Self::Truth(s) => s.header.meas_time_ns,
             Self::Velocity(s) => s.header.meas_time_ns,
         }
@@ -41,7 +44,7 @@ impl Item {
 pub enum Want {
     /// IMU, body velocities and ground truth (the IMU driver).
     Imu,
-    /// TDOA (the UWB driver).
+    /// TDOA differences and two-way ranges (the UWB driver).
     Uwb,
 }
 
@@ -72,11 +75,11 @@ pub struct Recorded {
 }
 
 impl Recorded {
-    /// The streams of `items` (IMU, TDOA, body velocity, truth) merged by
+    /// The streams of `items` (IMU, TDOA, range, body velocity, truth) merged by
     /// time, each kept in its given order: a sample recorded with a time
     /// before its predecessor's stays behind it, so the driver drops and
-    /// counts it as it would from a live sensor. At equal times IMU and TDOA
-    /// go before body velocities (the order `insuwb eval` feeds them), and
+    /// counts it as it would from a live sensor. At equal times IMU, TDOA
+    /// and ranges go before body velocities (the order `insuwb eval` feeds them), and
     /// sensor samples before ground truth (truth is for evaluation: it must
     /// not delay a sensor sample).
     #[must_use]
@@ -84,10 +87,11 @@ impl Recorded {
         let kind = |i: &Item| match i {
             Item::Imu(_) => 0usize,
             Item::Tdoa(_) => 1,
-            Item::Velocity(_) => 2,
-            Item::Truth(_) => 3,
+            Item::Range(_) => 2,
+            Item::Velocity(_) => 3,
+            Item::Truth(_) => 4,
         };
-        let mut streams: [Vec<Item>; 4] = Default::default();
+        let mut streams: [Vec<Item>; 5] = Default::default();
         for i in items {
             if let Some(s) = streams.get_mut(kind(&i)) {
                 s.push(i);
@@ -95,9 +99,9 @@ impl Recorded {
         }
         let total = streams.iter().map(Vec::len).sum();
         let mut merged = Vec::with_capacity(total);
-        let mut heads = [0usize; 4];
+        let mut heads = [0usize; 5];
         loop {
-            let next = (0..4)
+            let next = (0..5)
                 .filter_map(|k| {
                     let item = streams.get(k)?.get(*heads.get(k)?)?;
                     Some((item.time_ns(), k))
@@ -134,6 +138,16 @@ impl Recorded {
     #[must_use]
     pub fn has_velocity(&self) -> bool {
         self.items.iter().any(|i| matches!(i, Item::Velocity(_)))
+    }
+
+    /// How many TDOA differences and how many two-way ranges it holds.
+    #[must_use]
+    pub fn uwb_counts(&self) -> (usize, usize) {
+        self.items.iter().fold((0, 0), |(t, r), i| match i {
+            Item::Tdoa(_) => (t + 1, r),
+            Item::Range(_) => (t, r + 1),
+            _ => (t, r),
+        })
     }
 
     /// Time of the last sample.
@@ -175,7 +189,10 @@ pub fn open(source: &sources::Source, scenario: &str, seed: u64, want: Want) -> 
                 items.extend(out.imu.iter().map(|s| Item::Imu(*s)));
                 items.extend(out.velocity.iter().map(|s| Item::Velocity(*s)));
             }
-            Want::Uwb => items.extend(out.tdoa.iter().map(|s| Item::Tdoa(*s))),
+            Want::Uwb => {
+                items.extend(out.tdoa.iter().map(|s| Item::Tdoa(*s)));
+                items.extend(out.range.iter().map(|s| Item::Range(*s)));
+            }
         }
     } else if let Some(file) = source.replay_file() {
         let (records, tail, _) = insuwb_log::read_all(file)
@@ -189,6 +206,7 @@ pub fn open(source: &sources::Source, scenario: &str, seed: u64, want: Want) -> 
                 (Want::Imu, Record::Truth(s)) => items.push(Item::Truth(s)),
                 (Want::Imu, Record::BodyVel(s)) => items.push(Item::Velocity(s)),
                 (Want::Uwb, Record::Tdoa(s)) => items.push(Item::Tdoa(s)),
+                (Want::Uwb, Record::Range(s)) => items.push(Item::Range(s)),
                 _ => {}
             }
         }

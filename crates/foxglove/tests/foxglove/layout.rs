@@ -5,7 +5,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use insuwb_foxglove::config::TOPICS;
-use insuwb_foxglove::convert::{BODY_VEL_SCHEMA, DIAG_SCHEMA, ERROR_SCHEMA, HEALTH_SCHEMA};
+use insuwb_foxglove::convert::{
+    BODY_VEL_SCHEMA, DIAG_SCHEMA, ERROR_SCHEMA, HEALTH_SCHEMA, UWB_RANGE_SCHEMA,
+};
 use insuwb_foxglove::FoxgloveConfig;
 use serde_json::Value;
 
@@ -17,6 +19,7 @@ fn json_properties(topic: &str) -> Option<Value> {
         "diag" => DIAG_SCHEMA,
         "error" => ERROR_SCHEMA,
         "body_vel" => BODY_VEL_SCHEMA,
+        "uwb_range" => UWB_RANGE_SCHEMA,
         "health" => HEALTH_SCHEMA,
         _ => return None,
     };

@@ -564,6 +564,7 @@ fn builtins_parse_validate_and_run() {
             "paper-4.3-static",
             "paper-4.4-dynamic",
             "nlos-long",
+            "nlos-long-twr",
             "ground-outage",
             "twr-3.4"
         ]

@@ -71,7 +71,7 @@ impl Paced for ImuDriver {
                     p.publish_raw(s)?;
                 }
             }
-            Item::Tdoa(_) => {}
+            Item::Tdoa(_) | Item::Range(_) => {}
         }
         Ok(())
     }

@@ -1,14 +1,17 @@
-//! The UWB driver over a recorded source: publishes `uwb_tdoa` (checked)
-//! and the fixes the fix builder completes on `uwb_fix`, each fix before
-//! the measurement that completed it (the fusion stage relies on that
-//! order). With a site calibration (`[uwb] calibration`) the differences
+//! The UWB driver over a recorded source: publishes `uwb_tdoa` or, with
+//! `[uwb] kind = "twr"`, `uwb_range` (checked), and the fixes the fix
+//! builder completes on `uwb_fix`, each fix before the measurement that
+//! completed it (the fusion stage relies on that order). A range is
+//! published less the tag's range offset the fix builder has estimated so
+//! far ([`take_range`], the path a ranging device takes too). With a site calibration (`[uwb] calibration`) the differences
 //! are corrected before the fix builder uses them and published corrected
 //! and flagged (`UwbTdoa::FLAG_CALIBRATED`): what fusion uses, and what a
 //! log records.
 
+use anyhow::bail;
 use anyhow::Result;
-use insuwb_msg::check::TdoaGate;
-use insuwb_msg::{topics, StageCounters, UwbDriverCounters, UwbFix, UwbTdoa};
+use insuwb_msg::check::{RangeGate, TdoaGate};
+use insuwb_msg::{topics, StageCounters, UwbDriverCounters, UwbFix, UwbKind, UwbRange, UwbTdoa};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Pub, Stage};
 use insuwb_uwb::fix::{FixBuilder, FixStats, PushError};
 
@@ -42,9 +45,29 @@ fn builder_refusals(s: &FixStats) -> (u64, u64, u64) {
     )
 }
 
+/// A two-way range's path into the group, the one every source takes (a
+/// recorded log, the simulator, a ranging device), as `insuwb eval`'s
+/// runner takes it: the gate ([`RangeGate`], which counts what it
+/// refuses), the tag's range offset estimated so far removed
+/// ([`FixBuilder::correct_range`]), the fix builder. `None`: the gate
+/// refused it. Else the builder's answer (the fix the range completed, to
+/// be published before the range; a refusal, counted in the builder's
+/// stats) and the range as fusion and the log get it.
+pub(crate) fn take_range(
+    gate: &mut RangeGate,
+    fixes: &mut FixBuilder,
+    r: &UwbRange,
+) -> Option<(Result<Option<UwbFix>, PushError>, UwbRange)> {
+    gate.check(r).ok()?;
+    let r = fixes.correct_range(r);
+    Some((fixes.push_range(&r), r))
+}
+
 /// The UWB driver's part of the pacing loop.
 struct UwbDriver {
     tdoa: Pub<UwbTdoa>,
+    /// With `[uwb] kind = "twr"`.
+    range: Option<Pub<UwbRange>>,
     fix: Pub<UwbFix>,
     fixes: FixBuilder,
     /// In lockstep, at most this many fixes ahead of fusion.
@@ -55,6 +78,8 @@ struct UwbDriver {
     /// Values, time order and repeated pairs ([`insuwb_msg::check`]), as
     /// `insuwb eval`.
     gate: TdoaGate,
+    /// The ranges' gate.
+    range_gate: RangeGate,
     counters: HealthCounters,
     skips_logged: u64,
     skip_logged_at: u64,
@@ -76,9 +101,26 @@ impl Paced for UwbDriver {
     }
 
     fn publish(&mut self, item: Item, t_ns: u64) -> Result<()> {
-        let Item::Tdoa(mut s) = item else {
-            return Ok(());
-        };
+        match item {
+            Item::Tdoa(s) => self.publish_tdoa(s, t_ns),
+            Item::Range(r) => self.publish_range(r, t_ns),
+            Item::Imu(_) | Item::Truth(_) | Item::Velocity(_) => Ok(()),
+        }
+    }
+
+    fn heartbeat(&mut self) -> Result<HealthCounters> {
+        self.beat()
+    }
+
+    fn published(&self) -> u64 {
+        self.counters.published
+    }
+}
+
+impl UwbDriver {
+    /// A TDOA difference at `t_ns`: checked, calibrated, to the fix
+    /// builder, published after the fix it completed.
+    fn publish_tdoa(&mut self, mut s: UwbTdoa, t_ns: u64) -> Result<()> {
         s.header.meas_time_ns = t_ns;
         s.header.generation = self.generation;
         s.header.source_id = self.source_id;
@@ -117,7 +159,34 @@ impl Paced for UwbDriver {
         Ok(())
     }
 
-    fn heartbeat(&mut self) -> Result<HealthCounters> {
+    /// A two-way range at `t_ns` ([`take_range`]), published after the fix
+    /// it completed.
+    fn publish_range(&mut self, mut r: UwbRange, t_ns: u64) -> Result<()> {
+        let Some(range_pub) = self.range.as_mut() else {
+            return Ok(());
+        };
+        r.header.meas_time_ns = t_ns;
+        r.header.generation = self.generation;
+        r.header.source_id = self.source_id;
+        let Some((pushed, r)) = take_range(&mut self.range_gate, &mut self.fixes, &r) else {
+            return Ok(());
+        };
+        match pushed {
+            Ok(Some(f)) => {
+                self.fix.publish(f)?;
+                self.fixes_published += 1;
+            }
+            Ok(None) => {}
+            Err(e) => self.last_builder_refusal = Some(e),
+        }
+        range_pub.publish_raw(r)?;
+        self.counters.published += 1;
+        Ok(())
+    }
+
+    /// The heartbeat's counters, and the log lines about skipped epochs
+    /// and refused measurements.
+    fn beat(&mut self) -> Result<HealthCounters> {
         let fix = uwb_counters(self.fixes.stats());
         let skips = fix.skipped_too_few_pairs + fix.skipped_geometry + fix.skipped_solver;
         let t = monotonic_ns();
@@ -150,22 +219,23 @@ impl Paced for UwbDriver {
             self.builder_refusal_logged_at = t;
         }
         let gate = self.gate.refusals();
-        self.counters.dropped_invalid = gate.invalid();
-        self.counters.dropped_time = gate.time();
+        let ranges = self.range_gate.refusals();
+        self.counters.dropped_invalid = gate.invalid() + ranges.invalid();
+        self.counters.dropped_time = gate.time() + ranges.time();
         self.counters.stage = StageCounters::UwbDriver(fix);
         // Late subscribers get history only when the publisher acts.
         self.tdoa.update_connections()?;
+        if let Some(r) = self.range.as_mut() {
+            r.update_connections()?;
+        }
         Ok(self.counters)
-    }
-
-    fn published(&self) -> u64 {
-        self.counters.published
     }
 }
 
 /// Runs the UWB driver on the recorded source `source` (`sim` or
 /// `replay:FILE`) until SIGINT/SIGTERM, building fixes with the `[fusion.fix]`
-/// table of the estimator's settings ([`RobotConfig::fusion_config`]).
+/// table of the estimator's settings ([`RobotConfig::fusion_config`]) from
+/// the measurements of `[uwb] kind`.
 ///
 /// # Errors
 /// The source or the fix settings are refused, a port or the waiter fails.
@@ -174,12 +244,29 @@ pub fn run(cfg: &RobotConfig, source: &Source, speed: f64, epoch_ns: u64) -> Res
     let stage = Stage::new(cfg.runtime(name))?;
     let src = source::open(source, &cfg.sources.scenario, cfg.sources.seed, Want::Uwb)?;
     tracing::info!("{name} driver: source {source}");
+    let kind = cfg.uwb.kind;
+    let (tdoa, ranges) = src.uwb_counts();
+    let (held, other) = match kind {
+        UwbKind::Tdoa => (tdoa, UwbKind::Twr),
+        UwbKind::Twr => (ranges, UwbKind::Tdoa),
+    };
+    if held == 0 && tdoa + ranges > 0 {
+        bail!(
+            "{name} driver: [uwb] kind is \"{kind}\", but the source {source} holds {} UWB measurements of kind \"{other}\" and none of kind \"{kind}\": set [uwb] kind = \"{other}\"",
+            tdoa + ranges
+        );
+    }
     let fcfg = cfg.fusion_config()?;
     let mut fixes = FixBuilder::new(fcfg.fix.clone())?.with_calibration(fcfg.calibration.clone());
     // Samples are stamped `epoch + t`: the fix epochs fall as for `t`.
     fixes.align_to(epoch_ns);
     let mut driver = UwbDriver {
         tdoa: stage.publisher(topics::UWB_TDOA)?,
+        range: if kind == UwbKind::Twr {
+            Some(stage.publisher(topics::UWB_RANGE)?)
+        } else {
+            None
+        },
         fix: stage.publisher(topics::UWB_FIX)?,
         fixes,
         ahead_limit: (insuwb_msg::qos::for_topic(topics::UWB_FIX).subscriber_max_buffer_size / 4)
@@ -188,6 +275,7 @@ pub fn run(cfg: &RobotConfig, source: &Source, speed: f64, epoch_ns: u64) -> Res
         generation: stage.generation(),
         source_id: stage.source_id(),
         gate: TdoaGate::new(),
+        range_gate: RangeGate::new(),
         counters: HealthCounters::default(),
         skips_logged: 0,
         skip_logged_at: 0,
