@@ -522,7 +522,8 @@ pub fn sim(a: &SimArgs) -> Result<()> {
     let meta = Metadata::new(format!("insuwb sim {} seed={seed}", file.sim.name))
         .with("scenario", file.sim.name.clone())
         .with("seed", seed.to_string())
-        .with(META_FUSION_CONFIG, cfg_text);
+        .with(META_FUSION_CONFIG, cfg_text)
+        .with(insuwb_group::robot::LOG_UWB_KIND, file.sim.uwb.kind.name());
     // The error names the file and the cause.
     let mut w = LogWriter::create(&a.out, &meta, 0)?;
     let mut n = 0u64;
@@ -650,11 +651,17 @@ pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
     }
     let mut cfg = loaded.config.clone();
     cfg.eval.min_height_m = insuwb_data::segment::DEFAULT_MIN_HEIGHT_M;
+    let d = &loaded.data;
+    let kind = if d.is_ranging() {
+        insuwb_msg::UwbKind::Twr
+    } else {
+        insuwb_msg::UwbKind::Tdoa
+    };
     let meta = Metadata::new(format!("insuwb import util {}", a.log.display()))
-        .with(META_FUSION_CONFIG, toml::to_string(&cfg)?);
+        .with(META_FUSION_CONFIG, toml::to_string(&cfg)?)
+        .with(insuwb_group::robot::LOG_UWB_KIND, kind.name());
     // The error names the file and the cause.
     let mut w = LogWriter::create(&a.out, &meta, 0)?;
-    let d = &loaded.data;
     // Merge by time: truth, IMU, TDOA (or ranges) at equal times.
     let mut recs: Vec<(u64, u8, Record)> =
         Vec::with_capacity(d.imu.len() + d.tdoa.len() + d.range.len() + d.truth.len());

@@ -213,8 +213,50 @@ pub fn assert_same_fused(piped: &[insuwb_msg::FusedState], eval: &[insuwb_msg::F
     assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
 }
 
+/// The pipeline's fused states of a replay against eval's, paired by
+/// epoch (a piped state's time is the recording's plus the replay's start
+/// epoch, one offset for all): asserts that all but two of eval's found
+/// their pair and that no pair is more than 1 mm apart.
+pub fn assert_same_fused_by_time(
+    piped: &[insuwb_msg::FusedState],
+    eval: &[insuwb_msg::FusedState],
+) {
+    let eval: Vec<_> = eval.iter().filter(|s| !uwb_only(s)).collect();
+    let first = piped.first().expect("no fused state recorded");
+    let offset = first
+        .header
+        .meas_time_ns
+        .checked_sub(
+            eval.first()
+                .expect("no fused state in process")
+                .header
+                .meas_time_ns,
+        )
+        .expect("the replay's first state is before eval's");
+    let (mut matched, mut worst) = (0usize, 0.0f64);
+    for p in piped {
+        let t = p.header.meas_time_ns - offset;
+        if let Some(o) = eval.iter().rev().find(|o| o.header.meas_time_ns == t) {
+            let d = (0..3)
+                .map(|i| (p.pos_m[i] - o.pos_m[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            worst = worst.max(d);
+            matched += 1;
+        }
+    }
+    assert!(
+        matched + 2 >= eval.len(),
+        "matched {matched} of {} (piped {})",
+        eval.len(),
+        piped.len()
+    );
+    assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
+}
+
 /// A project log through `insuwb eval`'s in-process code path, with the
-/// fusion settings the log carries and filter `kind`.
+/// fusion settings the log carries and filter `kind`: from its TDOA
+/// differences, or from its ranges when it holds no differences.
 pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::runner::RunOutput {
     offline_run_aided(log, kind, false)
 }
@@ -227,11 +269,12 @@ pub fn offline_run_aided(
     aided: bool,
 ) -> insuwb_fusion::runner::RunOutput {
     let (recs, _, header) = insuwb_log::read_all(log).unwrap();
-    let (mut imu, mut tdoa, mut vel) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut imu, mut tdoa, mut range, mut vel) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for r in recs {
         match r {
             Record::Imu(s) => imu.push(s),
             Record::Tdoa(s) => tdoa.push(s),
+            Record::Range(s) => range.push(s),
             Record::BodyVel(s) if aided => vel.push(s),
             _ => {}
         }
@@ -245,6 +288,10 @@ pub fn offline_run_aided(
     only.insert("fusion".into(), table["fusion"].clone());
     let w: Wrap = toml::from_str(&toml::to_string(&only).unwrap()).unwrap();
     let est = insuwb_fusion::config::build_estimator(kind, &w.fusion).unwrap();
+    // A ranging log (ranges, no TDOA) is run from its ranges, as eval does.
+    if tdoa.is_empty() && !range.is_empty() {
+        return insuwb_fusion::runner::run_aided(&imu, &range, &vel, &w.fusion, est).unwrap();
+    }
     insuwb_fusion::runner::run_aided(&imu, &tdoa, &vel, &w.fusion, est).unwrap()
 }
 

@@ -22,6 +22,7 @@ mod long_run;
 mod mcap_export;
 mod one_group;
 mod pipeline;
+mod ranging;
 mod refusals;
 mod replay_tight;
 mod ros2_imu_source;

@@ -16,8 +16,8 @@
 use crate::common;
 
 use common::{
-    f, offline_run_aided, one_at_a_time, run, succeeded, undegraded_fused, util_data_dir, uwb_only,
-    Group,
+    assert_same_fused_by_time, f, offline_run_aided, one_at_a_time, run, succeeded,
+    undegraded_fused, util_data_dir, uwb_only, Group,
 };
 
 #[test]
@@ -94,26 +94,6 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
         out.fused.len()
     );
 
-    // Matched by epoch: the piped state's time is the recording's plus the
-    // replay's start epoch, the same offset for all.
-    let first = piped.first().expect("no fused state recorded");
-    let offset = first
-        .header
-        .meas_time_ns
-        .checked_sub(out.fused[0].header.meas_time_ns)
-        .unwrap();
-    let (mut matched, mut worst) = (0usize, 0.0f64);
-    for p in &piped {
-        let t = p.header.meas_time_ns - offset;
-        if let Some(o) = out.fused.iter().rev().find(|o| o.header.meas_time_ns == t) {
-            let d = (0..3)
-                .map(|i| (p.pos_m[i] - o.pos_m[i]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            worst = worst.max(d);
-            matched += 1;
-        }
-    }
     if dropped > 0.0 {
         eprintln!(
             "{dropped} TDOA differences dropped as late (busy machine): equality not checked"
@@ -121,13 +101,7 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
         let rmse = f(&report, "rmse_horizontal");
         assert!(rmse.is_finite() && rmse < 0.2, "{report}");
     } else {
-        assert!(
-            matched + 2 >= out.fused.len(),
-            "matched {matched} of {} (piped {})",
-            out.fused.len(),
-            piped.len()
-        );
-        assert!(worst <= 1e-3, "pipeline and eval differ by up to {worst} m");
+        assert_same_fused_by_time(&piped, &out.fused);
     }
     let _ = std::fs::remove_dir_all(&tmp);
 }
