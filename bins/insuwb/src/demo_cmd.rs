@@ -127,25 +127,16 @@ fn start_demo_devices(
         }
         UwbKind::Twr => {
             let sim = insuwb_fusion::scenario::ScenarioFile::load(scenario)?.simulate(DEMO_SEED)?;
-            let uwb_enc = Encoding::new(Protocol::Dwm1001);
-            let chunks = play::range_chunks(&sim.range, &uwb_enc)?;
             let uwb_link = run_dir.join("uwb");
-            let uwb_pty = crate::emulate_cmd::open_pty(Some(&uwb_link))?;
-            let n = chunks.len();
+            let (player, n) =
+                crate::emulate_cmd::start_dwm1001_player(&uwb_link, &sim.range, epoch)?;
             (
                 format!(
-                    "[devices.uwb]\nsource = \"serial:{}\"\nprotocol = \"dwm1001\"\nbaud = {}\n[uwb]\nkind = \"twr\"\n",
+                    "[devices.uwb]\nsource = \"serial:{}\"\nprotocol = \"dwm1001\"\n[uwb]\nkind = \"twr\"\n",
                     uwb_link.display(),
-                    uwb_enc.baud
                 ),
                 format!("DWM1001 tag on serial:{} ({n} lec lines)", uwb_link.display()),
-                UwbPlayer::Dwm1001(Player::start(
-                    uwb_pty,
-                    chunks,
-                    epoch,
-                    monotonic_ns,
-                    Faults::none(),
-                )?),
+                UwbPlayer::Dwm1001(player),
             )
         }
     };

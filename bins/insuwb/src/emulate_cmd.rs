@@ -1,9 +1,11 @@
 //! `insuwb emulate imu|uwb`: a device emulator. Plays a simulated scenario
-//! or a log out through a pseudo-terminal (WitMotion, MAVLink, NLink) or a
-//! loopback TCP server (Eliko), in real time against CLOCK_MONOTONIC, with
-//! optional injected faults. What is played comes from
-//! `insuwb_group::recording`, the byte streams from `insuwb_devices::play`,
-//! the devices and the player from `insuwb_devices::emulator`.
+//! or a log out through a pseudo-terminal (WitMotion, MAVLink, NLink,
+//! DWM1001) or a loopback TCP server (Eliko), in real time against
+//! CLOCK_MONOTONIC, with optional injected faults. What is played comes from
+//! `insuwb_group::recording` (IMU samples, UWB positions) or, for a ranging
+//! device (DWM1001; NLink with a two-way ranging source), the scenario's or
+//! log's two-way ranges; the byte streams from `insuwb_devices::play`, the
+//! devices and the player from `insuwb_devices::emulator`.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -17,6 +19,8 @@ use insuwb_devices::play::{self, Encoding};
 use insuwb_devices::{eliko, Protocol};
 use insuwb_group::recording::{self, Recording};
 use insuwb_group::robot::choose_start_epoch;
+use insuwb_log::Record;
+use insuwb_msg::{UwbKind, UwbRange};
 use insuwb_runtime::monotonic_ns;
 
 /// Longest garbage burst injected before a chunk, bytes.
@@ -27,23 +31,23 @@ pub const GARBAGE_MAX_LEN: usize = 32;
 pub enum EmulateCmd {
     /// An IMU on a pseudo-terminal: WitMotion 0x51+0x52 cycles or MAVLink HIGHRES_IMU.
     Imu(EmulateArgs),
-    /// A UWB positioning system: NLink Tag_Frame0 on a pseudo-terminal, or Eliko COORD lines on a loopback TCP port.
+    /// A UWB system: NLink Tag_Frame0 (positions, or the ranges of a two-way ranging source) or DWM1001 `lec` lines (two-way ranges) on a pseudo-terminal, or Eliko COORD lines on a loopback TCP port.
     Uwb(EmulateArgs),
 }
 
 /// Arguments of `insuwb emulate imu|uwb`.
 #[derive(Debug, clap::Args)]
 pub struct EmulateArgs {
-    /// Protocol: witmotion or mavlink (imu, default witmotion); nlink or eliko (uwb, default eliko).
+    /// Protocol: witmotion or mavlink (imu, default witmotion); nlink, eliko or dwm1001 (uwb, default eliko).
     #[arg(long)]
     pub protocol: Option<String>,
-    /// Scenario to simulate (built-in name or TOML file).
-    #[arg(long, default_value = "nlos-long", conflicts_with = "log")]
-    pub scenario: String,
+    /// Scenario to simulate (built-in name or TOML file; default nlos-long, for dwm1001 twr-3.4).
+    #[arg(long, conflicts_with = "log")]
+    pub scenario: Option<String>,
     /// Simulation seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Play an insuwb log instead of a scenario (UWB: the fixes of its TDOA, or its recorded fixes).
+    /// Play an insuwb log instead of a scenario (UWB: its two-way ranges, else the fixes of its TDOA, or its recorded fixes).
     #[arg(long)]
     pub log: Option<PathBuf>,
     /// Serial protocols: also keep a symlink at PATH to the pseudo-terminal, re-pointed across disconnects (as udev does).
@@ -64,7 +68,7 @@ pub struct EmulateArgs {
     /// CLOCK_MONOTONIC time (ns) of the recording's start (default: the next start epoch at least 0.5 s ahead, `insuwb_runtime::epoch`).
     #[arg(long)]
     pub start_epoch_ns: Option<u64>,
-    /// Device clock at the epoch, s (default: 10 s since boot for MAVLink and NLink, Unix time 1700000000 for Eliko).
+    /// Device clock at the epoch, s (default: 10 s since boot for MAVLink and NLink, Unix time 1700000000 for Eliko; WitMotion and DWM1001 send none).
     #[arg(long)]
     pub clock_start_s: Option<f64>,
     /// Device clock drift against the host's, ppm.
@@ -92,9 +96,15 @@ pub struct EmulateArgs {
 pub enum Kind {
     /// An IMU.
     Imu,
-    /// A UWB positioning system.
+    /// A UWB system.
     Uwb,
 }
+
+/// The scenario played when none is named.
+const DEFAULT_SCENARIO: &str = "nlos-long";
+
+/// The scenario a ranging device plays when none is named.
+const DEFAULT_RANGING_SCENARIO: &str = "twr-3.4";
 
 /// Runs `insuwb emulate`.
 pub fn run(cmd: &EmulateCmd) -> Result<()> {
@@ -106,10 +116,10 @@ pub fn run(cmd: &EmulateCmd) -> Result<()> {
     if !(a.speed.is_finite() && a.speed > 0.0 && a.speed <= 1000.0) {
         bail!("--speed must be in (0, 1000], got {}", a.speed);
     }
-    let rec = match &a.log {
-        Some(p) => recording::from_log(p)?,
-        None => recording::from_scenario(&a.scenario, a.seed)?,
-    };
+    let scenario = a.scenario.as_deref().unwrap_or(match protocol {
+        Protocol::Dwm1001 => DEFAULT_RANGING_SCENARIO,
+        _ => DEFAULT_SCENARIO,
+    });
     let mut enc = Encoding {
         tag: a.tag,
         speed: a.speed,
@@ -128,15 +138,47 @@ pub fn run(cmd: &EmulateCmd) -> Result<()> {
     if !a.drift_ppm.is_finite() || a.drift_ppm.abs() >= 1e5 {
         bail!("--drift-ppm must be within +-100000, got {}", a.drift_ppm);
     }
-    let chunks = chunks_for(kind, &rec, &enc)?;
+    // A ranging device plays two-way ranges; NLink plays them when the
+    // source has them, positions otherwise.
+    let ranges = match (kind, protocol) {
+        (Kind::Uwb, Protocol::Dwm1001 | Protocol::Nlink) => {
+            ranges_of(a.log.as_deref(), scenario, a.seed)?
+        }
+        _ => None,
+    };
+    let (name, span_ns, chunks, what) = match ranges {
+        Some((name, ranges)) => {
+            let end = ranges.last().map_or(0, |r| r.header.meas_time_ns);
+            (name, end, play::range_chunks(&ranges, &enc)?, "UWB ranging rounds")
+        }
+        None if protocol == Protocol::Dwm1001 => bail!(
+            "dwm1001 is a two-way ranging device, but {}: play a scenario with [sim.uwb] kind = \"twr\" (e.g. --scenario {DEFAULT_RANGING_SCENARIO}) or a log of one",
+            match &a.log {
+                Some(p) => format!("the log {} holds no two-way ranges", p.display()),
+                None => format!("scenario {scenario:?} simulates [sim.uwb] kind = \"tdoa\""),
+            }
+        ),
+        None => {
+            let rec = match &a.log {
+                Some(p) => recording::from_log(p)?,
+                None => recording::from_scenario(scenario, a.seed)?,
+            };
+            let chunks = chunks_for(kind, &rec, &enc)?;
+            let what = match kind {
+                Kind::Imu => "IMU samples",
+                Kind::Uwb => "UWB positions",
+            };
+            (rec.name.clone(), rec.end_ns(), chunks, what)
+        }
+    };
     if chunks.is_empty() {
-        bail!("{}: nothing to play for this device", rec.name);
+        bail!("{name}: nothing to play for this device");
     }
     let faults = faults_of(a, &chunks)?;
     let epoch = a
         .start_epoch_ns
         .unwrap_or_else(|| choose_start_epoch(monotonic_ns()));
-    let what = describe(kind, protocol, &rec, &chunks, &enc);
+    let what = describe(what, protocol, &name, span_ns, &chunks, &enc);
     if protocol == Protocol::Eliko {
         if a.link.is_some() {
             bail!("--link is for the serial protocols (eliko is served over TCP: --port)");
@@ -176,11 +218,14 @@ pub fn protocol_of(kind: Kind, name: Option<&str>) -> Result<Protocol> {
     };
     let ok = match kind {
         Kind::Imu => matches!(protocol, Protocol::WitMotion | Protocol::Mavlink),
-        Kind::Uwb => matches!(protocol, Protocol::Nlink | Protocol::Eliko),
+        Kind::Uwb => matches!(
+            protocol,
+            Protocol::Nlink | Protocol::Eliko | Protocol::Dwm1001
+        ),
     };
     if !ok {
         bail!(
-            "protocol {protocol} is not a {} protocol (imu: witmotion, mavlink; uwb: nlink, eliko)",
+            "protocol {protocol} is not a {} protocol (imu: witmotion, mavlink; uwb: nlink, eliko, dwm1001)",
             match kind {
                 Kind::Imu => "IMU",
                 Kind::Uwb => "UWB",
@@ -196,6 +241,68 @@ pub fn chunks_for(kind: Kind, rec: &Recording, enc: &Encoding) -> Result<Vec<(u6
         Kind::Imu => play::imu_chunks(&rec.imu, enc)?,
         Kind::Uwb => play::uwb_chunks(&rec.fixes, enc)?,
     })
+}
+
+/// The two-way ranges of the log at `log`, else of `scenario` simulated
+/// with `seed`, in time order, times in ns since the start, and what they
+/// are; `None` when there are none (a TDOA scenario, a log without ranges).
+/// A log's times are shifted back by whole seconds so that the first lies
+/// in the first second, as `insuwb_group::recording` does.
+fn ranges_of(
+    log: Option<&Path>,
+    scenario: &str,
+    seed: u64,
+) -> Result<Option<(String, Vec<UwbRange>)>> {
+    let Some(path) = log else {
+        let sc = insuwb_fusion::scenario::ScenarioFile::load(scenario)?;
+        if sc.sim.uwb.kind != UwbKind::Twr {
+            return Ok(None);
+        }
+        let ranges = sc.simulate(seed)?.range;
+        return Ok(Some((format!("{} (seed {seed})", sc.sim.name), ranges)));
+    };
+    let (records, tail, _) =
+        insuwb_log::read_all(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    if let Some(t) = tail {
+        tracing::warn!("{}: {t}", path.display());
+    }
+    let mut ranges: Vec<UwbRange> = records
+        .into_iter()
+        .filter_map(|r| match r {
+            Record::Range(m) => Some(m),
+            _ => None,
+        })
+        .collect();
+    // By time, each round's ranges kept in their order.
+    ranges.sort_by_key(|r| r.header.meas_time_ns);
+    let Some(first) = ranges.first().map(|r| r.header.meas_time_ns) else {
+        return Ok(None);
+    };
+    let shift = first / 1_000_000_000 * 1_000_000_000;
+    for r in &mut ranges {
+        r.header.meas_time_ns -= shift;
+    }
+    Ok(Some((path.display().to_string(), ranges)))
+}
+
+/// A DWM1001 tag on a pseudo-terminal with a stable symlink at `link`,
+/// printing the ranging rounds of `ranges` (times in ns since `epoch_ns`)
+/// as `lec` lines on a modelled 115200-baud line from `epoch_ns`
+/// (CLOCK_MONOTONIC) on, without faults; also the number of lines.
+///
+/// # Errors
+/// The ranges cannot be encoded (`play::range_chunks`), the
+/// pseudo-terminal or the player cannot be started.
+pub(crate) fn start_dwm1001_player(
+    link: &Path,
+    ranges: &[UwbRange],
+    epoch_ns: u64,
+) -> Result<(Player<PtyEmulator>, usize)> {
+    let chunks = play::range_chunks(ranges, &Encoding::new(Protocol::Dwm1001))?;
+    let n = chunks.len();
+    let pty = open_pty(Some(link))?;
+    let player = Player::start(pty, chunks, epoch_ns, monotonic_ns, Faults::none())?;
+    Ok((player, n))
 }
 
 /// A pseudo-terminal, with a stable symlink at `link` if given.
@@ -285,19 +392,18 @@ fn faults_of(a: &EmulateArgs, chunks: &[(u64, Vec<u8>)]) -> Result<Faults> {
     })
 }
 
+/// What is served: `what` (samples, positions, rounds) of `name`, lasting
+/// `span_ns` of recording time.
 fn describe(
-    kind: Kind,
+    what: &str,
     protocol: Protocol,
-    rec: &Recording,
+    name: &str,
+    span_ns: u64,
     chunks: &[(u64, Vec<u8>)],
     enc: &Encoding,
 ) -> String {
-    let what = match kind {
-        Kind::Imu => "IMU samples",
-        Kind::Uwb => "UWB positions",
-    };
     let clock = match protocol {
-        Protocol::WitMotion => String::new(),
+        Protocol::WitMotion | Protocol::Dwm1001 => String::new(),
         _ => format!(
             ", device clock {:.3} s at the epoch, drift {} ppm",
             enc.clock.start_ns as f64 * 1e-9,
@@ -313,8 +419,8 @@ fn describe(
         "{protocol}: {} {what} ({:.1} Hz, {:.1} s) of {} at speed {}{clock}{wire}",
         chunks.len(),
         chunk_rate(chunks),
-        rec.end_ns() as f64 * 1e-9 / enc.speed,
-        rec.name,
+        span_ns as f64 * 1e-9 / enc.speed,
+        name,
         enc.speed,
     )
 }

@@ -7,7 +7,9 @@
 //!   `insuwb_devices::link::Link` and decoded, are the scenario's IMU
 //!   samples in order, none early; `insuwb emulate uwb --protocol eliko`
 //!   serves the scenario's fixes over TCP after the Eliko handshake;
-//!   both stop cleanly on SIGINT.
+//!   `insuwb emulate uwb --protocol dwm1001` prints `twr-3.4`'s ranging
+//!   rounds as `lec` lines and refuses a TDOA scenario; all stop cleanly
+//!   on SIGINT.
 //!
 //! The tests start processes and measure time: one at a time (a lock).
 
@@ -128,16 +130,26 @@ fn read_readings(link: &mut Link, decoder: &mut AnyDecoder, want: usize) -> Vec<
 /// behind a stable link in a temporary folder, due from 1.5 s from now, and
 /// a serial `Link` opened on it: (emulator, link, epoch, folder).
 fn emulated_imu(protocol: &str, extra: &[&str]) -> (Child, Link, u64, std::path::PathBuf) {
+    emulated("imu", protocol, extra)
+}
+
+/// A `device` (`imu`, `uwb`) played by `insuwb emulate <device> --protocol
+/// <protocol>` on a pty, as [`emulated_imu`].
+fn emulated(
+    device: &str,
+    protocol: &str,
+    extra: &[&str],
+) -> (Child, Link, u64, std::path::PathBuf) {
     let dir = std::env::temp_dir().join(format!(
         "insuwb-test-{}-emulate-{protocol}",
         std::process::id()
     ));
     std::fs::create_dir_all(&dir).unwrap();
-    let link_path = dir.join("imu");
+    let link_path = dir.join(device);
     let epoch = monotonic_ns() + 1_500_000_000;
     let epoch_arg = epoch.to_string();
     let mut args = vec![
-        "imu",
+        device,
         "--protocol",
         protocol,
         "--link",
@@ -329,4 +341,62 @@ fn device_clock_with_100_ppm_drift_maps_within_1_ms() {
     );
     assert!(worst_ns <= 1_000_000, "mapped up to {worst_ns} ns off");
     assert!((50.0..=150.0).contains(&drift), "drift {drift} ppm");
+}
+
+#[test]
+fn emulated_dwm1001_prints_the_scenarios_ranging_rounds_and_refuses_tdoa() {
+    let _lock = lock();
+    let (child, mut link, _epoch, dir) = emulated("uwb", "dwm1001", &[]);
+    let mut decoder = AnyDecoder::new(Protocol::Dwm1001);
+    // 100 rounds of 4 anchors.
+    let got = read_readings(&mut link, &mut decoder, 400);
+    let stderr = interrupt(child);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(got.len(), 400, "{stderr}");
+    assert!(stderr.contains("UWB ranging rounds"), "{stderr}");
+    assert_eq!(decoder.stats().frames_ok, 100);
+
+    let sc = insuwb_fusion::scenario::ScenarioFile::load("twr-3.4").unwrap();
+    let data = sc.simulate(1).unwrap();
+    for (k, ((reading, _), m)) in got.iter().zip(&data.range).enumerate() {
+        let Reading::Range {
+            anchor,
+            range_m,
+            anchor_pos_m: Some(pos),
+            last_of_round,
+            ..
+        } = reading
+        else {
+            panic!("reading {k}: {reading:?}")
+        };
+        assert_eq!(*anchor, m.anchor, "reading {k}");
+        assert_eq!(*last_of_round, k % 4 == 3, "reading {k}");
+        // Two decimals.
+        assert!((range_m - m.range_m).abs() <= 0.005, "{reading:?} vs {m:?}");
+        for (a, b) in pos.iter().zip(&m.anchor_pos_m) {
+            assert!((a - b).abs() <= 0.005, "{reading:?} vs {m:?}");
+        }
+    }
+
+    // A TDOA scenario has no ranges to print.
+    let out = Command::new(insuwb())
+        .args([
+            "emulate",
+            "uwb",
+            "--protocol",
+            "dwm1001",
+            "--scenario",
+            "nlos-long",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(out.stdout.is_empty(), "{stderr}");
+    assert!(
+        stderr.contains("dwm1001 is a two-way ranging device")
+            && stderr.contains("kind = \"tdoa\"")
+            && stderr.contains("--scenario twr-3.4"),
+        "{stderr}"
+    );
 }

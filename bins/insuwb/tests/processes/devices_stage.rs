@@ -8,7 +8,9 @@
 //! machine runs); (c) a device that sends only bytes that never make a
 //! frame (what a wrong baud rate gives): the driver keeps running, says
 //! DEGRADED, and logs an error naming the port, the baud rate and the
-//! protocol.
+//! protocol; (d) a DWM1001 tag as the UWB source of a two-way ranging group
+//! (`[uwb] kind = "twr"`, the IMU simulated): its `lec` lines become
+//! ranges on `uwb_range`, fixes on `uwb_fix`, and fused states.
 //!
 //! The emulator plays in step with the group: the test reads the start
 //! epoch the launcher hands its stages (`INSUWB_START_EPOCH_NS`, from
@@ -30,6 +32,7 @@ use insuwb_group::recording::{self, Recording};
 use insuwb_log::Record;
 use insuwb_msg::{
     DeviceCounters, FusedState, GroundTruth, Health, HealthState, ImuSample, StageCounters,
+    UwbRange,
 };
 use insuwb_runtime::monotonic_ns;
 use insuwb_sim::rng::{RngExt as _, SeedableRng as _, SimRng};
@@ -242,19 +245,7 @@ fn a_witmotion_imu_on_a_pty_feeds_the_group_at_10_hz() {
         .iter()
         .map(|s| epoch + s.header.meas_time_ns)
         .collect();
-    let mut errs: Vec<i64> = imu
-        .iter()
-        .map(|s| {
-            let t = s.header.meas_time_ns;
-            let k = times.partition_point(|x| *x < t);
-            let near = [k.saturating_sub(1), k.min(times.len() - 1)]
-                .into_iter()
-                .min_by_key(|&i| times[i].abs_diff(t))
-                .unwrap();
-            t as i64 - times[near] as i64
-        })
-        .collect();
-    errs.sort_unstable();
+    let errs = stamp_errors(imu.iter().map(|s| s.header.meas_time_ns), &times);
     let median = errs[errs.len() / 2];
     let p99 = errs[errs.len() * 99 / 100];
     assert!(
@@ -449,4 +440,133 @@ fn bytes_that_never_frame_are_named_as_a_wrong_baud_rate_and_the_driver_stays_up
         device_counters(last).decoder_errors >= 1,
         "no resync counted: {last:?}"
     );
+}
+
+#[test]
+fn a_dwm1001_tag_on_a_pty_feeds_a_two_way_ranging_group() {
+    let _lock = lock();
+    let g = Group::with_config(
+        "devdwm",
+        &format!("imu = \"sim\"\nuwb = \"device\"\nscenario = \"twr-3.4\"\nseed = {SEED}"),
+        "filter = \"iakf\"",
+        "",
+    );
+    let link = g.dir.join("uwb");
+    let cfg = g.dir.join("robot.toml");
+    let text = std::fs::read_to_string(&cfg).unwrap()
+        + &format!(
+            "[uwb]\nkind = \"twr\"\n[devices.uwb]\nsource = \"serial:{}\"\nprotocol = \"dwm1001\"\nbaud = {BAUD}\n",
+            link.display()
+        );
+    std::fs::write(&cfg, text).unwrap();
+    let sc = insuwb_fusion::scenario::ScenarioFile::load("twr-3.4").unwrap();
+    let sim = sc.simulate(SEED).unwrap();
+    let enc = Encoding {
+        baud: BAUD,
+        ..Encoding::new(Protocol::Dwm1001)
+    };
+    let chunks = play::range_chunks(&sim.range, &enc).unwrap();
+    let pty = PtyEmulator::open_with_link(&g.dir, "uwb").unwrap();
+    let child = spawn_launch(&g, 12.0);
+    let epoch = group_epoch(&g);
+    let player = Player::start(pty, chunks, epoch, monotonic_ns, Faults::none()).unwrap();
+    let (r, stderr) = finish(&g, child);
+    player.stop();
+    let (_, played) = player.join().unwrap();
+    assert!(played.chunks_played > 500, "{played:?}");
+    assert_eq!(f(&r, "restarts"), 0.0, "{r}\n{stderr}");
+
+    let recs = records(&g.log_dir());
+    let ranges: Vec<UwbRange> = recs
+        .iter()
+        .filter_map(|r| match r {
+            Record::Range(m) => Some(*m),
+            _ => None,
+        })
+        .collect();
+    let fixes = recs.iter().filter(|r| matches!(r, Record::Fix(_))).count();
+    assert!(ranges.len() > 2000, "{} ranges recorded", ranges.len());
+    assert!(fixes > 500, "{fixes} fixes recorded");
+    // Anchors as the tag prints them (two decimals), one round end per
+    // line of four.
+    for m in &ranges {
+        let want = sc
+            .sim
+            .uwb
+            .anchors
+            .iter()
+            .find(|a| a.id == m.anchor)
+            .unwrap();
+        assert!(
+            m.anchor_pos_m
+                .iter()
+                .zip(&want.pos_m)
+                .all(|(a, b)| (a - b).abs() < 0.005),
+            "{m:?}"
+        );
+    }
+    let ends = ranges
+        .iter()
+        .filter(|m| m.header.flags & UwbRange::FLAG_EPOCH_END != 0)
+        .count();
+    assert!(
+        ends * 4 >= ranges.len() - 4 && ends * 4 <= ranges.len() + 4,
+        "{ends} round ends in {} ranges",
+        ranges.len()
+    );
+    // Each range is stamped with its round's measurement time: the read
+    // time less the wire time of its line.
+    let times: Vec<u64> = sim
+        .range
+        .iter()
+        .map(|m| epoch + m.header.meas_time_ns)
+        .collect();
+    let errs = stamp_errors(ranges.iter().map(|m| m.header.meas_time_ns), &times);
+    let median = errs[errs.len() / 2];
+
+    let truth: Vec<GroundTruth> = sim.truth.clone();
+    let rec = Recording {
+        truth,
+        ..Recording::default()
+    };
+    let (rmse, n) = fused_rmse(&recs, &rec, epoch);
+    let health = health_of(&recs, "uwb");
+    let last = health
+        .iter()
+        .rev()
+        .find(|h| state(h) != HealthState::Stopping)
+        .expect("no UWB heartbeat");
+    eprintln!(
+        "dwm1001 over {}: {} ranges, {fixes} fixes, range time error median {median} ns; \
+         rmse_horizontal {rmse:.4} m over {n} states; fused {:.2} Hz; last heartbeat {last:?}",
+        link.display(),
+        ranges.len(),
+        f(&r, "fused_rate_hz")
+    );
+    assert!(
+        median.abs() < 1_000_000,
+        "range time error median {median} ns"
+    );
+    assert!(rmse < 0.3, "rmse_horizontal {rmse:.4} m");
+    assert_eq!(state(last), HealthState::Ok, "{last:?}");
+    assert_eq!(last.dropped_invalid, 0, "{last:?}");
+    assert_eq!(device_counters(last).decoder_errors, 0, "{last:?}");
+    assert!(last.published > 2000, "{last:?}");
+}
+
+/// Each of `stamps` less the nearest of the sorted `times` it was played
+/// at, ns, sorted.
+fn stamp_errors(stamps: impl Iterator<Item = u64>, times: &[u64]) -> Vec<i64> {
+    let mut errs: Vec<i64> = stamps
+        .map(|t| {
+            let k = times.partition_point(|x| *x < t);
+            let near = [k.saturating_sub(1), k.min(times.len() - 1)]
+                .into_iter()
+                .min_by_key(|&i| times[i].abs_diff(t))
+                .unwrap();
+            t as i64 - times[near] as i64
+        })
+        .collect();
+    errs.sort_unstable();
+    errs
 }
