@@ -3,8 +3,9 @@
 //! [`Link`] that reconnects, the protocol's [`AnyDecoder`], one
 //! [`ClockFilter`] for the device's own clock, and the conversion of each
 //! [`Reading`] into the sample the group expects (an [`ImuSample`] on topic
-//! `imu`, a [`UwbFix`] on topic `uwb_fix`). It owns the driver's heartbeat
-//! while a device is the source.
+//! `imu`, a [`UwbFix`] on topic `uwb_fix`, with `[uwb] kind = "twr"` a
+//! [`UwbRange`] on topic `uwb_range` and the fixes built from them). It owns
+//! the driver's heartbeat while a device is the source.
 //!
 //! # Time stamps
 //!
@@ -12,7 +13,8 @@
 //! a reading is known: the reading was sent at the host time of the read
 //! minus the wire time ([`wire_time_ns`] at the configured baud; 0 over TCP)
 //! of the bytes read after it and of the reading's own frames (two WitMotion
-//! frames, one frame of the other protocols). When the reading carries a
+//! frames, the DWM1001 line as long as it was, one frame of the other
+//! protocols). When the reading carries a
 //! device time (MAVLink `time_usec`/`time_boot_ms`, NLink `system_time`,
 //! Eliko Unix time), that pair feeds the [`ClockFilter`] and the sample is
 //! stamped with the filter's mapping of the device time, which removes the
@@ -35,11 +37,26 @@
 //! antenna lever arm (`lever_arm_m`) is applied by the loose filters in the
 //! fusion stage (`[fusion.loose] lever_arm_m`, see `RobotConfig::fusion_config`).
 //!
-//! Both drop and count samples with a NaN, infinite or out-of-range value
+//! UWB with `[uwb] kind = "twr"` (DWM1001, NLink): the device's positions
+//! are ignored and each range reading becomes a [`UwbRange`]. The ranges of
+//! one round (one line or frame) share one stamp, the round's (its device
+//! time through the clock filter once); the last carries
+//! [`UwbRange::FLAG_EPOCH_END`], one with a device quality
+//! [`UwbRange::FLAG_QUALITY`]. The anchor's position is the configured one
+//! (`[[devices.uwb.anchors]]`), else the device's; a range to an anchor of
+//! neither is dropped (`dropped_invalid`, a warning once per anchor naming
+//! the key to add). Each range then takes the recorded sources' path
+//! (`driver::uwb::take_range`: gate, range offset, fix builder with
+//! `[fusion.fix]`); the fix it completes is published before it. A round
+//! whose last range was dropped is closed all the same
+//! ([`FixBuilder::flush`]).
+//!
+//! All drop and count samples with a NaN, infinite or out-of-range value
 //! (`Health::dropped_invalid`: the IMU limits of [`crate::driver`]; a
 //! position beyond [`MAX_POS_M`] or a device velocity beyond
-//! [`MAX_VEL_MPS`]) and samples whose time is not after the previous one
-//! (`Health::dropped_time`).
+//! [`MAX_VEL_MPS`]; a range the gate refuses for its values) and samples
+//! whose time is not after the previous one (`Health::dropped_time`; for
+//! ranges, a round's stamp, and the gate's time refusals).
 //!
 //! # Heartbeat
 //!
@@ -51,14 +68,16 @@
 //! protocol, once per episode; the driver keeps reading: the device may be
 //! fixed while it runs). A change of state is published at once, besides the
 //! periodic heartbeat. Counters: `received` valid frames, `published`
-//! samples, `dropped_invalid`, `dropped_time`, `seq_gaps` the device's own
-//! sequence gaps (Eliko), and [`DeviceCounters`]: decoder
-//! resynchronisations plus checksum errors, link reconnections
-//! (connections after the first), and the device clock's offset (host
-//! minus device, ns) and drift (ppb), `None` while unknown.
+//! samples (fixes and ranges with two-way ranging), `dropped_invalid`,
+//! `dropped_time`, `seq_gaps` the device's own sequence gaps (Eliko), and
+//! [`DeviceCounters`]: decoder resynchronisations plus checksum errors,
+//! link reconnections (connections after the first), and the device
+//! clock's offset (host minus device, ns) and drift (ppb), `None` while
+//! unknown.
 //!
 //! The loop allocates nothing per sample: a fixed read buffer, decoders with
-//! fixed buffers, a regression window allocated once.
+//! fixed buffers, a regression window and a fix builder's tables allocated
+//! once (the range solver of `insuwb_uwb` allocates per fix).
 
 use std::time::Duration;
 
@@ -67,10 +86,17 @@ use insuwb_devices::clock::{ClockConfig, ClockEvent, ClockFilter};
 use insuwb_devices::frame::{wire_time_ns, AnyDecoder, DeviceTime, Protocol, Reading};
 use insuwb_devices::link::{Link, LinkConfigError, LinkSpec, LinkState, Read, ReconnectPolicy};
 use insuwb_devices::{eliko, witmotion};
-use insuwb_msg::{topics, DeviceCounters, Header, HealthState, ImuSample, StageCounters, UwbFix};
+use insuwb_msg::check::RangeGate;
+use insuwb_msg::{
+    topics, DeviceCounters, Header, HealthState, ImuSample, StageCounters, UwbFix, UwbKind,
+    UwbRange,
+};
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
+use insuwb_uwb::fix::{FixBuilder, FixConfig, FixConfigError, PushError};
 use insuwb_uwb::velocity::{VelocityConfig, VelocityConfigError, VelocityEstimator};
 
+use crate::driver::uwb::take_range;
+use crate::driver::SKIP_LOG_PERIOD_NS;
 use crate::source::Want;
 use insuwb_group::robot::{DeviceConfig, RobotConfig};
 use insuwb_msg::check::imu_values;
@@ -93,6 +119,10 @@ const READ_TIMEOUT: Duration = Duration::from_millis(20);
 
 /// Bytes read at once.
 const READ_BUF_LEN: usize = 4096;
+
+/// Anchors without a position warned about one by one; more are counted
+/// silently.
+const MAX_WARNED_ANCHORS: usize = 64;
 
 /// Why a device driver could not start.
 #[derive(Debug, thiserror::Error)]
@@ -130,6 +160,25 @@ pub enum DeviceSetupError {
     /// The velocity regression settings were refused.
     #[error("fusion.fix.{0}")]
     Velocity(VelocityConfigError),
+    /// The fix builder's settings were refused.
+    #[error("fusion.fix: {0}")]
+    Fix(FixConfigError),
+    /// The protocol does not report what `[uwb] kind` names.
+    #[error("DeviceSetupError::Kind: devices.uwb.protocol = \"{protocol}\" reports {reports}, but [uwb] kind = \"{kind}\"")]
+    Kind {
+        /// The device protocol.
+        protocol: Protocol,
+        /// What it reports.
+        reports: &'static str,
+        /// The robot's `[uwb] kind`.
+        kind: UwbKind,
+    },
+}
+
+impl From<FixConfigError> for DeviceSetupError {
+    fn from(e: FixConfigError) -> Self {
+        Self::Fix(e)
+    }
 }
 
 impl From<VelocityConfigError> for DeviceSetupError {
@@ -163,7 +212,10 @@ impl Setup {
                 })?;
         let fits = match want {
             Want::Imu => matches!(protocol, Protocol::WitMotion | Protocol::Mavlink),
-            Want::Uwb => matches!(protocol, Protocol::Nlink | Protocol::Eliko),
+            Want::Uwb => matches!(
+                protocol,
+                Protocol::Nlink | Protocol::Eliko | Protocol::Dwm1001
+            ),
         };
         if !fits {
             return Err(DeviceSetupError::Protocol {
@@ -219,6 +271,29 @@ fn sensor_name(want: Want) -> &'static str {
     want.role().name()
 }
 
+/// `[uwb] kind` against what a UWB protocol reports (Eliko positions,
+/// DWM1001 ranges, NLink both).
+fn check_kind(want: Want, protocol: Protocol, kind: UwbKind) -> Result<(), DeviceSetupError> {
+    let reports = match (want, protocol) {
+        (Want::Uwb, Protocol::Eliko) if kind == UwbKind::Twr => "positions, not ranges",
+        (Want::Uwb, Protocol::Dwm1001) if kind == UwbKind::Tdoa => {
+            "two-way ranges (set [uwb] kind = \"twr\")"
+        }
+        _ => return Ok(()),
+    };
+    Err(DeviceSetupError::Kind {
+        protocol,
+        reports,
+        kind,
+    })
+}
+
+/// Whether a reading's own bytes are one text line of varying length (its
+/// wire time is the line's, not [`Protocol::nominal_frame_len`]'s).
+fn per_line(protocol: Protocol) -> bool {
+    matches!(protocol, Protocol::Dwm1001 | Protocol::Eliko)
+}
+
 /// Bytes on the wire of the frames that make one reading.
 fn reading_len(protocol: Protocol) -> usize {
     match protocol {
@@ -258,18 +333,134 @@ struct Drops {
     time: u64,
 }
 
+/// The fields of a [`Reading::Range`] but its device time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RangeReading {
+    anchor: u32,
+    range_m: f64,
+    anchor_pos_m: Option<[f64; 3]>,
+    quality: Option<u8>,
+    last_of_round: bool,
+}
+
 /// What one reading became.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Out {
     Imu(ImuSample),
     Fix(UwbFix),
+    /// A two-way range, after the fix it completed (if any).
+    Range {
+        fix: Option<UwbFix>,
+        range: UwbRange,
+    },
     /// Dropped and counted.
     Dropped,
     /// Not for this driver (another kind of reading, another tag).
     Skipped,
 }
 
-/// Turns readings into samples: times, rotation, checks, velocity. Pure.
+/// A UWB device's two-way ranges (`[uwb] kind = "twr"`): the surveyed
+/// anchors, the open round, and the path every range takes into the group
+/// ([`take_range`]).
+#[derive(Debug)]
+struct Ranging {
+    /// `[[devices.uwb.anchors]]`: id and position.
+    anchors: Vec<(u32, [f64; 3])>,
+    gate: RangeGate,
+    fixes: FixBuilder,
+    /// The open round: the send time its readings share and its stamp
+    /// (`None`: the round is dropped for its time).
+    round: Option<(u64, Option<u64>)>,
+    /// Anchors warned about for having no position (capacity
+    /// [`MAX_WARNED_ANCHORS`], allocated once).
+    warned: Vec<u32>,
+    /// The latest range the fix builder refused.
+    last_refusal: Option<PushError>,
+    /// Skipped epochs and refusals already logged, and when.
+    logged: (u64, u64),
+    logged_at: u64,
+}
+
+impl Ranging {
+    /// The anchors of `dev` and a fix builder with `fix` (live stamps: the
+    /// epoch windows are not aligned to any start epoch).
+    fn new(dev: &DeviceConfig, fix: FixConfig) -> Result<Self, DeviceSetupError> {
+        Ok(Self {
+            anchors: dev.anchors.iter().map(|a| (a.id, a.pos_m)).collect(),
+            gate: RangeGate::new(),
+            fixes: FixBuilder::new(fix)?,
+            round: None,
+            warned: Vec::with_capacity(MAX_WARNED_ANCHORS),
+            last_refusal: None,
+            logged: (0, 0),
+            logged_at: 0,
+        })
+    }
+
+    /// The anchor's position: configured, else the device's.
+    fn anchor_pos(&self, anchor: u32, reported: Option<[f64; 3]>) -> Option<[f64; 3]> {
+        self.anchors
+            .iter()
+            .find(|(id, _)| *id == anchor)
+            .map(|(_, p)| *p)
+            .or(reported)
+    }
+
+    /// Warns once about an anchor without a position.
+    fn warn_unknown(&mut self, anchor: u32) {
+        if self.warned.contains(&anchor) || self.warned.len() >= MAX_WARNED_ANCHORS {
+            return;
+        }
+        self.warned.push(anchor);
+        tracing::warn!(
+            "uwb driver: ranges to anchor {anchor} (0x{anchor:04X}) are dropped: its position is unknown; add it to the robot config: [[devices.uwb.anchors]] id = {anchor}, pos_m = [x, y, z]"
+        );
+    }
+
+    /// A range of the round was dropped: when it was the round's last, the
+    /// epoch is closed all the same and its fix returned.
+    fn dropped(&mut self, last_of_round: bool) -> Out {
+        match last_of_round.then(|| self.fixes.flush()).flatten() {
+            Some(f) => Out::Fix(f),
+            None => Out::Dropped,
+        }
+    }
+
+    /// Logs, at most every [`SKIP_LOG_PERIOD_NS`], the epochs the fix
+    /// builder skipped and the ranges it refused since the last log.
+    fn log(&mut self, now_ns: u64) {
+        let s = self.fixes.stats();
+        let skipped = s.skipped_too_few_pairs
+            + s.skipped_too_few_anchors
+            + s.skipped_degenerate
+            + s.skipped_no_convergence
+            + s.skipped_runaway
+            + s.skipped_other;
+        let refused = s.dropped_impossible
+            + s.dropped_capacity
+            + s.dropped_non_finite
+            + s.dropped_same_anchor
+            + s.dropped_time_backwards;
+        if (skipped, refused) == self.logged || now_ns < self.logged_at + SKIP_LOG_PERIOD_NS {
+            return;
+        }
+        tracing::warn!(
+            "uwb driver: {} ranging epochs without a fix (last: {}), {} ranges refused by the fix builder (last: {})",
+            skipped - self.logged.0,
+            self.fixes
+                .last_skip()
+                .map_or_else(|| "-".to_owned(), ToString::to_string),
+            refused - self.logged.1,
+            self.last_refusal
+                .map_or_else(|| "-".to_owned(), |e| e.to_string())
+        );
+        self.logged = (skipped, refused);
+        self.logged_at = now_ns;
+    }
+}
+
+/// Turns readings into samples: times, rotation, checks, velocity; with
+/// two-way ranging, ranges and their fixes. Pure.
 #[derive(Debug)]
 struct Converter {
     want: Want,
@@ -283,6 +474,8 @@ struct Converter {
     clock_off: bool,
     last_t: Option<u64>,
     velocity: VelocityEstimator,
+    /// With `[uwb] kind = "twr"`.
+    ranging: Option<Ranging>,
     drops: Drops,
     other_tags: u64,
 }
@@ -304,9 +497,34 @@ impl Converter {
             clock_off: false,
             last_t: None,
             velocity: VelocityEstimator::new(velocity)?,
+            ranging: None,
             drops: Drops::default(),
             other_tags: 0,
         })
+    }
+
+    /// Turns range readings into [`UwbRange`]s (and ignores positions).
+    fn with_ranging(mut self, ranging: Ranging) -> Self {
+        self.ranging = Some(ranging);
+        self
+    }
+
+    /// Samples dropped for their values, by the converter or the range gate.
+    fn dropped_invalid(&self) -> u64 {
+        self.drops.invalid
+            + self
+                .ranging
+                .as_ref()
+                .map_or(0, |r| r.gate.refusals().invalid())
+    }
+
+    /// Samples dropped for their time, by the converter or the range gate.
+    fn dropped_time(&self) -> u64 {
+        self.drops.time
+            + self
+                .ranging
+                .as_ref()
+                .map_or(0, |r| r.gate.refusals().time())
     }
 
     /// The host time of a reading sent at `sent_ns` with `device_time`.
@@ -391,6 +609,28 @@ impl Converter {
             }
             (
                 Want::Uwb,
+                Reading::Range {
+                    anchor,
+                    range_m,
+                    anchor_pos_m,
+                    quality,
+                    last_of_round,
+                    device_time,
+                },
+            ) if self.ranging.is_some() => {
+                let r = RangeReading {
+                    anchor: *anchor,
+                    range_m: *range_m,
+                    anchor_pos_m: *anchor_pos_m,
+                    quality: *quality,
+                    last_of_round: *last_of_round,
+                };
+                self.range(&r, *device_time, sent_ns)
+            }
+            // Two-way ranging: the device's own positions are not used.
+            (Want::Uwb, Reading::Position { .. }) if self.ranging.is_some() => Out::Skipped,
+            (
+                Want::Uwb,
                 Reading::Position {
                     tag,
                     pos_m,
@@ -436,6 +676,65 @@ impl Converter {
         }
     }
 
+    /// A range reading sent at `sent_ns`: stamped with its round's time,
+    /// given its anchor's position and flags, through [`take_range`].
+    fn range(&mut self, r: &RangeReading, device_time: Option<DeviceTime>, sent_ns: u64) -> Out {
+        // Readings of one line or frame come out of one byte: one send time.
+        let open = match self.ranging.as_ref().and_then(|g| g.round) {
+            Some((sent, stamp)) if sent == sent_ns => Some(stamp),
+            _ => None,
+        };
+        let stamp = match open {
+            Some(stamp) => stamp,
+            None => {
+                let t = self.time(device_time, sent_ns);
+                self.take_time(t).then_some(t)
+            }
+        };
+        let Some(g) = self.ranging.as_mut() else {
+            return Out::Skipped;
+        };
+        g.round = (!r.last_of_round).then_some((sent_ns, stamp));
+        let Some(t) = stamp else {
+            // The round's first range was counted by `take_time`.
+            if open.is_some() {
+                self.drops.time += 1;
+            }
+            return Out::Dropped;
+        };
+        let Some(anchor_pos_m) = g.anchor_pos(r.anchor, r.anchor_pos_m) else {
+            self.drops.invalid += 1;
+            g.warn_unknown(r.anchor);
+            return g.dropped(r.last_of_round);
+        };
+        let mut header = Header::new(0, t);
+        if r.last_of_round {
+            header.flags |= UwbRange::FLAG_EPOCH_END;
+        }
+        if r.quality.is_some() {
+            header.flags |= UwbRange::FLAG_QUALITY;
+        }
+        let m = UwbRange {
+            header,
+            anchor: r.anchor,
+            quality: r.quality.map_or(0, u32::from),
+            range_m: r.range_m,
+            anchor_pos_m,
+        };
+        // Refused by the gate: counted there.
+        let Some((pushed, range)) = take_range(&mut g.gate, &mut g.fixes, &m) else {
+            return g.dropped(r.last_of_round);
+        };
+        let fix = match pushed {
+            Ok(f) => f,
+            Err(e) => {
+                g.last_refusal = Some(e);
+                r.last_of_round.then(|| g.fixes.flush()).flatten()
+            }
+        };
+        Out::Range { fix, range }
+    }
+
     fn clock_offset_ns(&self) -> Option<i64> {
         self.clock.as_ref().and_then(|(f, _, _)| f.offset_ns())
     }
@@ -477,12 +776,14 @@ struct Wire {
     baud: u32,
     /// Wire time of the frames of one reading, ns.
     reading_ns: u64,
+    /// A reading is a text line: its wire time is its line's.
+    per_line: bool,
 }
 
 /// Hands the `bytes` of one read to the decoder one at a time and gives
 /// `out` what each reading became, stamped with the time it was sent: the
 /// read time minus the wire time of the bytes after the reading's last one
-/// and of the reading's own frames.
+/// and of the reading's own frames (or line).
 fn on_bytes(
     decoder: &mut AnyDecoder,
     conv: &mut Converter,
@@ -493,10 +794,12 @@ fn on_bytes(
     let n = bytes.len();
     for (i, byte) in bytes.iter().enumerate() {
         let after = wire_time_ns(n - 1 - i, wire.baud);
-        let sent_ns = wire
-            .host_time_ns
-            .saturating_sub(after)
-            .saturating_sub(wire.reading_ns);
+        let own = if wire.per_line {
+            wire_time_ns(decoder.buffered() + 1, wire.baud)
+        } else {
+            wire.reading_ns
+        };
+        let sent_ns = wire.host_time_ns.saturating_sub(after).saturating_sub(own);
         decoder.push(std::slice::from_ref(byte), &mut |r| {
             out(conv.convert(&r, sent_ns))
         });
@@ -512,15 +815,28 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
     }
     .ok_or(DeviceSetupError::NoDevice { sensor: name })?;
     let setup = Setup::new(want, dev)?;
-    let velocity = match want {
-        Want::Uwb => cfg.fusion_config()?.fix.velocity,
-        Want::Imu => VelocityConfig::default(),
+    check_kind(want, setup.protocol, cfg.uwb.kind)?;
+    let ranging = want == Want::Uwb && cfg.uwb.kind == UwbKind::Twr;
+    let (velocity, fix) = match want {
+        Want::Uwb => {
+            let fix = cfg.fusion_config()?.fix;
+            (fix.velocity.clone(), Some(fix))
+        }
+        Want::Imu => (VelocityConfig::default(), None),
     };
     let mut conv = Converter::new(want, dev, velocity)?;
+    if let (true, Some(fix)) = (ranging, fix) {
+        conv = conv.with_ranging(Ranging::new(dev, fix)?);
+    }
     let stage = Stage::new(cfg.runtime(name))?;
     let (mut imu_pub, mut fix_pub) = match want {
         Want::Imu => (Some(stage.publisher::<ImuSample>(topics::IMU)?), None),
         Want::Uwb => (None, Some(stage.publisher::<UwbFix>(topics::UWB_FIX)?)),
+    };
+    let mut range_pub = if ranging {
+        Some(stage.publisher::<UwbRange>(topics::UWB_RANGE)?)
+    } else {
+        None
     };
     let mut health = stage.health_reporter()?;
     let waiter = stage.waiter()?;
@@ -540,10 +856,15 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
     let baud = setup.wire_baud;
     let reading_wire_ns = wire_time_ns(reading_len(setup.protocol), baud);
     tracing::info!(
-        "{name} driver: device {} ({}, {} baud), generation {}",
+        "{name} driver: device {} ({}, {} baud{}), generation {}",
         setup.spec,
         setup.protocol,
         dev.baud,
+        if ranging {
+            format!(", two-way ranges, {} surveyed anchors", dev.anchors.len())
+        } else {
+            String::new()
+        },
         stage.generation()
     );
     let mut buf = [0u8; READ_BUF_LEN];
@@ -572,11 +893,19 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
                 host_time_ns,
                 baud,
                 reading_ns: reading_wire_ns,
+                per_line: per_line(setup.protocol),
             };
             on_bytes(&mut decoder, &mut conv, bytes, &wire, &mut |out| {
                 let published = match out {
                     Out::Imu(s) => imu_pub.as_mut().map(|p| p.publish(s)),
                     Out::Fix(f) => fix_pub.as_mut().map(|p| p.publish(f)),
+                    // The fix the range completed goes out before it.
+                    Out::Range { fix, range } => {
+                        match fix.and_then(|f| fix_pub.as_mut().map(|p| p.publish(f))) {
+                            Some(Err(e)) => Some(Err(e)),
+                            _ => range_pub.as_mut().map(|p| p.publish(range)),
+                        }
+                    }
                     Out::Dropped | Out::Skipped => None,
                 };
                 if let Some(Err(e)) = published {
@@ -636,9 +965,13 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
             counters.published = imu_pub
                 .as_ref()
                 .map_or(0, |p| p.published())
-                .saturating_add(fix_pub.as_ref().map_or(0, |p| p.published()));
-            counters.dropped_invalid = conv.drops.invalid;
-            counters.dropped_time = conv.drops.time;
+                .saturating_add(fix_pub.as_ref().map_or(0, |p| p.published()))
+                .saturating_add(range_pub.as_ref().map_or(0, |p| p.published()));
+            counters.dropped_invalid = conv.dropped_invalid();
+            counters.dropped_time = conv.dropped_time();
+            if let Some(r) = conv.ranging.as_mut() {
+                r.log(monotonic_ns());
+            }
             counters.seq_gaps = stats.seq_gaps;
             counters.stage = StageCounters::Device(DeviceCounters {
                 decoder_errors: stats.resyncs.saturating_add(stats.checksum_errors),
@@ -653,6 +986,9 @@ pub fn run(want: Want, cfg: &RobotConfig) -> Result<()> {
                 p.update_connections()?;
             }
             for p in fix_pub.iter() {
+                p.update_connections()?;
+            }
+            for p in range_pub.iter() {
                 p.update_connections()?;
             }
         }
@@ -670,6 +1006,7 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
     use super::*;
+    use insuwb_group::robot::AnchorConfig;
 
     fn dev(protocol: &str, source: &str) -> DeviceConfig {
         DeviceConfig {
@@ -965,12 +1302,23 @@ mod tests {
         protocol: &str,
         chunks: Vec<(u64, Vec<u8>)>,
     ) -> (u64, u64) {
+        steady_state_allocations_of(want, protocol, chunks, None)
+    }
+
+    /// [`steady_state_allocations`], with `[uwb] kind = "twr"` when
+    /// `ranging` gives the anchors and the fix builder's settings.
+    fn steady_state_allocations_of(
+        want: Want,
+        protocol: &str,
+        chunks: Vec<(u64, Vec<u8>)>,
+        ranging: Option<(Vec<AnchorConfig>, FixConfig)>,
+    ) -> (u64, u64) {
         use insuwb_devices::emulator::{Faults, Player, PtyEmulator};
         use std::sync::atomic::Ordering;
 
         let pty = PtyEmulator::open().unwrap();
         let path = pty.driver_path().unwrap().to_owned();
-        let d = dev(protocol, &format!("serial:{}", path.display()));
+        let mut d = dev(protocol, &format!("serial:{}", path.display()));
         let setup = Setup::new(want, &d).unwrap();
         let mut link = Link::new(
             setup.spec.clone(),
@@ -982,6 +1330,10 @@ mod tests {
         .unwrap();
         let mut decoder = setup.decoder(0);
         let mut conv = Converter::new(want, &d, VelocityConfig::default()).unwrap();
+        if let Some((anchors, fix)) = ranging {
+            d.anchors = anchors;
+            conv = conv.with_ranging(Ranging::new(&d, fix).unwrap());
+        }
         let mut buf = [0u8; READ_BUF_LEN];
         // Connect before the player starts: a pty loses what nobody reads.
         let _ = link.read(&mut buf, Duration::from_millis(1)).unwrap();
@@ -1000,6 +1352,7 @@ mod tests {
                     host_time_ns,
                     baud: 115_200,
                     reading_ns,
+                    per_line: per_line(setup.protocol),
                 };
                 on_bytes(
                     &mut decoder,
@@ -1007,7 +1360,7 @@ mod tests {
                     buf.get(..n).unwrap(),
                     &wire,
                     &mut |out| {
-                        if matches!(out, Out::Imu(_) | Out::Fix(_)) {
+                        if matches!(out, Out::Imu(_) | Out::Fix(_) | Out::Range { .. }) {
                             samples += 1;
                         }
                     },
@@ -1018,6 +1371,8 @@ mod tests {
             let _ = (
                 conv.clock_offset_ns(),
                 conv.clock_drift_ppb(),
+                conv.dropped_invalid(),
+                conv.dropped_time(),
                 decoder.stats(),
             );
         }
@@ -1053,5 +1408,257 @@ mod tests {
         eprintln!("nlink UWB: {samples} fixes, {allocations} allocations");
         assert!(samples >= 80, "{samples} fixes");
         assert_eq!(allocations, 0, "over {samples} fixes");
+    }
+
+    #[test]
+    fn the_range_path_allocates_nothing_per_range() {
+        use insuwb_devices::play::{self, Encoding};
+        let (ranges, solving) = twr_ranges();
+        // Rounds of 4 anchors never reach the range solver, which allocates
+        // (`insuwb_uwb::range`): what is counted is the driver's own path
+        // (read, decode, stamp, gate, offset, epoch tables).
+        let fix = FixConfig {
+            max_pairs: 8,
+            min_pairs: 8,
+            ..solving.clone()
+        };
+        // DWM1001 `lec` lines, 100 rounds a second of 4 anchors, positions
+        // printed by the device.
+        let lec = play::range_chunks(&ranges, &Encoding::new(Protocol::Dwm1001)).unwrap();
+        let (samples, allocations) = steady_state_allocations_of(
+            Want::Uwb,
+            "dwm1001",
+            lec.clone(),
+            Some((Vec::new(), fix.clone())),
+        );
+        eprintln!("dwm1001 ranges: {samples} ranges, {allocations} allocations");
+        assert!(samples >= 300, "{samples} ranges");
+        assert_eq!(allocations, 0, "over {samples} ranges");
+        // NLink tag frames: device clock, anchors from the config.
+        let frames = play::range_chunks(&ranges, &Encoding::new(Protocol::Nlink)).unwrap();
+        let (samples, allocations) =
+            steady_state_allocations_of(Want::Uwb, "nlink", frames, Some((twr_anchors(), fix)));
+        eprintln!("nlink ranges: {samples} ranges, {allocations} allocations");
+        assert!(samples >= 300, "{samples} ranges");
+        assert_eq!(allocations, 0, "over {samples} ranges");
+        // With the solver: a figure, not a requirement of this module.
+        let (samples, allocations) =
+            steady_state_allocations_of(Want::Uwb, "dwm1001", lec, Some((Vec::new(), solving)));
+        eprintln!(
+            "dwm1001 ranges with the solver: {samples} ranges (a fix per round of 4), {allocations} allocations (the range solver's)"
+        );
+    }
+
+    /// The `twr-3.4` scenario's ranges (seed 1) and its fix settings.
+    fn twr_ranges() -> (Vec<UwbRange>, FixConfig) {
+        let sc = insuwb_fusion::scenario::ScenarioFile::load("twr-3.4").unwrap();
+        let fix = sc.fusion_for_seed(1).unwrap().fix;
+        (sc.simulate(1).unwrap().range, fix)
+    }
+
+    /// The `twr-3.4` anchors: ids 0 to 3 at the corners of a 10 m square.
+    fn twr_anchors() -> Vec<AnchorConfig> {
+        [[-5.0, -5.0], [5.0, -5.0], [-5.0, 5.0], [5.0, 5.0]]
+            .iter()
+            .enumerate()
+            .map(|(i, p)| AnchorConfig {
+                id: i as u32,
+                pos_m: [p[0], p[1], 0.0],
+            })
+            .collect()
+    }
+
+    fn range(anchor: u32, range_m: f64, pos: Option<[f64; 3]>, last: bool) -> Reading {
+        Reading::Range {
+            anchor,
+            range_m,
+            anchor_pos_m: pos,
+            quality: None,
+            last_of_round: last,
+            device_time: None,
+        }
+    }
+
+    /// A converter of two-way ranges from `protocol` with the configured
+    /// `anchors` and `twr-3.4`'s fix settings.
+    fn ranging(protocol: &str, anchors: Vec<AnchorConfig>) -> Converter {
+        let mut d = dev(protocol, "serial:/dev/null");
+        d.anchors = anchors;
+        let (_, fix) = twr_ranges();
+        Converter::new(Want::Uwb, &d, VelocityConfig::default())
+            .unwrap()
+            .with_ranging(Ranging::new(&d, fix).unwrap())
+    }
+
+    fn range_of(out: Out) -> UwbRange {
+        match out {
+            Out::Range { range, .. } => range,
+            o => panic!("not a range: {o:?}"),
+        }
+    }
+
+    #[test]
+    fn a_configured_anchor_position_wins_over_the_devices() {
+        let surveyed = [1.0, 2.0, 0.5];
+        let mut c = ranging(
+            "dwm1001",
+            vec![AnchorConfig {
+                id: 0x0C2B,
+                pos_m: surveyed,
+            }],
+        );
+        let r = range_of(c.convert(&range(0x0C2B, 3.0, Some([0.0; 3]), false), 1_000));
+        assert_eq!(
+            (r.anchor, r.range_m, r.anchor_pos_m),
+            (0x0C2B, 3.0, surveyed)
+        );
+        // Not configured: the device's position.
+        let r = range_of(c.convert(&range(0x9825, 2.0, Some([3.0, 0.0, 0.0]), true), 1_000));
+        assert_eq!(r.anchor_pos_m, [3.0, 0.0, 0.0]);
+        assert_eq!(c.dropped_invalid(), 0);
+    }
+
+    #[test]
+    fn a_range_to_an_anchor_without_a_position_is_dropped_and_counted() {
+        let mut c = ranging("nlink", twr_anchors()[..2].to_vec());
+        assert!(matches!(
+            c.convert(&range(0, 7.0, None, false), 1_000),
+            Out::Range { .. }
+        ));
+        assert_eq!(c.convert(&range(5, 7.0, None, false), 1_000), Out::Dropped);
+        assert_eq!(c.convert(&range(5, 7.0, None, false), 2_000), Out::Dropped);
+        assert_eq!(c.convert(&range(6, 7.0, None, false), 3_000), Out::Dropped);
+        assert_eq!(c.dropped_invalid(), 3);
+        assert_eq!(c.drops.time, 0);
+        // One warning per anchor.
+        assert_eq!(c.ranging.as_ref().unwrap().warned, vec![5, 6]);
+    }
+
+    #[test]
+    fn the_ranges_of_a_round_share_its_stamp_and_flags() {
+        let mut c = ranging("nlink", twr_anchors());
+        let mut q = range(2, 4.0, None, false);
+        if let Reading::Range { quality, .. } = &mut q {
+            *quality = Some(87);
+        }
+        // One round: one send time (one frame); the next: another.
+        let a = range_of(c.convert(&range(0, 5.0, None, false), 1_000_000));
+        let b = range_of(c.convert(&q, 1_000_000));
+        let z = range_of(c.convert(&range(3, 6.0, None, true), 1_000_000));
+        let next = range_of(c.convert(&range(0, 5.1, None, false), 11_000_000));
+        for r in [a, b, z] {
+            assert_eq!(r.header.meas_time_ns, 1_000_000);
+        }
+        assert_eq!(next.header.meas_time_ns, 11_000_000);
+        assert_eq!(a.header.flags, 0);
+        assert_eq!(b.header.flags, UwbRange::FLAG_QUALITY);
+        assert_eq!(b.quality, 87);
+        assert_eq!(z.header.flags, UwbRange::FLAG_EPOCH_END);
+        assert_eq!(a.anchor_pos_m, [-5.0, -5.0, 0.0]);
+        // A round stamped at or before the previous one's is dropped whole.
+        let mut c = ranging("nlink", twr_anchors());
+        let _ = c.convert(&range(0, 5.0, None, true), 2_000);
+        assert_eq!(c.convert(&range(0, 5.0, None, false), 2_000), Out::Dropped);
+        assert_eq!(c.convert(&range(1, 5.0, None, true), 2_000), Out::Dropped);
+        assert_eq!(c.dropped_time(), 2);
+    }
+
+    #[test]
+    fn rounds_give_fixes_and_a_dropped_last_range_still_closes_the_round() {
+        let mut c = ranging("nlink", twr_anchors());
+        let p = [1.0, 2.0];
+        let to =
+            |a: &AnchorConfig| ((p[0] - a.pos_m[0]).powi(2) + (p[1] - a.pos_m[1]).powi(2)).sqrt();
+        let anchors = twr_anchors();
+        let mut fixes = Vec::new();
+        for k in 1..=5u64 {
+            let t = k * 10_000_000;
+            for (i, a) in anchors.iter().enumerate() {
+                match c.convert(&range(a.id, to(a), None, i == 3), t) {
+                    Out::Range { fix, range } => {
+                        assert_eq!(fix.is_some(), i == 3, "round {k}, anchor {i}");
+                        fixes.extend(fix.map(|f| (f, range)));
+                    }
+                    o => panic!("{o:?}"),
+                }
+            }
+        }
+        assert_eq!(fixes.len(), 5);
+        for (f, r) in &fixes {
+            assert_eq!(f.header.meas_time_ns, r.header.meas_time_ns);
+            assert!(
+                (f.pos_m[0] - 1.0).abs() < 1e-3 && (f.pos_m[1] - 2.0).abs() < 1e-3,
+                "{f:?}"
+            );
+        }
+        // The round's last range is to an anchor without a position: the
+        // round is closed all the same.
+        let t = 60_000_000;
+        for a in &anchors {
+            assert!(matches!(
+                c.convert(&range(a.id, to(a), None, false), t),
+                Out::Range { fix: None, .. }
+            ));
+        }
+        match c.convert(&range(9, 3.0, None, true), t) {
+            Out::Fix(f) => assert_eq!(f.header.meas_time_ns, t),
+            o => panic!("{o:?}"),
+        }
+        assert_eq!(c.dropped_invalid(), 1);
+    }
+
+    #[test]
+    fn positions_or_ranges_by_kind() {
+        let pos = Reading::Position {
+            tag: 1,
+            pos_m: [1.0, 2.0, 0.0],
+            vel_mps: None,
+            device_time: None,
+            seq: None,
+        };
+        // TWR: ranges used, the device's positions ignored.
+        let mut c = ranging("nlink", twr_anchors());
+        assert_eq!(c.convert(&pos, 1_000), Out::Skipped);
+        assert!(matches!(
+            c.convert(&range(0, 5.0, None, true), 1_000),
+            Out::Range { .. }
+        ));
+        // TDOA: positions used, ranges ignored.
+        let mut c = Converter::new(
+            Want::Uwb,
+            &dev("nlink", "serial:/dev/null"),
+            VelocityConfig::default(),
+        )
+        .unwrap();
+        assert_eq!(c.convert(&range(0, 5.0, None, true), 1_000), Out::Skipped);
+        assert!(matches!(c.convert(&pos, 2_000), Out::Fix(_)));
+        // The protocols that report one kind refuse the other.
+        assert!(check_kind(Want::Uwb, Protocol::Dwm1001, UwbKind::Twr).is_ok());
+        assert!(check_kind(Want::Uwb, Protocol::Nlink, UwbKind::Twr).is_ok());
+        assert!(check_kind(Want::Uwb, Protocol::Nlink, UwbKind::Tdoa).is_ok());
+        let e = check_kind(Want::Uwb, Protocol::Dwm1001, UwbKind::Tdoa).unwrap_err();
+        assert!(e.to_string().contains("kind = \"twr\""), "{e}");
+        assert!(check_kind(Want::Uwb, Protocol::Eliko, UwbKind::Twr).is_err());
+    }
+
+    #[test]
+    fn a_dwm1001_line_is_stamped_by_its_own_length() {
+        // A `lec` line read whole at 1 s: sent its own wire time earlier.
+        let line = b"DIST,2,AN0,0001,0.00,0.00,0.00,1.00,AN1,0002,3.00,0.00,0.00,2.00\r\n";
+        let mut c = ranging("dwm1001", Vec::new());
+        let mut decoder = AnyDecoder::new(Protocol::Dwm1001);
+        let wire = Wire {
+            host_time_ns: 1_000_000_000,
+            baud: 115_200,
+            reading_ns: wire_time_ns(reading_len(Protocol::Dwm1001), 115_200),
+            per_line: per_line(Protocol::Dwm1001),
+        };
+        let mut got = Vec::new();
+        on_bytes(&mut decoder, &mut c, line, &wire, &mut |o| got.push(o));
+        let want = 1_000_000_000 - wire_time_ns(line.len(), 115_200);
+        assert_eq!(got.len(), 2, "{got:?}");
+        for o in got {
+            assert_eq!(range_of(o).header.meas_time_ns, want);
+        }
     }
 }
