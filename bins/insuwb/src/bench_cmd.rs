@@ -463,6 +463,7 @@ fn group_round(
             live: false,
             faults: Vec::new(),
             chaos_seed: None,
+            sample_every: None,
             env: vec![(
                 insuwb_stage::logger::FUSED_TRACE_ENV.to_owned(),
                 trace_path.display().to_string(),

@@ -32,22 +32,25 @@ pub struct ChaosArgs {
 
 /// What `insuwb chaos` checks.
 #[derive(Debug, serde::Serialize)]
-struct ChaosReport {
-    faults: u32,
-    restarts: u32,
-    max_gap_ms: f64,
+pub struct ChaosReport {
+    pub faults: u32,
+    pub restarts: u32,
+    pub max_gap_ms: f64,
     /// The undisturbed run's: the scenario's own gaps (its scripted UWB
     /// dropouts, where INS-only coasting is the answer).
-    max_gap_undisturbed_ms: f64,
-    records_lost: u64,
-    leftover_files: usize,
-    deadlocks: u32,
-    rmse_horizontal: Option<f64>,
+    pub max_gap_undisturbed_ms: f64,
+    pub records_lost: u64,
+    pub leftover_files: usize,
+    pub deadlocks: u32,
+    pub rmse_horizontal: Option<f64>,
     /// The same scenario, seed and length without faults, run beside.
-    rmse_undisturbed: Option<f64>,
+    pub rmse_undisturbed: Option<f64>,
     /// `rmse_horizontal / rmse_undisturbed`.
-    rmse_ratio: Option<f64>,
-    fused_rate_hz: f64,
+    pub rmse_ratio: Option<f64>,
+    pub fused_rate_hz: f64,
+    /// The periodic looks at the faulted group (`sample_every`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub samples: Vec<crate::group_run::ResourceSample>,
 }
 
 /// Runs `insuwb chaos`: the group on simulated sensors under random SIGKILL
@@ -56,10 +59,53 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
     if !(a.duration.is_finite() && a.duration >= 5.0 && a.duration <= 3600.0) {
         bail!("--duration must be in [5, 3600] s, got {}", a.duration);
     }
+    let report = run_chaos(&ChaosRun {
+        duration_s: a.duration,
+        seed: a.seed,
+        live: !a.json,
+        keep: a.keep,
+        bridges: false,
+        sample_every: None,
+    })?;
+    print_report(&report, a.json)
+}
+
+/// Prints `report` as one JSON line (`json`) or pretty.
+pub fn print_report<T: serde::Serialize>(report: &T, json: bool) -> Result<()> {
+    if json {
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer(&mut out, &serde_json::to_value(report)?)?;
+        writeln!(out)?;
+    } else {
+        println!("{}", serde_json::to_string_pretty(report)?);
+    }
+    Ok(())
+}
+
+/// What a chaos run does.
+#[derive(Debug, Clone, Copy)]
+pub struct ChaosRun {
+    /// Seconds to run.
+    pub duration_s: f64,
+    /// Seed of the fault schedule.
+    pub seed: u64,
+    /// The live line on standard error.
+    pub live: bool,
+    /// Keep the run directories.
+    pub keep: bool,
+    /// The faulted group runs the Foxglove live view and the Zenoh bridge
+    /// too, each on a free loopback port.
+    pub bridges: bool,
+    /// Periodic looks at the faulted group's processes.
+    pub sample_every: Option<Duration>,
+}
+
+/// Runs the faulted group and its undisturbed twin side by side.
+pub fn run_chaos(a: &ChaosRun) -> Result<ChaosReport> {
     let id = format!("{}_{}", std::process::id(), monotonic_ns() % 1_000_000);
-    let chaos_group = ChaosGroup::write(&format!("chaos{id}"), a.duration)?;
-    let control = ChaosGroup::write(&format!("calm{id}"), a.duration)?;
-    let duration = Some(Duration::from_secs_f64(a.duration));
+    let chaos_group = ChaosGroup::write(&format!("chaos{id}"), a.duration_s, a.bridges)?;
+    let control = ChaosGroup::write(&format!("calm{id}"), a.duration_s, false)?;
+    let duration = Some(Duration::from_secs_f64(a.duration_s));
     // The undisturbed run: the same scenario, seed and length, beside the
     // chaos group on the same machine at the same time.
     let calm = std::thread::spawn({
@@ -73,6 +119,7 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
                     live: false,
                     faults: Vec::new(),
                     chaos_seed: None,
+                    sample_every: None,
                     env: Vec::new(),
                 },
             )
@@ -83,9 +130,10 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
         &chaos_group.cfg,
         &RunOptions {
             duration,
-            live: !a.json,
+            live: a.live,
             faults: Vec::new(),
             chaos_seed: Some(a.seed),
+            sample_every: a.sample_every,
             env: Vec::new(),
         },
     );
@@ -110,7 +158,7 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
         (Some(a), Some(b)) if b > 0.0 => Some(a / b),
         _ => None,
     };
-    let report = ChaosReport {
+    Ok(ChaosReport {
         faults: r.faults,
         restarts: r.restarts,
         max_gap_ms: r.max_gap_ms,
@@ -122,15 +170,8 @@ pub fn chaos(a: &ChaosArgs) -> Result<()> {
         rmse_undisturbed: calm.rmse_horizontal,
         rmse_ratio,
         fused_rate_hz: r.fused_rate_hz,
-    };
-    if a.json {
-        let mut out = std::io::stdout().lock();
-        serde_json::to_writer(&mut out, &serde_json::to_value(&report)?)?;
-        writeln!(out)?;
-    } else {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    }
-    Ok(())
+        samples: r.samples,
+    })
 }
 
 /// One group of `insuwb chaos`: its run directory and configuration.
@@ -146,7 +187,7 @@ impl ChaosGroup {
     /// stretched to outlast the run (its loops and random NLOS continue),
     /// and a restart budget sized so the fault rate (at most one fault per
     /// second across the group) can never exhaust it.
-    fn write(name: &str, duration_s: f64) -> Result<Self> {
+    fn write(name: &str, duration_s: f64, bridges: bool) -> Result<Self> {
         let run_dir = std::env::temp_dir().join(format!("insuwb-{name}"));
         std::fs::create_dir_all(&run_dir)?;
         let prefix = format!("insuwb_{name}_");
@@ -159,8 +200,21 @@ impl ChaosGroup {
             );
         let scenario_path = run_dir.join("chaos-scenario.toml");
         std::fs::write(&scenario_path, scenario)?;
+        // The bridges: every stage, the live view and the Zenoh bridge
+        // (a peer with nobody else) each on a free loopback port.
+        let bridges = if bridges {
+            format!(
+                "stages = [\"imu\", \"uwb\", \"ins\", \"fusion\", \"foxglove\", \"zenoh\", \"logger\"]\n\
+                 [foxglove]\nbind = \"127.0.0.1:{}\"\n\
+                 [zenoh]\nrobot = \"soak\"\nlisten = [\"tcp/127.0.0.1:{}\"]\n",
+                free_port()?,
+                free_port()?
+            )
+        } else {
+            String::new()
+        };
         let text = format!(
-            "[group]\nname = \"{name}\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
+            "{bridges}[group]\nname = \"{name}\"\nprefix = \"{prefix}\"\nrun_dir = \"{}\"\n\
              [sources]\nimu = \"sim\"\nuwb = \"sim\"\nscenario = \"{}\"\nseed = 1\n\
              [fusion]\nfilter = \"iakf\"\n[logger.segments.flush]\nevery_ms = 200\n\
              [launch]\nbudget_restarts = 60\nbudget_window_s = 60.0\n",
@@ -179,33 +233,15 @@ impl ChaosGroup {
     }
 
     fn leftover_files(&self) -> usize {
-        leftover_files(&self.prefix, &self.cfg.iox_root())
+        crate::resources::group_files(&self.prefix, &self.cfg.iox_root())
     }
 }
 
-/// Files of the group left in /dev/shm and under its iceoryx2 root.
-fn leftover_files(prefix: &str, iox_root: &Path) -> usize {
-    let shm = std::fs::read_dir("/dev/shm")
-        .map(|d| {
-            d.filter_map(std::result::Result::ok)
-                .filter(|e| e.file_name().to_string_lossy().starts_with(prefix))
-                .count()
-        })
-        .unwrap_or(0);
-    fn count(p: &Path) -> usize {
-        std::fs::read_dir(p).map_or(0, |d| {
-            d.filter_map(std::result::Result::ok)
-                .map(|e| {
-                    if e.path().is_dir() {
-                        count(&e.path())
-                    } else {
-                        1
-                    }
-                })
-                .sum()
-        })
-    }
-    shm + count(iox_root)
+/// A loopback TCP port free now.
+fn free_port() -> Result<u16> {
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port())
 }
 
 /// IMU samples missing from the recording while the IMU driver was up: gaps

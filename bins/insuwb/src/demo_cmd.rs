@@ -319,6 +319,7 @@ fn demo_group(a: &DemoArgs, id: &str, run_dir: &Path) -> Result<GroupReport> {
                     live: true,
                     faults: Vec::new(),
                     chaos_seed: None,
+                    sample_every: None,
                     env: Vec::new(),
                 },
                 extras,

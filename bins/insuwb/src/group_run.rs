@@ -15,6 +15,7 @@ use insuwb_msg::{
 use insuwb_runtime::{cleanup, monotonic_ns, Stage, Wake};
 
 use crate::monitor::Monitor;
+use crate::resources::{self, ProcessResources};
 
 /// The stage binaries ([`StageRole::program`]) live next to this executable.
 fn stage_program(stage: StageRole) -> Result<PathBuf> {
@@ -60,6 +61,77 @@ pub struct GroupReport {
     pub gave_up: Vec<String>,
     /// Each stage's last heartbeat figures, by stage name.
     pub stages: std::collections::BTreeMap<String, StageFigures>,
+    /// The periodic looks of [`RunOptions::sample_every`], in order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub samples: Vec<ResourceSample>,
+}
+
+/// One periodic look at a running group ([`RunOptions::sample_every`]).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ResourceSample {
+    /// Seconds since the group started.
+    pub elapsed_s: f64,
+    /// Fused states from UWB updates since the last look, per second.
+    pub fused_rate_hz: f64,
+    /// Restarts so far.
+    pub restarts: u32,
+    /// The group's files in /dev/shm and under its iceoryx2 root.
+    pub group_files: usize,
+    /// Each live process (the stages by name, from their last heartbeat's
+    /// pid, and `launcher`, this process).
+    pub processes: std::collections::BTreeMap<String, ProcessResources>,
+}
+
+/// The sampler of [`RunOptions::sample_every`].
+struct Sampler {
+    every: Duration,
+    last: Instant,
+    /// Valid updates counted at the last look.
+    updates: u64,
+    prefix: String,
+    iox_root: PathBuf,
+    samples: Vec<ResourceSample>,
+}
+
+impl Sampler {
+    /// Takes a look if one is due at `now`.
+    fn look(&mut self, mon: &Monitor, restarts: u32, now: Instant, elapsed: Duration) {
+        let dt = now.duration_since(self.last);
+        if dt < self.every {
+            return;
+        }
+        self.last = now;
+        let (updates, _) = mon.live();
+        let rate = updates.saturating_sub(self.updates) as f64 / dt.as_secs_f64();
+        self.updates = updates;
+        let mut processes = std::collections::BTreeMap::new();
+        if let Some(r) = resources::of_process(std::process::id()) {
+            processes.insert("launcher".to_owned(), r);
+        }
+        for (name, h) in &mon.health {
+            if let Some(r) = resources::of_process(h.pid) {
+                processes.insert(name.clone(), r);
+            }
+        }
+        let s = ResourceSample {
+            elapsed_s: elapsed.as_secs_f64(),
+            fused_rate_hz: rate,
+            restarts,
+            group_files: resources::group_files(&self.prefix, &self.iox_root),
+            processes,
+        };
+        tracing::info!(
+            "[{:7.1} s] fused {:5.2} Hz, restarts {}, group files {}, RSS {} KiB and {} descriptors in {} processes",
+            s.elapsed_s,
+            s.fused_rate_hz,
+            s.restarts,
+            s.group_files,
+            s.processes.values().map(|p| p.rss_kib).sum::<u64>(),
+            s.processes.values().map(|p| p.fds).sum::<u64>(),
+            s.processes.len()
+        );
+        self.samples.push(s);
+    }
 }
 
 /// A stage's counters from its last heartbeat (`Health`): those every stage
@@ -102,6 +174,10 @@ pub struct RunOptions {
     /// Chaos: every 1-5 s a random stage gets SIGKILL, or SIGSTOP for 2 s
     /// then SIGCONT, drawn from this seed.
     pub chaos_seed: Option<u64>,
+    /// Every this long, a look at each process's resident memory and open
+    /// files, the group's shared-memory files and the fused rate since the
+    /// last look ([`ResourceSample`], in the report's `samples`).
+    pub sample_every: Option<Duration>,
     /// Extra environment variables of every stage process (e.g. the logger's
     /// fused receive trace for `insuwb bench latency`).
     pub env: Vec<(String, String)>,
@@ -181,6 +257,15 @@ pub fn run_group_with(
             last: Instant::now(),
             counts: (0, 0, 0),
         }),
+        sampler: opts.sample_every.map(|every| Sampler {
+            every,
+            last: Instant::now(),
+            updates: 0,
+            prefix: cfg.group.prefix.clone(),
+            iox_root: cfg.iox_root(),
+            // One look a minute for a day.
+            samples: Vec::with_capacity(1440),
+        }),
     };
 
     let mut sup = Supervisor::new(cfg.launch.clone(), specs)?;
@@ -219,10 +304,12 @@ pub fn run_group_with(
         fix,
         health,
         mut mon,
+        sampler,
         ..
     } = watch;
     let restarts = sup.total_restarts();
     let mut report = summarise(&mut mon, restarts, elapsed);
+    report.samples = sampler.map(|s| s.samples).unwrap_or_default();
     report.faults = faults.injected();
     report.gave_up = sup.given_up();
     drop(tick);
@@ -251,6 +338,7 @@ struct GroupWatch<'w> {
     waiter: &'w insuwb_runtime::Waiter,
     mon: Monitor,
     live: Option<LiveLine>,
+    sampler: Option<Sampler>,
 }
 
 /// The last live line's time and counts (IMU samples, fixes, updates).
@@ -280,6 +368,9 @@ impl Watch for GroupWatch<'_> {
             sup.note_heartbeat_from(&name, h.pid, now);
             mon.health.insert(name, h);
         })?;
+        if let Some(s) = self.sampler.as_mut() {
+            s.look(mon, sup.total_restarts(), now, elapsed);
+        }
         if let Some(live) = self.live.as_mut() {
             if now.duration_since(live.last) >= Duration::from_secs(1) {
                 let dt = now.duration_since(live.last).as_secs_f64();
@@ -346,6 +437,7 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         faults: 0,
         deadlocks: fig.deadlocks,
         gave_up: Vec::new(),
+        samples: Vec::new(),
         stages: mon
             .health
             .iter()

@@ -36,6 +36,7 @@ pub fn launch(a: &LaunchArgs) -> Result<()> {
             live: true,
             faults: a.fault.clone(),
             chaos_seed: None,
+            sample_every: None,
             env: Vec::new(),
         },
     )?;

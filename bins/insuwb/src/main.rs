@@ -19,6 +19,8 @@ mod inspect_cmd;
 mod launch_cmd;
 mod log_cmd;
 mod monitor;
+mod resources;
+mod soak_cmd;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -54,6 +56,8 @@ enum Cmd {
     Demo(demo_cmd::DemoArgs),
     /// Run the group on simulated sensors under random SIGKILL/SIGSTOP faults and check recovery.
     Chaos(chaos_cmd::ChaosArgs),
+    /// The group for hours under periodic random faults with the Foxglove view, the Zenoh bridge and the logger: every minute each process's memory, descriptors, shared-memory files and the fused rate, then what grew after warm-up.
+    Soak(soak_cmd::SoakArgs),
     /// Benchmarks: the process pipeline's latency against bare iceoryx2, the fleet's station under load.
     #[command(subcommand)]
     Bench(bench_cmd::BenchCmd),
@@ -94,6 +98,7 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Demo(a) => demo_cmd::demo(&a),
         Cmd::Inspect(a) => inspect_cmd::inspect(&a),
         Cmd::Chaos(a) => chaos_cmd::chaos(&a),
+        Cmd::Soak(a) => soak_cmd::soak(&a),
         Cmd::Bench(c) => bench_cmd::run(&c),
         Cmd::Emulate(c) => emulate_cmd::run(&c),
         Cmd::Fleet { args } => beside::exec("insuwb-station", &args),

@@ -1,0 +1,91 @@
+//! What a group's processes hold, read from `/proc` and `/dev/shm`: each
+//! process's resident memory and open file descriptors, and the group's
+//! shared-memory files. `insuwb soak` samples them periodically to show
+//! that nothing grows over hours.
+
+use std::path::Path;
+
+/// One process's resources at one time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct ProcessResources {
+    /// Its pid.
+    pub pid: u32,
+    /// Resident set size (`VmRSS`), KiB.
+    pub rss_kib: u64,
+    /// Open file descriptors (entries of `/proc/PID/fd`).
+    pub fds: u64,
+}
+
+/// The resources of process `pid`, or `None` when it is gone (or `/proc`
+/// cannot be read).
+pub fn of_process(pid: u32) -> Option<ProcessResources> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let rss_kib = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())?;
+    let fds = std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .ok()?
+        .filter_map(Result::ok)
+        .count() as u64;
+    Some(ProcessResources { pid, rss_kib, fds })
+}
+
+/// Files of a group: those in /dev/shm whose name starts with `prefix`,
+/// and every file under its iceoryx2 root `iox_root`.
+pub fn group_files(prefix: &str, iox_root: &Path) -> usize {
+    let shm = std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.filter_map(Result::ok)
+                .filter(|e| e.file_name().to_string_lossy().starts_with(prefix))
+                .count()
+        })
+        .unwrap_or(0);
+    fn count(p: &Path) -> usize {
+        std::fs::read_dir(p).map_or(0, |d| {
+            d.filter_map(Result::ok)
+                .map(|e| {
+                    if e.path().is_dir() {
+                        count(&e.path())
+                    } else {
+                        1
+                    }
+                })
+                .sum()
+        })
+    }
+    shm + count(iox_root)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    #[test]
+    fn this_process_has_memory_and_descriptors_and_a_dead_one_none() {
+        let me = of_process(std::process::id()).unwrap();
+        assert!(me.rss_kib > 100, "{me:?}");
+        assert!(me.fds >= 3, "{me:?}");
+        // A pid above the kernel's limit (4194304) is never a process.
+        assert_eq!(of_process(5_000_000), None);
+    }
+
+    #[test]
+    fn group_files_count_the_prefix_and_the_root() {
+        let dir = std::env::temp_dir().join(format!("insuwb-res-{}", std::process::id()));
+        let sub = dir.join("a/b");
+        std::fs::create_dir_all(&sub).unwrap();
+        std::fs::write(dir.join("x"), b"").unwrap();
+        std::fs::write(sub.join("y"), b"").unwrap();
+        let prefix = format!("insuwb_res_test_{}_", std::process::id());
+        let shm = Path::new("/dev/shm").join(format!("{prefix}z"));
+        let in_shm = std::fs::write(&shm, b"").is_ok();
+        assert_eq!(group_files(&prefix, &dir), 2 + usize::from(in_shm));
+        let _ = std::fs::remove_file(shm);
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(group_files(&prefix, &dir), 0);
+    }
+}
