@@ -121,12 +121,12 @@ impl Sampler {
             processes,
         };
         tracing::info!(
-            "[{:7.1} s] fused {:5.2} Hz, restarts {}, group files {}, RSS {} KiB and {} descriptors in {} processes",
+            "[{:7.1} s] fused {:5.2} Hz, restarts {}, group files {}, anonymous RSS {} KiB and {} descriptors in {} processes",
             s.elapsed_s,
             s.fused_rate_hz,
             s.restarts,
             s.group_files,
-            s.processes.values().map(|p| p.rss_kib).sum::<u64>(),
+            s.processes.values().map(|p| p.rss_anon_kib).sum::<u64>(),
             s.processes.values().map(|p| p.fds).sum::<u64>(),
             s.processes.len()
         );

@@ -10,8 +10,12 @@ use std::path::Path;
 pub struct ProcessResources {
     /// Its pid.
     pub pid: u32,
-    /// Resident set size (`VmRSS`), KiB.
+    /// Resident set size (`VmRSS`), KiB: the shared-memory pages the
+    /// process has touched included.
     pub rss_kib: u64,
+    /// Its anonymous part (`RssAnon`: heap and stacks), KiB: what a leak
+    /// grows.
+    pub rss_anon_kib: u64,
     /// Open file descriptors (entries of `/proc/PID/fd`).
     pub fds: u64,
 }
@@ -20,16 +24,25 @@ pub struct ProcessResources {
 /// cannot be read).
 pub fn of_process(pid: u32) -> Option<ProcessResources> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let rss_kib = status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.split_whitespace().next())
-        .and_then(|v| v.parse().ok())?;
+    let kib = |key: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(key))
+            .and_then(|v| v.split_whitespace().next())
+            .and_then(|v| v.parse::<u64>().ok())
+    };
+    let rss_kib = kib("VmRSS:")?;
+    let rss_anon_kib = kib("RssAnon:")?;
     let fds = std::fs::read_dir(format!("/proc/{pid}/fd"))
         .ok()?
         .filter_map(Result::ok)
         .count() as u64;
-    Some(ProcessResources { pid, rss_kib, fds })
+    Some(ProcessResources {
+        pid,
+        rss_kib,
+        rss_anon_kib,
+        fds,
+    })
 }
 
 /// Files of a group: those in /dev/shm whose name starts with `prefix`,
@@ -67,7 +80,8 @@ mod tests {
     #[test]
     fn this_process_has_memory_and_descriptors_and_a_dead_one_none() {
         let me = of_process(std::process::id()).unwrap();
-        assert!(me.rss_kib > 100, "{me:?}");
+        assert!(me.rss_kib > 100 && me.rss_anon_kib > 0, "{me:?}");
+        assert!(me.rss_anon_kib <= me.rss_kib, "{me:?}");
         assert!(me.fds >= 3, "{me:?}");
         // A pid above the kernel's limit (4194304) is never a process.
         assert_eq!(of_process(5_000_000), None);

@@ -37,12 +37,13 @@ pub struct SoakArgs {
 /// found it alive, and the most seen after warm-up.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct Growth {
-    /// Resident memory at the end of warm-up, KiB.
-    pub rss_warm_kib: u64,
+    /// Anonymous resident memory (heap and stacks, `RssAnon`) at the end
+    /// of warm-up, KiB.
+    pub rss_anon_warm_kib: u64,
     /// At the last look that found it alive.
-    pub rss_last_kib: u64,
+    pub rss_anon_last_kib: u64,
     /// The most after warm-up.
-    pub rss_max_kib: u64,
+    pub rss_anon_max_kib: u64,
     /// Open file descriptors at the end of warm-up.
     pub fds_warm: u64,
     /// At the last look that found it alive.
@@ -91,13 +92,14 @@ fn growth(
             continue;
         };
         let seen = after.iter().filter_map(|s| s.processes.get(name));
-        let (rss_max, fds_max) = seen.fold((0, 0), |(r, f), p| (p.rss_kib.max(r), p.fds.max(f)));
+        let (rss_max, fds_max) =
+            seen.fold((0, 0), |(r, f), p| (p.rss_anon_kib.max(r), p.fds.max(f)));
         out.insert(
             name.clone(),
             Growth {
-                rss_warm_kib: w.rss_kib,
-                rss_last_kib: l.rss_kib,
-                rss_max_kib: rss_max,
+                rss_anon_warm_kib: w.rss_anon_kib,
+                rss_anon_last_kib: l.rss_anon_kib,
+                rss_anon_max_kib: rss_max,
                 fds_warm: w.fds,
                 fds_last: l.fds,
                 fds_max,
@@ -156,7 +158,8 @@ mod tests {
     fn look(t: f64, rss: u64, fds: u64, files: usize, rate: f64) -> ResourceSample {
         let p = ProcessResources {
             pid: 1,
-            rss_kib: rss,
+            rss_kib: rss + 1000,
+            rss_anon_kib: rss,
             fds,
         };
         ResourceSample {
@@ -182,9 +185,9 @@ mod tests {
         assert_eq!(
             g["fusion"],
             Growth {
-                rss_warm_kib: 200,
-                rss_last_kib: 210,
-                rss_max_kib: 260,
+                rss_anon_warm_kib: 200,
+                rss_anon_last_kib: 210,
+                rss_anon_max_kib: 260,
                 fds_warm: 12,
                 fds_last: 12,
                 fds_max: 13
