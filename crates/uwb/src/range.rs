@@ -21,10 +21,11 @@
 //! # Method
 //!
 //! 1. Checks: finite input, positive range sigma, at most
-//!    [`crate::solve::MAX_ANCHORS`] observations, at least 3 distinct
-//!    anchors in 2D and 4 in 3D (one more than the unknowns: with one
-//!    range per unknown a fix has no redundancy and its mirror solution
-//!    fits as well), and an anchor spread that is not collinear (2D) or
+//!    [`crate::solve::MAX_ANCHORS`] distinct anchors (an anchor may be
+//!    ranged more than once; the number of observations is not limited),
+//!    at least 3 distinct anchors in 2D and 4 in 3D (one more than the
+//!    unknowns: with one range per unknown a fix has no redundancy and its
+//!    mirror solution fits as well), and an anchor spread that is not collinear (2D) or
 //!    coplanar (3D), as for TDOA ([`SolverConfig::max_anchor_spread_condition`]).
 //! 2. Seed: the caller's `init` first; then the linear least-squares
 //!    solution of the differences of the squared ranges against their
@@ -40,6 +41,12 @@
 //!    [`SolverConfig::max_iterations`] iterations per attempt, and an
 //!    iterate farther than [`SolverConfig::max_distance_from_anchors_m`]
 //!    from the anchors' bounding box aborts the attempt.
+//!
+//! A solve allocates nothing on the heap: its scratch space (the distinct
+//! anchors, at most [`crate::solve::MAX_ANCHORS`], and the seeds) is on the
+//! stack, and nothing is kept per observation (the sigmas are borrowed, the
+//! Huber weights recomputed where used), so a device or replay loop can
+//! solve every epoch without allocating.
 //!
 //! # A common range offset
 //!
@@ -154,11 +161,11 @@ pub fn solve_ranges_weighted(
         iterations: 0,
         last_step_m: f64::INFINITY,
     };
-    for (seed_pos, seed) in seeds {
-        match attempt(obs, &sigmas, dims, seed_pos, bbox, cfg) {
-            Ok((pos, w, it)) => {
+    for (seed_pos, seed) in seeds.into_iter().flatten() {
+        match gauss_newton(obs, sigmas, dims, seed_pos, bbox, cfg, false) {
+            Ok((pos, _, _, it)) => {
                 iterations += it;
-                match covariance(obs, &sigmas, &w, pos, dims, cfg) {
+                match covariance(obs, sigmas, pos, dims, cfg) {
                     Ok((cov_m2, gdop)) => {
                         let residual_rms_m = (obs
                             .iter()
@@ -228,8 +235,8 @@ pub fn solve_ranges_with_offset(
         last_step_m: f64::INFINITY,
     };
     let mut iterations = 0;
-    for (seed, _) in seeds {
-        match gauss_newton(obs, &sigmas, dims, seed, bbox, cfg, true) {
+    for (seed, _) in seeds.into_iter().flatten() {
+        match gauss_newton(obs, sigmas, dims, seed, bbox, cfg, true) {
             Ok((pos_m, offset_m, offset_var_m2, it)) => {
                 return Ok(OffsetFix {
                     pos_m,
@@ -250,12 +257,35 @@ pub fn solve_ranges_with_offset(
 /// A solution `(p, b, var(b), iterations)`; `b` is 0 without the offset.
 type Solved = ([f64; 3], f64, f64, u32);
 
+/// The range standard deviations of one solve, m: one for all, or one per
+/// observation (its length checked against the observations in
+/// [`check_input`]). Borrowed, not copied: a solve keeps nothing per
+/// observation.
+#[derive(Debug, Clone, Copy)]
+enum Sigmas<'a> {
+    /// Every observation's.
+    Uniform(f64),
+    /// `obs[i]`'s is `[i]`.
+    PerObs(&'a [f64]),
+}
+
+impl Sigmas<'_> {
+    /// Observation `i`'s sigma, m.
+    fn get(self, i: usize) -> f64 {
+        match self {
+            Self::Uniform(s) => s,
+            // Length checked in `check_input` before any use.
+            Self::PerObs(s) => s.get(i).copied().unwrap_or(f64::NAN),
+        }
+    }
+}
+
 /// Robust cost of the ranges less the offset `b`.
-fn cost_offset(obs: &[RangeObs], sigmas: &[f64], p: [f64; 3], b: f64, k: f64) -> f64 {
+fn cost_offset(obs: &[RangeObs], sigmas: Sigmas<'_>, p: [f64; 3], b: f64, k: f64) -> f64 {
     obs.iter()
-        .zip(sigmas)
-        .map(|(o, s)| {
-            let r = ((o.range_m - b - o.predicted_m(p)) / s).abs();
+        .enumerate()
+        .map(|(i, o)| {
+            let r = ((o.range_m - b - o.predicted_m(p)) / sigmas.get(i)).abs();
             if r <= k {
                 0.5 * r * r
             } else {
@@ -269,7 +299,7 @@ fn cost_offset(obs: &[RangeObs], sigmas: &[f64], p: [f64; 3], b: f64, k: f64) ->
 /// offset `b` when `with_offset` (else `b` stays 0 and its variance is 0).
 fn gauss_newton(
     obs: &[RangeObs],
-    sigmas: &[f64],
+    sigmas: Sigmas<'_>,
     dims: usize,
     seed: [f64; 3],
     bbox: ([f64; 3], [f64; 3]),
@@ -284,9 +314,10 @@ fn gauss_newton(
     let normal = |p: [f64; 3], b: f64| {
         let mut jtj = Matrix4::<f64>::zeros();
         let mut jtr = Vector4::<f64>::zeros();
-        for (o, s) in obs.iter().zip(sigmas) {
+        for (i, o) in obs.iter().enumerate() {
+            let s = sigmas.get(i);
             let res = o.range_m - b - o.predicted_m(p);
-            let w = huber(res, *s, k) / (s * s);
+            let w = huber(res, s, k) / (s * s);
             let g = o.gradient(p);
             let row = Vector4::new(
                 g[0],
@@ -388,29 +419,44 @@ fn gauss_newton(
     Ok((p, b, var, it))
 }
 
-/// What both solves check and start from.
-struct Prepared {
-    sigmas: Vec<f64>,
+/// What both solves check and start from (on the stack).
+struct Prepared<'a> {
+    sigmas: Sigmas<'a>,
     dims: usize,
     bbox: ([f64; 3], [f64; 3]),
-    seeds: Vec<([f64; 3], Seed)>,
+    /// In order: `init`, the linear seed, the anchor centroid (the last
+    /// always present).
+    seeds: [Option<([f64; 3], Seed)>; 3],
+}
+
+/// The distinct anchors of one solve, on the stack.
+struct AnchorSet {
+    pos: [[f64; 3]; MAX_ANCHORS],
+    len: usize,
+}
+
+impl AnchorSet {
+    fn as_slice(&self) -> &[[f64; 3]] {
+        self.pos.get(..self.len).unwrap_or(&[])
+    }
 }
 
 /// The checks of a solve (settings, input, at least `extra` distinct
 /// anchors more than the position's unknowns, their spread) and its seeds
 /// in order: `init`, the linear seed, the anchor centroid.
-fn prepare(
+fn prepare<'a>(
     obs: &[RangeObs],
-    sigma_m: Option<&[f64]>,
+    sigma_m: Option<&'a [f64]>,
     height_m: Option<f64>,
     init: Option<[f64; 3]>,
     cfg: &SolverConfig,
     extra: usize,
-) -> Result<Prepared, SolveError> {
+) -> Result<Prepared<'a>, SolveError> {
     cfg.validate()?;
     let sigmas = check_input(obs, sigma_m, height_m, init, cfg)?;
     let dims = if height_m.is_some() { 2 } else { 3 };
-    let anchors = distinct_anchors(obs)?;
+    let set = distinct_anchors(obs)?;
+    let anchors = set.as_slice();
     let required = dims + extra;
     if anchors.len() < required {
         return Err(SolveError::TooFewAnchors {
@@ -418,19 +464,20 @@ fn prepare(
             required,
         });
     }
-    spread_check(&anchors, dims, cfg)?;
-    let mut seeds: Vec<([f64; 3], Seed)> = Vec::with_capacity(3);
-    seeds.extend(init.map(|p| (with_height(p, height_m), Seed::Init)));
-    seeds.extend(linear_seed(obs, height_m).map(|p| (p, Seed::ClosedForm)));
+    spread_check(anchors, dims, cfg)?;
     let n = anchors.len() as f64;
     let centroid = anchors.iter().fold([0.0; 3], |c, a| {
         [c[0] + a[0] / n, c[1] + a[1] / n, c[2] + a[2] / n]
     });
-    seeds.push((with_height(centroid, height_m), Seed::Centroid));
+    let seeds = [
+        init.map(|p| (with_height(p, height_m), Seed::Init)),
+        linear_seed(obs, height_m).map(|p| (p, Seed::ClosedForm)),
+        Some((with_height(centroid, height_m), Seed::Centroid)),
+    ];
     Ok(Prepared {
         sigmas,
         dims,
-        bbox: bounding_box(&anchors),
+        bbox: bounding_box(anchors),
         seeds,
     })
 }
@@ -442,13 +489,13 @@ fn with_height(p: [f64; 3], height_m: Option<f64>) -> [f64; 3] {
     }
 }
 
-fn check_input(
+fn check_input<'a>(
     obs: &[RangeObs],
-    sigma_m: Option<&[f64]>,
+    sigma_m: Option<&'a [f64]>,
     height_m: Option<f64>,
     init: Option<[f64; 3]>,
     cfg: &SolverConfig,
-) -> Result<Vec<f64>, SolveError> {
+) -> Result<Sigmas<'a>, SolveError> {
     for (index, o) in obs.iter().enumerate() {
         if !o.range_m.is_finite() {
             return Err(SolveError::NonFiniteObs {
@@ -478,7 +525,7 @@ fn check_input(
         });
     }
     match sigma_m {
-        None => Ok(vec![cfg.range_sigma_m; obs.len()]),
+        None => Ok(Sigmas::Uniform(cfg.range_sigma_m)),
         Some(s) if s.len() != obs.len() => Err(SolveError::SigmaCount {
             got: s.len(),
             expected: obs.len(),
@@ -491,22 +538,25 @@ fn check_input(
             {
                 return Err(SolveError::InvalidSigma { index, value });
             }
-            Ok(s.to_vec())
+            Ok(Sigmas::PerObs(s))
         }
     }
 }
 
-fn distinct_anchors(obs: &[RangeObs]) -> Result<Vec<[f64; 3]>, SolveError> {
-    let mut out: Vec<[f64; 3]> = Vec::with_capacity(obs.len().min(MAX_ANCHORS));
+/// The distinct anchors of `obs` in order of first appearance.
+fn distinct_anchors(obs: &[RangeObs]) -> Result<AnchorSet, SolveError> {
+    let mut out = AnchorSet {
+        pos: [[0.0; 3]; MAX_ANCHORS],
+        len: 0,
+    };
     for o in obs {
-        if !out.contains(&o.anchor_m) {
-            if out.len() == MAX_ANCHORS {
-                return Err(SolveError::TooManyAnchors {
-                    count: MAX_ANCHORS + 1,
-                    max: MAX_ANCHORS,
-                });
-            }
-            out.push(o.anchor_m);
+        if !out.as_slice().contains(&o.anchor_m) {
+            let slot = out.pos.get_mut(out.len).ok_or(SolveError::TooManyAnchors {
+                count: MAX_ANCHORS + 1,
+                max: MAX_ANCHORS,
+            })?;
+            *slot = o.anchor_m;
+            out.len += 1;
         }
     }
     Ok(out)
@@ -631,41 +681,21 @@ fn huber(res: f64, sigma: f64, k: f64) -> f64 {
     }
 }
 
-/// A solution, its Huber weights and the iterations.
-type Attempt = ([f64; 3], Vec<f64>, u32);
-
-/// One attempt from `seed`: the solution, its Huber weights and the
-/// iterations, or the error with the iterations spent.
-fn attempt(
-    obs: &[RangeObs],
-    sigmas: &[f64],
-    dims: usize,
-    seed: [f64; 3],
-    bbox: ([f64; 3], [f64; 3]),
-    cfg: &SolverConfig,
-) -> Result<Attempt, (SolveError, u32)> {
-    let (p, _, _, it) = gauss_newton(obs, sigmas, dims, seed, bbox, cfg, false)?;
-    let k = cfg.range_huber_k;
-    let w = obs
-        .iter()
-        .zip(sigmas)
-        .map(|(o, s)| huber(o.range_m - o.predicted_m(p), *s, k))
-        .collect();
-    Ok((p, w, it))
-}
-
-/// `(J^T W J)^-1` and the GDOP at `p` (module doc).
+/// `(J^T W J)^-1` and the GDOP at `p` (module doc), with the Huber
+/// weights of the residuals at `p`.
 fn covariance(
     obs: &[RangeObs],
-    sigmas: &[f64],
-    weights: &[f64],
+    sigmas: Sigmas<'_>,
     p: [f64; 3],
     dims: usize,
     cfg: &SolverConfig,
 ) -> Result<([[f64; 3]; 3], f64), SolveError> {
+    let k = cfg.range_huber_k;
     let mut jtj = Matrix3::<f64>::zeros();
     let mut jwj = Matrix3::<f64>::zeros();
-    for ((o, s), w) in obs.iter().zip(sigmas).zip(weights) {
+    for (i, o) in obs.iter().enumerate() {
+        let s = sigmas.get(i);
+        let w = huber(o.range_m - o.predicted_m(p), s, k);
         let mut g = Vector3::from(o.gradient(p));
         if dims == 2 {
             g[2] = 0.0;
