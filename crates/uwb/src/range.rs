@@ -69,7 +69,7 @@
 use nalgebra::{Matrix2, Matrix3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::solve::{Fix, GeometryCheck, Seed, SolveError, SolverConfig, MAX_ANCHORS};
+use crate::solve::{AnchorSet, Fix, GeometryCheck, Seed, Sigmas, SolveError, SolverConfig};
 
 /// Halvings of the line search before a step is declared unproductive.
 const MAX_HALVINGS: u32 = 40;
@@ -257,29 +257,6 @@ pub fn solve_ranges_with_offset(
 /// A solution `(p, b, var(b), iterations)`; `b` is 0 without the offset.
 type Solved = ([f64; 3], f64, f64, u32);
 
-/// The range standard deviations of one solve, m: one for all, or one per
-/// observation (its length checked against the observations in
-/// [`check_input`]). Borrowed, not copied: a solve keeps nothing per
-/// observation.
-#[derive(Debug, Clone, Copy)]
-enum Sigmas<'a> {
-    /// Every observation's.
-    Uniform(f64),
-    /// `obs[i]`'s is `[i]`.
-    PerObs(&'a [f64]),
-}
-
-impl Sigmas<'_> {
-    /// Observation `i`'s sigma, m.
-    fn get(self, i: usize) -> f64 {
-        match self {
-            Self::Uniform(s) => s,
-            // Length checked in `check_input` before any use.
-            Self::PerObs(s) => s.get(i).copied().unwrap_or(f64::NAN),
-        }
-    }
-}
-
 /// Robust cost of the ranges less the offset `b`.
 fn cost_offset(obs: &[RangeObs], sigmas: Sigmas<'_>, p: [f64; 3], b: f64, k: f64) -> f64 {
     obs.iter()
@@ -429,18 +406,6 @@ struct Prepared<'a> {
     seeds: [Option<([f64; 3], Seed)>; 3],
 }
 
-/// The distinct anchors of one solve, on the stack.
-struct AnchorSet {
-    pos: [[f64; 3]; MAX_ANCHORS],
-    len: usize,
-}
-
-impl AnchorSet {
-    fn as_slice(&self) -> &[[f64; 3]] {
-        self.pos.get(..self.len).unwrap_or(&[])
-    }
-}
-
 /// The checks of a solve (settings, input, at least `extra` distinct
 /// anchors more than the position's unknowns, their spread) and its seeds
 /// in order: `init`, the linear seed, the anchor centroid.
@@ -545,19 +510,9 @@ fn check_input<'a>(
 
 /// The distinct anchors of `obs` in order of first appearance.
 fn distinct_anchors(obs: &[RangeObs]) -> Result<AnchorSet, SolveError> {
-    let mut out = AnchorSet {
-        pos: [[0.0; 3]; MAX_ANCHORS],
-        len: 0,
-    };
+    let mut out = AnchorSet::new();
     for o in obs {
-        if !out.as_slice().contains(&o.anchor_m) {
-            let slot = out.pos.get_mut(out.len).ok_or(SolveError::TooManyAnchors {
-                count: MAX_ANCHORS + 1,
-                max: MAX_ANCHORS,
-            })?;
-            *slot = o.anchor_m;
-            out.len += 1;
-        }
+        out.insert(o.anchor_m)?;
     }
     Ok(out)
 }

@@ -508,30 +508,46 @@ pub fn solve_2d_weighted(
     solve(obs, Sigmas::PerObs(sigma_m), Some(height_m), init, cfg)
 }
 
-#[derive(Clone, Copy)]
-enum Sigmas<'a> {
+/// The measurement standard deviations of one solve (TDOA here, ranges in
+/// [`crate::range`]), m: one for all, or one per observation, its length
+/// checked against the observations before any use. Borrowed, not copied:
+/// a solve keeps nothing per observation.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Sigmas<'a> {
+    /// Every observation's.
     Uniform(f64),
+    /// `obs[i]`'s is `[i]`.
     PerObs(&'a [f64]),
 }
 
 impl Sigmas<'_> {
-    fn get(&self, i: usize) -> f64 {
+    /// Observation `i`'s sigma, m.
+    pub(crate) fn get(self, i: usize) -> f64 {
         match self {
-            Self::Uniform(s) => *s,
-            // Length checked in `solve` before any use.
+            Self::Uniform(s) => s,
+            // Length checked before any use.
             Self::PerObs(s) => s.get(i).copied().unwrap_or(f64::NAN),
         }
     }
 }
 
 /// Distinct anchors of one solve, on the stack.
-struct AnchorSet {
+pub(crate) struct AnchorSet {
     pos: [[f64; 3]; MAX_ANCHORS],
     len: usize,
 }
 
 impl AnchorSet {
-    fn as_slice(&self) -> &[[f64; 3]] {
+    /// None yet.
+    pub(crate) const fn new() -> Self {
+        Self {
+            pos: [[0.0; 3]; MAX_ANCHORS],
+            len: 0,
+        }
+    }
+
+    /// The anchors, in order of insertion.
+    pub(crate) fn as_slice(&self) -> &[[f64; 3]] {
         self.pos.get(..self.len).unwrap_or(&[])
     }
 
@@ -539,7 +555,11 @@ impl AnchorSet {
         self.as_slice().iter().position(|q| q == p)
     }
 
-    fn insert(&mut self, p: [f64; 3]) -> Result<usize, SolveError> {
+    /// Adds `p` unless it is there; its index.
+    ///
+    /// # Errors
+    /// [`SolveError::TooManyAnchors`] beyond [`MAX_ANCHORS`].
+    pub(crate) fn insert(&mut self, p: [f64; 3]) -> Result<usize, SolveError> {
         if let Some(i) = self.index_of(&p) {
             return Ok(i);
         }
@@ -999,10 +1019,7 @@ fn solve(
             value: v,
         });
     }
-    let mut anchors = AnchorSet {
-        pos: [[0.0; 3]; MAX_ANCHORS],
-        len: 0,
-    };
+    let mut anchors = AnchorSet::new();
     // comp[k]: connected component label of anchor k in the pair graph.
     let mut comp = [0usize; MAX_ANCHORS];
     for (index, o) in obs.iter().enumerate() {
@@ -1149,10 +1166,7 @@ mod tests {
     }
 
     fn problem(obs: &[TdoaObs]) -> (Problem<'_>, AnchorSet) {
-        let mut anchors = AnchorSet {
-            pos: [[0.0; 3]; MAX_ANCHORS],
-            len: 0,
-        };
+        let mut anchors = AnchorSet::new();
         let mut box_min = Vector3::repeat(f64::INFINITY);
         let mut box_max = Vector3::repeat(f64::NEG_INFINITY);
         for a in TETRA {
