@@ -32,6 +32,20 @@ pub fn run(args: &[&str]) -> std::process::Output {
     Command::new(insuwb()).args(args).output().unwrap()
 }
 
+/// Runs `insuwb demo --json` with `args`; returns its JSON report.
+pub fn demo_json(args: &[&str]) -> serde_json::Value {
+    let out = Command::new(insuwb())
+        .arg("demo")
+        .args(args)
+        .arg("--json")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "demo {args:?} failed:\n{stderr}");
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("demo {args:?}: stdout is not one JSON object ({e}):\n{stderr}"))
+}
+
 /// `out`, after checking that it exited 0 (its standard error otherwise).
 pub fn succeeded(out: &std::process::Output) -> &std::process::Output {
     assert!(

@@ -28,18 +28,12 @@ use insuwb_runtime::monotonic_ns;
 use crate::common;
 use common::{f, insuwb, one_at_a_time as lock};
 
-/// Runs `insuwb demo` with `extra` arguments; returns the JSON report.
+/// Runs `insuwb demo` for 20 s with `extra` arguments; returns the JSON
+/// report.
 fn demo(extra: &[&str]) -> serde_json::Value {
-    let out = Command::new(insuwb())
-        .args(["demo", "--duration", "20", "--json"])
-        .args(extra)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "demo {extra:?} failed:\n{stderr}");
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!("demo {extra:?}: stdout is not one JSON object ({e}):\n{stderr}")
-    })
+    let mut args = vec!["--duration", "20"];
+    args.extend_from_slice(extra);
+    common::demo_json(&args)
 }
 
 #[test]

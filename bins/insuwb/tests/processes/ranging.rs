@@ -18,23 +18,16 @@ use std::process::Command;
 
 use crate::common;
 use common::{
-    assert_same_fused_by_time, f, insuwb, offline_run, one_at_a_time, run, succeeded,
+    assert_same_fused_by_time, demo_json, f, insuwb, offline_run, one_at_a_time, run, succeeded,
     undegraded_fused, util_data_dir, Group,
 };
 
 /// Runs `insuwb demo --uwb twr` for 12 s with `extra` arguments; returns
 /// the JSON report.
 fn demo_twr(extra: &[&str]) -> serde_json::Value {
-    let out = Command::new(insuwb())
-        .args(["demo", "--uwb", "twr", "--duration", "12", "--json"])
-        .args(extra)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "demo {extra:?} failed:\n{stderr}");
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!("demo {extra:?}: stdout is not one JSON object ({e}):\n{stderr}")
-    })
+    let mut args = vec!["--uwb", "twr", "--duration", "12"];
+    args.extend_from_slice(extra);
+    demo_json(&args)
 }
 
 #[test]
