@@ -73,6 +73,9 @@ pub struct ResourceSample {
     pub elapsed_s: f64,
     /// Fused states from UWB updates since the last look, per second.
     pub fused_rate_hz: f64,
+    /// Horizontal RMS error of the valid fused states compared with ground
+    /// truth since the last look, m (`None`: none compared).
+    pub rmse_horizontal: Option<f64>,
     /// Restarts so far.
     pub restarts: u32,
     /// The group's files in /dev/shm and under its iceoryx2 root.
@@ -88,6 +91,8 @@ struct Sampler {
     last: Instant,
     /// Valid updates counted at the last look.
     updates: u64,
+    /// The monitor's accuracy sums at the last look.
+    accuracy: (f64, usize),
     prefix: String,
     iox_root: PathBuf,
     samples: Vec<ResourceSample>,
@@ -104,6 +109,9 @@ impl Sampler {
         let (updates, _) = mon.live();
         let rate = updates.saturating_sub(self.updates) as f64 / dt.as_secs_f64();
         self.updates = updates;
+        let (se, n) = mon.accuracy_sums();
+        let (se0, n0) = std::mem::replace(&mut self.accuracy, (se, n));
+        let rmse = (n > n0).then(|| ((se - se0) / (n - n0) as f64).sqrt());
         let mut processes = std::collections::BTreeMap::new();
         if let Some(r) = resources::of_process(std::process::id()) {
             processes.insert("launcher".to_owned(), r);
@@ -116,14 +124,17 @@ impl Sampler {
         let s = ResourceSample {
             elapsed_s: elapsed.as_secs_f64(),
             fused_rate_hz: rate,
+            rmse_horizontal: rmse,
             restarts,
             group_files: resources::group_files(&self.prefix, &self.iox_root),
             processes,
         };
         tracing::info!(
-            "[{:7.1} s] fused {:5.2} Hz, restarts {}, group files {}, anonymous RSS {} KiB and {} descriptors in {} processes",
+            "[{:7.1} s] fused {:5.2} Hz, RMS {} m, restarts {}, group files {}, anonymous RSS {} KiB and {} descriptors in {} processes",
             s.elapsed_s,
             s.fused_rate_hz,
+            s.rmse_horizontal
+                .map_or_else(|| "-".to_owned(), |r| format!("{r:.3}")),
             s.restarts,
             s.group_files,
             s.processes.values().map(|p| p.rss_anon_kib).sum::<u64>(),
@@ -261,6 +272,7 @@ pub fn run_group_with(
             every,
             last: Instant::now(),
             updates: 0,
+            accuracy: (0.0, 0),
             prefix: cfg.group.prefix.clone(),
             iox_root: cfg.iox_root(),
             // One look a minute for a day.

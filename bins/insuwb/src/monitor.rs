@@ -273,6 +273,13 @@ impl Monitor {
         (self.live_updates, self.last_pos)
     }
 
+    /// The running accuracy so far: the horizontal squared errors summed
+    /// and the states compared (the difference of two readings is the RMS
+    /// of the states compared between them).
+    pub fn accuracy_sums(&self) -> (f64, usize) {
+        (self.accuracy.se, self.accuracy.n)
+    }
+
     /// The final figures: every state still waiting is compared.
     pub fn finish(&mut self) -> Figures {
         self.accuracy.settle(true);
@@ -408,6 +415,24 @@ mod tests {
         m.settle();
         let r = m.finish().rmse_horizontal.unwrap_or(f64::NAN);
         assert!((r - 0.5).abs() < 1e-9, "{r}");
+    }
+
+    /// The running sums give the RMS of the states compared between two
+    /// readings.
+    #[test]
+    fn accuracy_sums_difference_is_the_rms_between_readings() {
+        let known: Vec<_> = (0..100u64).map(|k| truth(k * 10_000_000, 1.0)).collect();
+        let mut m = Monitor::new(known);
+        m.fused(&state(100_000_000, 1.5));
+        m.settle();
+        let (se0, n0) = m.accuracy_sums();
+        assert_eq!(n0, 1);
+        m.fused(&state(200_000_000, 3.0));
+        m.fused(&state(300_000_000, 3.0));
+        m.settle();
+        let (se, n) = m.accuracy_sums();
+        let rms = ((se - se0) / (n - n0) as f64).sqrt();
+        assert!((rms - 2.0).abs() < 1e-9, "{rms}");
     }
 
     /// A gap is closed by an update, or by a coasting state while no fix

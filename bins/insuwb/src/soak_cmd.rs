@@ -165,6 +165,7 @@ mod tests {
         ResourceSample {
             elapsed_s: t,
             fused_rate_hz: rate,
+            rmse_horizontal: None,
             restarts: 0,
             group_files: files,
             processes: [("fusion".to_owned(), p)].into_iter().collect(),
