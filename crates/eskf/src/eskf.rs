@@ -537,6 +537,8 @@ pub struct Eskf {
     pairs: [PairSlot; PAIR_SLOTS],
     stats: EskfStats,
     q_adapt: QAdapt,
+    /// The learnt TDOA and range sigmas ([`EskfConfig::tdoa_sigma_adapt_time_s`]).
+    r_adapt: [RAdapt; 2],
     /// The specific force of the last prediction step, ENU, m/s^2.
     f_last: [f64; 3],
     /// Velocity noise density added to the accelerometer's, m^2/s^3
@@ -585,32 +587,107 @@ const CHI2_1_MEDIAN: f64 = 0.454_936_4;
 /// Density of a chi-square variable with one degree of freedom at its median.
 const CHI2_1_MEDIAN_DENSITY: f64 = 0.471_1;
 
-/// State of the innovation-based process-noise scale
-/// ([`EskfConfig::q_adapt_time_s`]).
+/// The last applied updates' squared innovations and predicted parts,
+/// which the process-noise scale and the learnt UWB sigmas read.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct QAdapt {
-    /// The scale on `Q`, in `[1, q_scale_max]`.
-    alpha: f64,
-    /// Squared innovations of the last updates, m^2 (ring).
+struct InnovationWindow {
+    /// Squared innovations, m^2 (ring).
     v2: [f64; Q_ADAPT_WINDOW],
     /// Their predicted parts `H P H^T`, m^2 (ring).
     hph: [f64; Q_ADAPT_WINDOW],
     len: usize,
     next: usize,
-    /// Filter time of the last adaptation step, s.
+    /// Filter time of the last update taken, s.
     last_s: Option<f64>,
 }
 
-impl QAdapt {
+impl InnovationWindow {
     const fn new() -> Self {
         Self {
-            alpha: 1.0,
             v2: [0.0; Q_ADAPT_WINDOW],
             hph: [0.0; Q_ADAPT_WINDOW],
             len: 0,
             next: 0,
             last_s: None,
         }
+    }
+
+    /// Takes one update's innovation `v` and predicted part `hph` at filter
+    /// time `t_s`; once the window holds [`Q_ADAPT_MIN`] updates and time
+    /// moved, returns the medians of `v^2` and of `H P H^T` and the time
+    /// since the previous update.
+    fn push(&mut self, v: f64, hph: f64, t_s: f64) -> Option<(f64, f64, f64)> {
+        if let (Some(x), Some(y)) = (self.v2.get_mut(self.next), self.hph.get_mut(self.next)) {
+            *x = v * v;
+            *y = hph;
+        }
+        self.next = (self.next + 1) % Q_ADAPT_WINDOW;
+        self.len = (self.len + 1).min(Q_ADAPT_WINDOW);
+        let dt = self.last_s.map_or(0.0, |t| (t_s - t).max(0.0));
+        self.last_s = Some(t_s);
+        if self.len < Q_ADAPT_MIN || dt <= 0.0 {
+            return None;
+        }
+        Some((
+            median_of(&self.v2, self.len)?,
+            median_of(&self.hph, self.len)?,
+            dt,
+        ))
+    }
+}
+
+/// State of the innovation-based process-noise scale
+/// ([`EskfConfig::q_adapt_time_s`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct QAdapt {
+    /// The scale on `Q`, in `[1, q_scale_max]`.
+    alpha: f64,
+    window: InnovationWindow,
+}
+
+impl QAdapt {
+    const fn new() -> Self {
+        Self {
+            alpha: 1.0,
+            window: InnovationWindow::new(),
+        }
+    }
+}
+
+/// Which learnt UWB noise an update feeds and uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum UwbNoise {
+    Tdoa = 0,
+    Range = 1,
+}
+
+/// State of a learnt UWB measurement sigma
+/// ([`EskfConfig::tdoa_sigma_adapt_time_s`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RAdapt {
+    /// The variance used, m^2 (`None`: the configured one, nothing learnt yet).
+    sigma2: Option<f64>,
+    window: InnovationWindow,
+}
+
+impl RAdapt {
+    const fn new() -> Self {
+        Self {
+            sigma2: None,
+            window: InnovationWindow::new(),
+        }
+    }
+
+    /// Takes one applied update's innovation `v` and predicted part `hph`
+    /// at filter time `t_s`, and moves the variance used towards the
+    /// window's (time constant `tau_s`, bounded in `[min2, max2]`).
+    fn push(&mut self, v: f64, hph: f64, t_s: f64, tau_s: f64, min2: f64, max2: f64) {
+        let Some((m_v2, m_hph, dt)) = self.window.push(v, hph, t_s) else {
+            return;
+        };
+        let target = (m_v2 / CHI2_1_MEDIAN - m_hph).clamp(min2, max2);
+        let cur = self.sigma2.unwrap_or(max2);
+        self.sigma2 = Some(cur + (target - cur) * (1.0 - (-dt / tau_s).exp()));
     }
 }
 
@@ -644,6 +721,7 @@ impl Eskf {
             pairs: [PairSlot::default(); PAIR_SLOTS],
             stats: EskfStats::default(),
             q_adapt: QAdapt::new(),
+            r_adapt: [RAdapt::new(); 2],
             f_last: [0.0; 3],
             q_vel_extra: 0.0,
             multirotor: None,
@@ -928,8 +1006,12 @@ impl Eskf {
     ) -> Result<TdoaUpdateReport, TdoaUpdateError> {
         finite("diff_m", &[diff_m])?;
         let model = tdoa_model(p_ins_m, quat, lever_arm_body_m, anchor_a_m, anchor_b_m)?;
-        let sigma = self.config.tdoa_sigma_m;
-        Ok(self.update_uwb(&model, diff_m, pair_key(&anchor_a_m, &anchor_b_m), sigma))
+        Ok(self.update_uwb(
+            &model,
+            diff_m,
+            pair_key(&anchor_a_m, &anchor_b_m),
+            UwbNoise::Tdoa,
+        ))
     }
 
     /// Updates with one two-way range `range_m = |p_ant - anchor|` taken
@@ -951,24 +1033,61 @@ impl Eskf {
     ) -> Result<TdoaUpdateReport, TdoaUpdateError> {
         finite("range_m", &[range_m])?;
         let model = range_model(p_ins_m, quat, lever_arm_body_m, anchor_m)?;
-        let sigma = self.config.range_sigma_m;
-        Ok(self.update_uwb(&model, range_m, pair_key(&anchor_m, &anchor_m), sigma))
+        Ok(self.update_uwb(
+            &model,
+            range_m,
+            pair_key(&anchor_m, &anchor_m),
+            UwbNoise::Range,
+        ))
+    }
+
+    /// The configured sigma and the learning time constant of a kind.
+    fn noise_config(&self, kind: UwbNoise) -> (f64, f64) {
+        match kind {
+            UwbNoise::Tdoa => (
+                self.config.tdoa_sigma_m,
+                self.config.tdoa_sigma_adapt_time_s,
+            ),
+            UwbNoise::Range => (
+                self.config.range_sigma_m,
+                self.config.range_sigma_adapt_time_s,
+            ),
+        }
+    }
+
+    /// The TDOA and the range sigma in use, m: the configured ones, or
+    /// what the innovations taught ([`EskfConfig::tdoa_sigma_adapt_time_s`]).
+    #[must_use]
+    pub fn uwb_sigmas_m(&self) -> (f64, f64) {
+        (
+            self.uwb_sigma2(UwbNoise::Tdoa).sqrt(),
+            self.uwb_sigma2(UwbNoise::Range).sqrt(),
+        )
+    }
+
+    fn uwb_sigma2(&self, kind: UwbNoise) -> f64 {
+        let (sigma, tau) = self.noise_config(kind);
+        let learnt = self.r_adapt.get(kind as usize).and_then(|a| a.sigma2);
+        match learnt {
+            Some(s2) if tau > 0.0 => s2,
+            _ => sigma * sigma,
+        }
     }
 
     /// One scalar UWB update of measurement `z` with `model`, its pair slot
-    /// `key` and sigma (see [`Eskf::update_tdoa`]).
+    /// `key` and the noise of its kind (see [`Eskf::update_tdoa`]).
     fn update_uwb(
         &mut self,
         model: &TdoaModel,
         z: f64,
         key: [u64; 6],
-        sigma: f64,
+        kind: UwbNoise,
     ) -> TdoaUpdateReport {
         let h = model.h;
         let v = z - model.predicted_m - h.dot(&self.x);
         let c = self.p * h;
         let hph = h.dot(&c).max(0.0);
-        let sigma2 = sigma * sigma;
+        let sigma2 = self.uwb_sigma2(kind);
         let s = hph + sigma2;
         let nis = v * v / s;
         let r = nis.sqrt();
@@ -1022,6 +1141,14 @@ impl Eskf {
             LimitMode::InflateR => (v, r_gain / (lambda * lambda)),
         };
         self.adapt_q(v, hph, sigma2);
+        let (sigma_cfg, tau) = self.noise_config(kind);
+        if tau > 0.0 {
+            let min = self.config.sigma_adapt_min_m.min(sigma_cfg);
+            let t = self.time_s;
+            if let Some(a) = self.r_adapt.get_mut(kind as usize) {
+                a.push(v, hph, t, tau, min * min, sigma_cfg * sigma_cfg);
+            }
+        }
         self.scalar_update(&c, hph, r_gain, v_used);
 
         self.touch_pair(slot, key);
@@ -1273,18 +1400,7 @@ impl Eskf {
             return;
         }
         let a = &mut self.q_adapt;
-        if let (Some(x), Some(y)) = (a.v2.get_mut(a.next), a.hph.get_mut(a.next)) {
-            *x = v * v;
-            *y = hph;
-        }
-        a.next = (a.next + 1) % Q_ADAPT_WINDOW;
-        a.len = (a.len + 1).min(Q_ADAPT_WINDOW);
-        let dt = a.last_s.map_or(0.0, |t| (self.time_s - t).max(0.0));
-        a.last_s = Some(self.time_s);
-        if a.len < Q_ADAPT_MIN || dt <= 0.0 {
-            return;
-        }
-        let (Some(m_v2), Some(m_hph)) = (median_of(&a.v2, a.len), median_of(&a.hph, a.len)) else {
+        let Some((m_v2, m_hph, dt)) = a.window.push(v, hph, self.time_s) else {
             return;
         };
         if m_hph <= 0.0 {
@@ -1296,7 +1412,7 @@ impl Eskf {
         // updates. Only an excess beyond two of those raises the scale, so
         // that the sampling noise of the median does not ratchet it up.
         #[allow(clippy::cast_precision_loss)]
-        let n = a.len as f64;
+        let n = a.window.len as f64;
         let rel_sd = 1.0 / (2.0 * CHI2_1_MEDIAN_DENSITY * CHI2_1_MEDIAN * n.sqrt());
         let observed = m_v2 / CHI2_1_MEDIAN;
         let predicted = m_hph + sigma2;
