@@ -19,12 +19,20 @@ difference more than 1 m off used) are then made from:
               at once for every epoch's position and every pair's bias
               (alternating least squares, 30 rounds), the best any
               estimator without truth could do with constant pair biases.
+  meas-cv     the measured differences less a site calibration learnt on
+              the other flights of the manifest (leave one flight out):
+              each pair's residual median on a 1 m x-y grid, shrunk
+              towards the pair's median by n / (n + 20), bilinear between
+              cell centres, as `insuwb calibrate`'s default family, looked
+              up at the truth's position;
+  slow-cv     truth + the slow part less that calibration: a filter whose
+              IMU bridged 1 s perfectly, with the best calibration learnt
+              elsewhere in the site.
 
 An epoch where any of the first three leaves the truth by more than 3 m (a
 geometry that does not fix 3D) is skipped for all three and counted.
 Printed: the horizontal RMSE of each over the flight segment (truth height
-above 0.3 m) and the ratios slow/meas, slow-const/meas and self-cal/meas,
-per flight and their medians. Truth is used throughout: this is an analysis of the data,
+above 0.3 m) and their ratios to meas, per flight and their medians. Truth is used throughout: this is an analysis of the data,
 not an estimator.
 
 Usage: python3 tools/util_tdoa_bound.py DATA_DIR [FLIGHT ...]
@@ -125,7 +133,8 @@ def mocap_and_tdoa(d):
     return tp, p, td[m], tt[m]
 
 
-def flight(data_dir, name, anchor_file):
+def prepare(data_dir, name, anchor_file):
+    """A flight's TDOA differences with their truth and errors."""
     d = load(data_dir / name)
     anc = anchors(data_dir / anchor_file)
     tp, p, td, tt = mocap_and_tdoa(d)
@@ -151,7 +160,74 @@ def flight(data_dir, name, anchor_file):
         slow[s] = (cs[hi] - cs[lo]) / np.maximum(hi - lo, 1)
         air = pos[s, 2] > 0.3
         const[s] = e[s][air].mean() if air.any() else e[s].mean()
+    # Unordered pair keys, and the sign that turns e into the key's order.
+    key = np.minimum(a, b) * 1000 + np.maximum(a, b)
+    sign = np.where(a < b, 1.0, -1.0)
+    return dict(tt=tt, a=a, b=b, pa=pa, pb=pb, z=td[:, 3], h=h, e=e, ok=ok,
+                slow=slow, const=const, pos=pos, ant=ant, key=key, sign=sign)
+
+
+CELL_M = 1.0
+SHRINK_N = 20.0
+
+
+def learn_grid(flights):
+    """Each pair's residual median and its 1 m x-y cells' shrunk medians,
+    from the in-air differences of `flights` (as `insuwb calibrate`'s
+    default family; residuals beyond 4 robust SDs and 0.3 m of the pair's
+    median left out)."""
+    keys = np.concatenate([f["key"][m] for f, m in flights])
+    x = np.concatenate([f["ant"][m, 0] for f, m in flights])
+    y = np.concatenate([f["ant"][m, 1] for f, m in flights])
+    e = np.concatenate([(f["sign"] * f["e"])[m] for f, m in flights])
+    grid = {}
+    for k in np.unique(keys):
+        s = keys == k
+        ek, xk, yk = e[s], x[s], y[s]
+        med = np.median(ek)
+        rsd = 1.4826 * np.median(np.abs(ek - med))
+        keep = ~((np.abs(ek - med) > 4 * rsd) & (np.abs(ek - med) > 0.3))
+        ek, xk, yk = ek[keep], xk[keep], yk[keep]
+        med = np.median(ek)
+        ci = np.floor(xk / CELL_M).astype(int)
+        cj = np.floor(yk / CELL_M).astype(int)
+        cells = {}
+        for c in set(zip(ci, cj)):
+            m = (ci == c[0]) & (cj == c[1])
+            n = m.sum()
+            if n >= SHRINK_N:
+                w = n / (n + SHRINK_N)
+                cells[c] = med + w * (np.median(ek[m]) - med)
+        grid[k] = (med, cells)
+    return grid
+
+
+def cal_at(grid, key, x, y):
+    """The calibration's bias of pair `key` at (x, y), bilinear between
+    cell centres (0 for a pair never learnt)."""
+    if key not in grid:
+        return 0.0
+    med, cells = grid[key]
+    u, v = x / CELL_M - 0.5, y / CELL_M - 0.5
+    i0, j0 = int(np.floor(u)), int(np.floor(v))
+    fu, fv = u - i0, v - j0
+    val = 0.0
+    for di, wi in ((0, 1 - fu), (1, fu)):
+        for dj, wj in ((0, 1 - fv), (1, fv)):
+            val += wi * wj * cells.get((i0 + di, j0 + dj), med)
+    return val
+
+
+def in_air(f):
+    return f["ok"] & (f["pos"][:, 2] > 0.3)
+
+
+def flight(f, grid=None):
+    tt, a, b, pa, pb, h, ok = (f[k] for k in ("tt", "a", "b", "pa", "pb", "h", "ok"))
+    z, slow, const, pos, ant = (f[k] for k in ("z", "slow", "const", "pos", "ant"))
     sq = {"meas": [], "slow": [], "slow-const": []}
+    if grid is not None:
+        sq.update({"meas-cv": [], "slow-cv": []})
     skipped = 0
     epochs = []
     for tk in np.arange(tt[0] + 0.1, tt[-1], 0.1):
@@ -162,16 +238,17 @@ def flight(data_dir, name, anchor_file):
         if len(idx) < 4 or pos[idx[-1], 2] <= 0.3:
             continue
         truth = ant[idx[-1]]
-        xs = {
-            k: solve(truth, pa[idx], pb[idx], z)
-            for k, z in (
-                ("meas", td[idx, 3]),
-                ("slow", h[idx] + slow[idx]),
-                ("slow-const", h[idx] + slow[idx] - const[idx]),
-            )
-        }
+        zs = [
+            ("meas", z[idx]),
+            ("slow", h[idx] + slow[idx]),
+            ("slow-const", h[idx] + slow[idx] - const[idx]),
+        ]
+        if grid is not None:
+            cal = np.array([f["sign"][i] * cal_at(grid, f["key"][i], truth[0], truth[1]) for i in idx])
+            zs += [("meas-cv", z[idx] - cal), ("slow-cv", h[idx] + slow[idx] - cal)]
+        xs = {k: solve(truth, pa[idx], pb[idx], zz) for k, zz in zs}
         # A degenerate geometry (the differences do not fix 3D) sends
-        # Gauss-Newton away: such an epoch counts for none of the three.
+        # Gauss-Newton away: such an epoch counts for none of them.
         if any(not np.all(np.abs(x - truth) < 3.0) for x in xs.values()):
             skipped += 1
             continue
@@ -179,7 +256,7 @@ def flight(data_dir, name, anchor_file):
             sq[k].append(np.sum((x[:2] - truth[:2]) ** 2))
         epochs.append((idx, truth, xs["meas"]))
     out = {k: float(np.sqrt(np.mean(v))) for k, v in sq.items()}
-    out["self-cal"] = self_calibrated(epochs, td[:, 3], a, b, pa, pb)
+    out["self-cal"] = self_calibrated(epochs, z, a, b, pa, pb)
     out["skipped"] = skipped
     out["epochs"] = len(sq["meas"])
     return out
@@ -213,18 +290,25 @@ def main():
     data_dir = Path(sys.argv[1])
     rows = list(csv.DictReader(open(data_dir / "flights.csv")))
     want = set(sys.argv[2:])
+    # Every flight of the manifest is prepared: the calibration of one is
+    # learnt on all the others, whichever are printed.
+    prepared = {r["file"]: prepare(data_dir, r["file"], r["anchors"]) for r in rows}
+    cols = ("slow", "slow-const", "self-cal", "meas-cv", "slow-cv")
     ratios = []
-    print(f"{'flight':18s} {'meas':>6s} {'slow':>6s} {'s-c':>6s} {'self':>6s} {'slow/meas':>9s} {'s-c/meas':>8s} {'self/meas':>9s} {'epochs':>7s} {'skipped':>7s}")
+    print(f"{'flight':18s} {'meas':>6s} " + " ".join(f"{c:>10s}" for c in cols) + "   (RMSE m, then / meas)")
     for r in rows:
         if want and r["file"] not in want:
             continue
-        f = flight(data_dir, r["file"], r["anchors"])
-        rs, rc, rx = (f[k] / f["meas"] for k in ("slow", "slow-const", "self-cal"))
-        ratios.append((rs, rc, rx))
-        print(f"{r['file']:18s} {f['meas']:6.3f} {f['slow']:6.3f} {f['slow-const']:6.3f} {f['self-cal']:6.3f} {rs:9.2f} {rc:8.2f} {rx:9.2f} {f['epochs']:7d} {f['skipped']:7d}", flush=True)
+        others = [(f, in_air(f)) for name, f in prepared.items() if name != r["file"]]
+        f = flight(prepared[r["file"]], learn_grid(others))
+        rs = [f[k] / f["meas"] for k in cols]
+        ratios.append(rs)
+        print(f"{r['file']:18s} {f['meas']:6.3f} " + " ".join(f"{f[c]:10.3f}" for c in cols)
+              + "  " + " ".join(f"{x:5.2f}" for x in rs)
+              + f"  epochs {f['epochs']}, skipped {f['skipped']}", flush=True)
     if ratios:
         med = np.median(np.array(ratios), axis=0)
-        print(f"{'median':18s} {'':6s} {'':6s} {'':6s} {'':6s} {med[0]:9.2f} {med[1]:8.2f} {med[2]:9.2f}")
+        print("median / meas: " + ", ".join(f"{c} {m:.2f}" for c, m in zip(cols, med)))
 
 
 if __name__ == "__main__":
