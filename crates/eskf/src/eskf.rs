@@ -1065,6 +1065,45 @@ impl Eskf {
         )
     }
 
+    /// What the filter learnt from its innovations, for a restarted filter
+    /// to resume from (checkpoints): the process-noise scale and the learnt
+    /// TDOA and range variances, m^2 (NaN where nothing was learnt).
+    #[must_use]
+    pub fn adaptive_state(&self) -> [f64; 3] {
+        let learnt = |k: UwbNoise| {
+            self.r_adapt
+                .get(k as usize)
+                .and_then(|a| a.sigma2)
+                .unwrap_or(f64::NAN)
+        };
+        [
+            self.q_adapt.alpha,
+            learnt(UwbNoise::Tdoa),
+            learnt(UwbNoise::Range),
+        ]
+    }
+
+    /// Restores an [`Eskf::adaptive_state`]; false, the filter unchanged,
+    /// when it does not fit: not three values, a scale outside `[1,
+    /// q_scale_max]`, a learnt variance that is not NaN and not positive
+    /// and finite.
+    pub fn restore_adaptive_state(&mut self, state: &[f64]) -> bool {
+        let &[alpha, tdoa, range] = state else {
+            return false;
+        };
+        let var_ok = |v: f64| v.is_nan() || (v.is_finite() && v > 0.0);
+        if !(1.0..=self.config.q_scale_max).contains(&alpha) || !var_ok(tdoa) || !var_ok(range) {
+            return false;
+        }
+        self.q_adapt.alpha = alpha;
+        for (k, v) in [(UwbNoise::Tdoa, tdoa), (UwbNoise::Range, range)] {
+            if let Some(a) = self.r_adapt.get_mut(k as usize) {
+                a.sigma2 = (!v.is_nan()).then_some(v);
+            }
+        }
+        true
+    }
+
     fn uwb_sigma2(&self, kind: UwbNoise) -> f64 {
         let (sigma, tau) = self.noise_config(kind);
         let learnt = self.r_adapt.get(kind as usize).and_then(|a| a.sigma2);

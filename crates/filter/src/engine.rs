@@ -342,6 +342,45 @@ impl SageHusa {
         }
     }
 
+    /// Writes the update count and `r` (row-major) into `out` (cleared):
+    /// what a restarted filter resumes from.
+    pub fn snapshot(&self, r: &Mat4, out: &mut Vec<f64>) {
+        out.clear();
+        #[allow(clippy::cast_precision_loss)]
+        out.push(self.count as f64);
+        out.extend((0..N_MEAS).flat_map(|i| (0..N_MEAS).map(move |j| r[(i, j)])));
+    }
+
+    /// Takes the update count of a [`SageHusa::snapshot`] and returns its
+    /// `R`; `None` (nothing changed) when it does not fit: not `1 + 4 x 4`
+    /// finite values, a negative count, an asymmetric `R` or a diagonal
+    /// outside `[r_min, r_max]`.
+    pub fn restore(&mut self, s: &[f64]) -> Option<Mat4> {
+        let (&count, rest) = s.split_first()?;
+        if rest.len() != N_MEAS * N_MEAS
+            || !(0.0..1e18).contains(&count)
+            || rest.iter().any(|v| !v.is_finite())
+        {
+            return None;
+        }
+        let r = Mat4::from_fn(|i, j| rest.get(i * N_MEAS + j).copied().unwrap_or(f64::NAN));
+        let scale = r.abs().max().max(f64::MIN_POSITIVE);
+        if (r - r.transpose()).abs().max() > 1e-12 * scale {
+            return None;
+        }
+        for i in 0..N_MEAS {
+            let d = r[(i, i)];
+            if d < self.r_min[i] * (1.0 - 1e-12) || d > self.r_max[i] * (1.0 + 1e-12) {
+                return None;
+            }
+        }
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        {
+            self.count = count.round() as u64;
+        }
+        Some(r)
+    }
+
     pub fn reset(&mut self, p0: &Mat14) {
         self.count = 0;
         self.hk_prev = Mat4::zeros();

@@ -241,6 +241,39 @@ pub trait ErrorFilter: core::fmt::Debug + Send {
     fn copy_to(&self, dst: &mut dyn ErrorFilter) -> bool;
     /// `self` as `Any`, for [`ErrorFilter::copy_to`].
     fn as_any_mut(&mut self) -> &mut dyn core::any::Any;
+    /// The adaptive estimator's state a restarted filter resumes from (for
+    /// checkpoints), written into `out` (cleared): the Sage-Husa update
+    /// count and `R`, row-major, for the SHAF and the IAKF; left empty by
+    /// the filters whose `R` is fixed.
+    fn adaptive_state(&self, out: &mut Vec<f64>) {
+        out.clear();
+    }
+    /// Restores an [`ErrorFilter::adaptive_state`] after
+    /// [`ErrorFilter::reset`] (whose `P` the estimator's memory of `H P
+    /// H^T` keeps); false, the filter unchanged, when it does not fit this
+    /// filter or its bounds on `R`.
+    fn restore_adaptive_state(&mut self, _state: &[f64]) -> bool {
+        false
+    }
+}
+
+/// [`ErrorFilter::adaptive_state`] and its restore for a filter with a
+/// Sage-Husa estimator in `sh`.
+macro_rules! sage_husa_state_methods {
+    () => {
+        fn adaptive_state(&self, out: &mut Vec<f64>) {
+            self.sh.snapshot(&self.core.r, out);
+        }
+        fn restore_adaptive_state(&mut self, state: &[f64]) -> bool {
+            match self.sh.restore(state) {
+                Some(r) => {
+                    self.core.r = r;
+                    true
+                }
+                None => false,
+            }
+        }
+    };
 }
 
 macro_rules! common_filter_methods {
@@ -395,6 +428,7 @@ impl ErrorFilter for Shaf {
         FilterKind::Shaf
     }
     common_filter_methods!();
+    sage_husa_state_methods!();
     fn reset(&mut self, p0: &Mat14) -> Result<(), ResetError> {
         self.core.reset(p0)?;
         self.sh.reset(p0);
@@ -601,6 +635,7 @@ impl ErrorFilter for Iakf {
         FilterKind::Iakf
     }
     common_filter_methods!();
+    sage_husa_state_methods!();
     fn reset(&mut self, p0: &Mat14) -> Result<(), ResetError> {
         self.core.reset(p0)?;
         self.sh.reset(p0);

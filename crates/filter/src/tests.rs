@@ -761,6 +761,70 @@ fn take_correction_and_reset() {
     assert_eq!(f.updates(), 0);
 }
 
+/// A restarted filter resumes its adaptive `R`: the IAKF's (and the
+/// SHAF's) Sage-Husa count and `R` go into `adaptive_state` and come back
+/// after a reset, out of warm-up; a state that does not fit (length, `R`
+/// outside its clamp, asymmetric, not finite) is refused and changes
+/// nothing; the KF and the STF, whose `R` is fixed, keep none.
+#[test]
+fn adaptive_r_survives_a_restart() {
+    let s = setup();
+    let params = FilterParams {
+        warmup_updates: 5,
+        ..shaf_params()
+    };
+    for kind in [FilterKind::Iakf, FilterKind::Shaf] {
+        let mut f = build(kind, model(ModelForm::Physics), &params, &s).unwrap();
+        for k in 0..40 {
+            f.predict(0.1, 0.0, 0.0).unwrap();
+            f.update(&V4::new(0.4, -0.3, 0.8, 0.6 + 0.01 * k as f64))
+                .unwrap();
+            f.take_correction();
+        }
+        assert!(f.r()[(0, 0)] > 2.0 * s.r0_diag[0], "{kind:?}: R grew");
+        let mut state = Vec::new();
+        f.adaptive_state(&mut state);
+        assert_eq!(state.len(), 17);
+        assert_eq!(state[0], 40.0);
+
+        let mut g = build(kind, model(ModelForm::Physics), &params, &s).unwrap();
+        g.reset(f.covariance()).unwrap();
+        let r0 = *g.r();
+        for bad in [
+            &state[1..],
+            &[[41.0].as_slice(), &[1e6; 16]].concat()[..],
+            &[f64::NAN; 17][..],
+        ] {
+            assert!(!g.restore_adaptive_state(bad), "{kind:?}: {bad:?}");
+            assert_eq!(g.r(), &r0);
+        }
+        let mut asym = state.clone();
+        asym[2] += 1e-3;
+        assert!(!g.restore_adaptive_state(&asym));
+        assert!(g.restore_adaptive_state(&state), "{kind:?}");
+        assert_eq!(g.r(), f.r());
+        // Out of warm-up: the next update moves R at once, as it moves the
+        // original's.
+        let z = V4::new(0.5, 0.5, 0.5, 0.5);
+        f.predict(0.1, 0.0, 0.0).unwrap();
+        g.predict(0.1, 0.0, 0.0).unwrap();
+        f.update(&z).unwrap();
+        g.update(&z).unwrap();
+        assert_ne!(g.r(), f.r(), "H K of the original is not kept");
+        for i in 0..4 {
+            let (a, b) = (f.r()[(i, i)], g.r()[(i, i)]);
+            assert!((a - b).abs() < 0.2 * a, "{kind:?} R[{i}]: {a} against {b}");
+        }
+    }
+    for kind in [FilterKind::Kf, FilterKind::Stf] {
+        let mut f = build(kind, model(ModelForm::Physics), &params, &s).unwrap();
+        let mut state = vec![1.0];
+        f.adaptive_state(&mut state);
+        assert!(state.is_empty(), "{kind:?}");
+        assert!(!f.restore_adaptive_state(&[0.0; 17]));
+    }
+}
+
 #[test]
 fn build_maps_kinds_and_refuses_bad_input() {
     let s = setup();

@@ -158,6 +158,17 @@ pub trait Estimator: std::fmt::Debug + Send {
     fn restore_covariance(&mut self, _p: &[f64]) -> bool {
         false
     }
+    /// Writes what the estimator learnt from its innovations (its adaptive
+    /// `R`, its noise scales) into `out` (cleared; left empty when there is
+    /// nothing), for checkpoints beside [`Estimator::covariance_snapshot`].
+    fn adaptive_snapshot(&self, out: &mut Vec<f64>) {
+        out.clear();
+    }
+    /// Restores an [`Estimator::adaptive_snapshot`] after
+    /// [`Estimator::restore_covariance`]; false when it does not fit.
+    fn restore_adaptive(&mut self, _s: &[f64]) -> bool {
+        false
+    }
     /// Runs the work of an update once on a scratch copy of the filter,
     /// leaving the estimate unchanged, so that the code and data of the next
     /// real update are in the caches (the fusion stage calls it shortly
@@ -865,6 +876,14 @@ impl Estimator for PaperEstimator {
         let p = self.filter.covariance();
         out.clear();
         out.extend((0..14).flat_map(|i| (0..14).map(move |j| p[(i, j)])));
+    }
+
+    fn adaptive_snapshot(&self, out: &mut Vec<f64>) {
+        self.filter.adaptive_state(out);
+    }
+
+    fn restore_adaptive(&mut self, s: &[f64]) -> bool {
+        self.filter.restore_adaptive_state(s)
     }
 
     fn restore_covariance(&mut self, p: &[f64]) -> bool {

@@ -656,6 +656,15 @@ impl Estimator for TightEstimator {
         out.extend((0..N_STATES).flat_map(|i| (0..N_STATES).map(move |j| p[(i, j)])));
     }
 
+    fn adaptive_snapshot(&self, out: &mut Vec<f64>) {
+        out.clear();
+        out.extend_from_slice(&self.eskf.adaptive_state());
+    }
+
+    fn restore_adaptive(&mut self, s: &[f64]) -> bool {
+        self.eskf.restore_adaptive_state(s)
+    }
+
     fn restore_covariance(&mut self, p: &[f64]) -> bool {
         if p.len() != N_STATES * N_STATES {
             return false;

@@ -31,10 +31,19 @@ pub struct Checkpoint {
     pub written_ns: u64,
     /// The estimator's full error covariance (row-major).
     pub cov: Vec<f64>,
+    /// What the estimator learnt from its innovations (the IAKF's and the
+    /// SHAF's `R` and update count, the tight filter's noise scales);
+    /// empty for an estimator without (and in checkpoints written before
+    /// it was kept).
+    #[serde(default)]
+    pub adaptive: Vec<f64>,
 }
 
 /// Largest covariance a checkpoint carries (15 x 15: the tight filter's).
 const MAX_COV: usize = 15 * 15;
+/// Largest adaptive state a checkpoint carries (the Sage-Husa count and a
+/// 4 x 4 `R`).
+const MAX_ADAPTIVE: usize = 1 + 4 * 4;
 
 /// A checkpoint on its way to the writer thread (fixed size: sending it
 /// allocates nothing).
@@ -44,6 +53,8 @@ struct CkptMsg {
     written_ns: u64,
     cov: [f64; MAX_COV],
     len: usize,
+    adaptive: [f64; MAX_ADAPTIVE],
+    adaptive_len: usize,
 }
 
 /// Path of the fusion checkpoint in the run directory.
@@ -86,11 +97,17 @@ fn engine_for(cfg: &RobotConfig, fcfg: &FusionConfig, epoch_ns: u64) -> Result<F
 fn resume(engine: &mut FusionEngine, path: &Path, generation: u32) {
     if let Some(c) = crate::checkpoint::read::<Checkpoint>(path) {
         engine.resume_correction_id(c.correction_id);
-        let restored = engine.estimator_mut().restore_covariance(&c.cov);
+        let est = engine.estimator_mut();
+        let restored = est.restore_covariance(&c.cov);
+        // The adaptive state goes on the restored covariance (a restore
+        // resets the estimators, which the state then resumes).
+        let adaptive = restored && !c.adaptive.is_empty() && est.restore_adaptive(&c.adaptive);
+        let word = |ok: bool| if ok { "restored" } else { "not restored" };
         tracing::warn!(
-            "generation {generation}: resumed from the checkpoint (correction id {}, covariance {})",
+            "generation {generation}: resumed from the checkpoint (correction id {}, covariance {}, adaptive noise {})",
             c.correction_id,
-            if restored { "restored" } else { "not restored" }
+            word(restored),
+            if c.adaptive.is_empty() { "none kept" } else { word(adaptive) }
         );
     }
 }
@@ -101,6 +118,7 @@ fn resume(engine: &mut FusionEngine, path: &Path, generation: u32) {
 struct CheckpointWriter {
     writer: crate::checkpoint::Writer<CkptMsg>,
     cov_buf: Vec<f64>,
+    adaptive_buf: Vec<f64>,
 }
 
 impl CheckpointWriter {
@@ -109,10 +127,16 @@ impl CheckpointWriter {
             correction_id: m.correction_id,
             written_ns: m.written_ns,
             cov: m.cov.get(..m.len).unwrap_or_default().to_vec(),
+            adaptive: m
+                .adaptive
+                .get(..m.adaptive_len)
+                .unwrap_or_default()
+                .to_vec(),
         })?;
         Ok(Self {
             writer,
             cov_buf: Vec::with_capacity(MAX_COV),
+            adaptive_buf: Vec::with_capacity(MAX_ADAPTIVE),
         })
     }
 
@@ -120,13 +144,19 @@ impl CheckpointWriter {
     /// skipped while the previous checkpoint is still being written.
     fn send(&mut self, engine: &FusionEngine, now_ns: u64) {
         engine.estimator().covariance_snapshot(&mut self.cov_buf);
+        engine.estimator().adaptive_snapshot(&mut self.adaptive_buf);
         let mut msg = CkptMsg {
             correction_id: engine.correction_id(),
             written_ns: now_ns,
             cov: [0.0; MAX_COV],
             len: self.cov_buf.len().min(MAX_COV),
+            adaptive: [0.0; MAX_ADAPTIVE],
+            adaptive_len: self.adaptive_buf.len().min(MAX_ADAPTIVE),
         };
         for (d, s) in msg.cov.iter_mut().zip(&self.cov_buf) {
+            *d = *s;
+        }
+        for (d, s) in msg.adaptive.iter_mut().zip(&self.adaptive_buf) {
             *d = *s;
         }
         self.writer.offer(msg);
@@ -347,4 +377,77 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     writer.finish();
     health.report(&counters, HealthState::Stopping)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use insuwb_msg::FilterKind;
+
+    use super::*;
+
+    fn engine(kind: FilterKind) -> FusionEngine {
+        let fcfg = FusionConfig::default();
+        let est = build_estimator(kind, &fcfg).unwrap();
+        FusionEngine::new(fcfg.engine.clone(), est)
+    }
+
+    /// A checkpoint carries the IAKF's adaptive `R` and update count beside
+    /// the covariance, and a restarted stage resumes both; a checkpoint
+    /// written before the adaptive state was kept still resumes the
+    /// covariance.
+    #[test]
+    fn a_restart_resumes_the_adaptive_r_from_the_checkpoint() {
+        let dir = std::env::temp_dir().join(format!("insuwb-fusion-ckpt-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = checkpoint_path(&dir);
+
+        let mut before = engine(FilterKind::Iakf);
+        let mut state = Vec::new();
+        before.estimator().adaptive_snapshot(&mut state);
+        assert_eq!(state.len(), MAX_ADAPTIVE);
+        // 40 updates in, R twice R_0.
+        state[0] = 40.0;
+        for v in state.iter_mut().skip(1) {
+            *v *= 2.0;
+        }
+        assert!(before.estimator_mut().restore_adaptive(&state));
+        let mut writer = CheckpointWriter::spawn(path.clone()).unwrap();
+        writer.send(&before, 1);
+        writer.finish();
+
+        let mut after = engine(FilterKind::Iakf);
+        resume(&mut after, &path, 1);
+        let mut resumed = Vec::new();
+        after.estimator().adaptive_snapshot(&mut resumed);
+        assert_eq!(resumed, state);
+
+        // An older checkpoint: no `adaptive` key.
+        let c: Checkpoint = crate::checkpoint::read(&path).unwrap();
+        let old = format!(
+            "correction_id = {}\nwritten_ns = 1\ncov = {:?}\n",
+            c.correction_id, c.cov
+        );
+        std::fs::write(&path, old).unwrap();
+        let c: Checkpoint = crate::checkpoint::read(&path).unwrap();
+        assert!(c.adaptive.is_empty());
+        let mut fresh = engine(FilterKind::Iakf);
+        resume(&mut fresh, &path, 1);
+        fresh.estimator().adaptive_snapshot(&mut resumed);
+        assert_eq!(resumed[0], 0.0, "R_0 and a new count");
+
+        // The tight filter's state has NaN where nothing is learnt: TOML
+        // carries it.
+        let tight = engine(FilterKind::IakfTdoa);
+        let mut writer = CheckpointWriter::spawn(path.clone()).unwrap();
+        writer.send(&tight, 2);
+        writer.finish();
+        let c: Checkpoint = crate::checkpoint::read(&path).unwrap();
+        assert_eq!(c.adaptive.len(), 3);
+        assert!(c.adaptive[1].is_nan());
+        let mut after = engine(FilterKind::IakfTdoa);
+        resume(&mut after, &path, 1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

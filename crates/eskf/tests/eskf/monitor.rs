@@ -481,16 +481,32 @@ fn range_sigma_is_learnt_from_the_innovations_within_its_bounds() {
                 f.take_correction();
             }
         }
-        f.uwb_sigmas_m()
+        f
     };
     for seed in 1..=5 {
-        let (tdoa, range) = run(&learning, 0.02, seed);
+        let (tdoa, range) = run(&learning, 0.02, seed).uwb_sigmas_m();
         assert!((range - 0.02).abs() < 0.008, "seed {seed}: {range}");
         assert_eq!(tdoa, 0.05);
     }
-    let (_, noisy) = run(&learning, 0.3, 1);
+    let (_, noisy) = run(&learning, 0.3, 1).uwb_sigmas_m();
     assert!((noisy - 0.1).abs() < 1e-9, "{noisy}");
-    assert_eq!(run(&config(), 0.02, 1).1, 0.1);
+    assert_eq!(run(&config(), 0.02, 1).uwb_sigmas_m().1, 0.1);
+
+    // What was learnt survives a restart (a checkpoint): the state holds
+    // the process-noise scale, no TDOA variance (not learnt) and the range
+    // one; a new filter restores it, and refuses one that does not fit.
+    let learnt = run(&learning, 0.02, 1);
+    let state = learnt.adaptive_state();
+    assert_eq!(state[0], 1.0);
+    assert!(state[1].is_nan());
+    assert!((state[2].sqrt() - 0.02).abs() < 0.008, "{state:?}");
+    let mut fresh = Eskf::new(learning.clone()).unwrap();
+    assert!(!fresh.restore_adaptive_state(&state[..2]));
+    assert!(!fresh.restore_adaptive_state(&[0.5, f64::NAN, 1e-4]));
+    assert!(!fresh.restore_adaptive_state(&[1.0, -1.0, 1e-4]));
+    assert_eq!(fresh.uwb_sigmas_m().1, 0.1);
+    assert!(fresh.restore_adaptive_state(&state));
+    assert_eq!(fresh.uwb_sigmas_m(), learnt.uwb_sigmas_m());
     let bad = EskfConfig {
         sigma_adapt_min_m: 0.0,
         ..learning.clone()
