@@ -8,6 +8,7 @@
 
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
@@ -15,6 +16,7 @@ use insuwb_fleet::record::{FleetRecorder, RecordSettings};
 use insuwb_fleet::view::{render_table, Snapshot};
 use insuwb_report::clock::StampClock;
 use insuwb_zenoh::config::Mode;
+use insuwb_zenoh::identity::Refusals;
 use insuwb_zenoh::station::{FleetStation, RunOptions, StationSettings};
 
 /// Arguments of `insuwb fleet`.
@@ -93,11 +95,12 @@ struct StationFile {
     station: StationSettings,
 }
 
-/// Runs `insuwb fleet`.
-pub fn run(a: &FleetArgs) -> Result<()> {
+/// Runs `insuwb fleet`; a station counts its access control's refusals
+/// from `refusals` (fed by the process's `tracing` layer).
+pub fn run(a: &FleetArgs, refusals: Arc<Refusals>) -> Result<()> {
     match &a.cmd {
-        None => station(&a.station, None),
-        Some(FleetCmd::Record(r)) => station(&r.station, Some(&r.dir)),
+        None => station(&a.station, None, refusals),
+        Some(FleetCmd::Record(r)) => station(&r.station, Some(&r.dir), refusals),
         Some(FleetCmd::Bench(b)) => crate::bench_fleet::fleet(b),
         Some(FleetCmd::Probe(p)) => crate::probe::run(p),
     }
@@ -196,7 +199,7 @@ impl Output {
     }
 }
 
-fn station(a: &StationArgs, record: Option<&PathBuf>) -> Result<()> {
+fn station(a: &StationArgs, record: Option<&PathBuf>, refusals: Arc<Refusals>) -> Result<()> {
     let settings = settings(a)?;
     let duration = seconds("--duration", a.duration)?;
     let tty = std::io::stdout().is_terminal();
@@ -226,7 +229,9 @@ fn station(a: &StationArgs, record: Option<&PathBuf>) -> Result<()> {
         }
         None => None,
     };
-    let mut st = FleetStation::open(&settings, recorder).context("opening the station")?;
+    let mut st = FleetStation::open(&settings, recorder)
+        .context("opening the station")?
+        .with_refusals(refusals);
     let opts = RunOptions { period, duration };
     st.run(&opts, &mut |s| output.write(s))
         .context("the station")?;

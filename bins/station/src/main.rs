@@ -22,5 +22,9 @@ struct Cli {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    insuwb_runtime::command_main(|| fleet_cmd::run(&cli.fleet))
+    // The refusals of the station's access control reach it as Zenoh's
+    // own log events (`insuwb_zenoh::identity`).
+    let refusals = insuwb_zenoh::identity::Refusals::new();
+    let layer = insuwb_zenoh::identity::RefusalLayer::filtered(refusals.clone());
+    insuwb_runtime::command_main_with(Some(layer), || fleet_cmd::run(&cli.fleet, refusals))
 }

@@ -184,6 +184,12 @@ pub struct DeliverySummary {
     /// leaves at 0 and [`crate::view::Snapshot::new`] fills in).
     #[serde(default)]
     pub excess: u64,
+    /// Puts of a robot under another robot's keys (or of a peer that is no
+    /// listed robot) that the station's router refused (identity bound to
+    /// the certificate; the station's count, which [`Delivery::summary`]
+    /// leaves at 0 and the Zenoh station fills in).
+    #[serde(default)]
+    pub refused: u64,
     /// Delay of the poses (receive time minus stamp), median, ms (`null`
     /// before the first pose).
     pub delay_p50_ms: Option<f64>,
@@ -253,6 +259,7 @@ impl Delivery {
             gaps: sum(|r| r.poses.gaps() + r.health.gaps()),
             invalid: self.invalid,
             excess: 0,
+            refused: 0,
             delay_p50_ms: self.delay.quantile(0.5).map(ms),
             delay_p99_ms: self.delay.quantile(0.99).map(ms),
             delay_max_ms: any.then(|| ms(self.delay.max())),

@@ -13,7 +13,7 @@
 //!              "pose": {"stamp_ns": 1767225600100000000, "pos_m": [1.2, -3.4, 0.5], "yaw_rad": 0.61},
 //!              "poses": 125, "health": 13, "gaps": 0, "runs": 1, "delay_ms": 1.42}],
 //!  "events": [{"event": "lost", "robot": "r2", "at_ns": 81233567890123}],
-//!  "delivery": {"poses": 375, "health": 39, "gaps": 0, "invalid": 0, "excess": 0,
+//!  "delivery": {"poses": 375, "health": 39, "gaps": 0, "invalid": 0, "excess": 0, "refused": 0,
 //!               "delay_p50_ms": 1.3, "delay_p99_ms": 4.1, "delay_max_ms": 9.8}}
 //! ```
 //!
@@ -31,7 +31,8 @@
 //!   lost time, 2 s) and `back`, each with its robot and time;
 //! - `delivery`: the totals ([`DeliverySummary`]): `invalid` counts the
 //!   samples that are not fleet payloads, `excess` those of robots beyond
-//!   the station's `max_robots`.
+//!   the station's `max_robots`, `refused` the puts its router refused
+//!   (a robot under another's keys, `[station.identity]`).
 //!
 //! ```
 //! use insuwb_fleet::delivery::Delivery;

@@ -231,13 +231,28 @@ fn shutdown_requested(e: &(dyn std::error::Error + 'static)) -> bool {
 pub fn command_main<E: std::fmt::Display>(
     run: impl FnOnce() -> Result<(), E>,
 ) -> std::process::ExitCode {
-    let _ = tracing_subscriber::fmt()
+    command_main_with(None, run)
+}
+
+/// [`command_main`] with `extra`, a layer beside the log's (with its own
+/// filter, e.g. one that counts what a library reports as events).
+pub fn command_main_with<E: std::fmt::Display>(
+    extra: Option<Box<dyn tracing_subscriber::Layer<tracing_subscriber::Registry> + Send + Sync>>,
+    run: impl FnOnce() -> Result<(), E>,
+) -> std::process::ExitCode {
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
+    use tracing_subscriber::Layer as _;
+    let log = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
+        .with_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER)),
-        )
+        );
+    let _ = tracing_subscriber::registry()
+        .with(extra)
+        .with(log)
         .try_init();
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -19,6 +19,9 @@
 //! - `station` (feature `transport`): the fleet's station (`insuwb
 //!   fleet`): subscribes to every robot, feeds `insuwb_fleet`'s model,
 //!   delivery counts and recording, hands out snapshots.
+//! - `identity` (feature `transport`): `[station.identity]`, the Zenoh
+//!   access control it makes at the station's router (a robot puts only
+//!   under its certificate's id) and the refusals counted.
 //! - `loadgen` (feature `transport`): simulated robots for the station's
 //!   benchmark (`insuwb bench fleet`).
 //!
@@ -37,6 +40,8 @@
 #[cfg(feature = "transport")]
 pub mod bridge;
 pub mod config;
+#[cfg(feature = "transport")]
+pub mod identity;
 #[cfg(feature = "transport")]
 pub mod loadgen;
 pub mod payload;

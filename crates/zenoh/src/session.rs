@@ -142,7 +142,28 @@ pub fn zenoh_config(link: &LinkConfig) -> Result<zenoh::Config, SessionError> {
 /// # Errors
 /// [`SessionError`] naming what failed.
 pub fn open(link: &LinkConfig) -> Result<Session, SessionError> {
-    let config = zenoh_config(link)?;
+    open_with_access_control(link, None)
+}
+
+/// [`open`] with Zenoh's `access_control` set to `acl` (the station's,
+/// [`crate::identity::IdentitySettings::access_control_json`]).
+///
+/// # Errors
+/// [`SessionError`] naming what failed; Zenoh's refusal of the access
+/// control as [`SessionError::ZenohConfig`] with key `access_control`.
+pub fn open_with_access_control(
+    link: &LinkConfig,
+    acl: Option<&serde_json::Value>,
+) -> Result<Session, SessionError> {
+    let mut config = zenoh_config(link)?;
+    if let Some(acl) = acl {
+        config
+            .insert_json5("access_control", &acl.to_string())
+            .map_err(|e| SessionError::ZenohConfig {
+                key: "access_control",
+                reason: e.to_string(),
+            })?;
+    }
     for (key, e) in link.plain_off_loopback() {
         tracing::warn!(
             "{key}: {}; require_tls = true refuses it",

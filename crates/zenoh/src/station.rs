@@ -50,6 +50,7 @@
 
 use std::path::Path;
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::sync::Arc;
 use std::time::Duration;
 
 use insuwb_fleet::delivery::Delivery;
@@ -66,6 +67,7 @@ use zenoh::pubsub::Subscriber;
 use zenoh::{Session, Wait};
 
 use crate::config::{LinkConfig, Mode, TlsConfig};
+use crate::identity::{IdentitySettings, Refusals};
 use crate::payload::{DecodeError, HealthPayload, Meta, Payload, Pose, Received};
 use crate::session::{self, SessionError};
 
@@ -111,6 +113,9 @@ pub struct StationSettings {
     /// The most robots tracked (default 1000): the samples of any further
     /// robot id are dropped and counted as excess.
     pub max_robots: usize,
+    /// Which robot may put under which keys (`[station.identity]`; none
+    /// listed: any peer that connects may, as without it).
+    pub identity: IdentitySettings,
 }
 
 impl Default for StationSettings {
@@ -128,6 +133,7 @@ impl Default for StationSettings {
             stale_after_s: d.stale_after_s,
             rate_window_s: d.rate_window_s,
             max_robots: d.max_robots,
+            identity: IdentitySettings::default(),
         }
     }
 }
@@ -220,6 +226,16 @@ impl StationSettings {
         }
         if let Err(e) = self.link().validate() {
             return bad(e.key, e.reason);
+        }
+        if let Err(e) = self.identity.validate() {
+            return bad(&format!("identity.{}", e.key), e.reason);
+        }
+        if self.identity.enabled() && self.mode() != Mode::Router {
+            return bad(
+                "identity",
+                "binds identity at the station's router: the station must listen (mode router)"
+                    .to_owned(),
+            );
         }
         if self.connect.is_empty() && self.listen.is_empty() {
             return bad(
@@ -369,6 +385,9 @@ pub struct FleetStation {
     started_ns: u64,
     /// The events since the last snapshot.
     events: Vec<Event>,
+    /// The access control's refusals, where a [`crate::identity::RefusalLayer`]
+    /// counts them.
+    refusals: Option<Arc<Refusals>>,
     // Fields drop in order: the subscribers before the session.
     _subscribers: Vec<Subscriber<()>>,
     _session: Session,
@@ -411,7 +430,11 @@ impl FleetStation {
         settings.validate()?;
         let station = Station::new(settings.station_config())?;
         let link = settings.link();
-        let session = session::open(&link)?;
+        let acl = settings
+            .identity
+            .enabled()
+            .then(|| settings.identity.access_control_json());
+        let session = session::open_with_access_control(&link, acl.as_ref())?;
         let (tx, arrivals) = mpsc::channel();
         let subscribers = insuwb_runtime::signal::with_signals_blocked(|| {
             [Kind::Pose, Kind::Health]
@@ -433,6 +456,20 @@ impl FleetStation {
                 })
                 .collect::<Result<Vec<_>, _>>()
         })?;
+        if settings.identity.enabled() {
+            tracing::info!(
+                "station: identity bound to the certificate: {:?} each put only under insuwb/<its id>/**{}; any other peer is refused",
+                settings.identity.robots,
+                if settings.identity.loopback_robots.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        ", {:?} without TLS over plain TCP on the loopback",
+                        settings.identity.loopback_robots
+                    )
+                }
+            );
+        }
         tracing::info!(
             "station: Zenoh {} session, listen {:?}, connect {:?}; subscribed to {} and {}{}",
             link.mode.name(),
@@ -455,9 +492,20 @@ impl FleetStation {
             lost_after_s: settings.lost_after_s,
             started_ns: monotonic_ns(),
             events: Vec::new(),
+            refusals: None,
             _subscribers: subscribers,
             _session: session,
         })
+    }
+
+    /// Counts the access control's refusals from `refusals` (fed by a
+    /// [`crate::identity::RefusalLayer`] in the process's `tracing`
+    /// subscriber): the snapshots' `delivery.refused`, and one log line
+    /// per robot and key refused.
+    #[must_use]
+    pub fn with_refusals(mut self, refusals: Arc<Refusals>) -> Self {
+        self.refusals = Some(refusals);
+        self
     }
 
     /// The station's model.
@@ -587,6 +635,11 @@ impl FleetStation {
     /// # Errors
     /// [`RecordError`] when a flush fails.
     pub fn tick(&mut self, now_ns: u64) -> Result<(), RecordError> {
+        if let Some(r) = &self.refusals {
+            for refusal in r.take_fresh() {
+                tracing::warn!("station: {refusal}");
+            }
+        }
         for ev in self.station.tick(now_ns) {
             self.note(Some(ev));
         }
@@ -600,7 +653,9 @@ impl FleetStation {
     pub fn snapshot(&mut self, now_ns: u64) -> Snapshot {
         let t_s = now_ns.saturating_sub(self.started_ns) as f64 * 1e-9;
         let events = std::mem::take(&mut self.events);
-        Snapshot::new(t_s, now_ns, &self.station, &self.delivery, events)
+        let mut snap = Snapshot::new(t_s, now_ns, &self.station, &self.delivery, events);
+        snap.delivery.refused = self.refusals.as_ref().map_or(0, |r| r.total());
+        snap
     }
 
     /// Runs until SIGINT/SIGTERM (once `insuwb_runtime::signal::install`
@@ -656,13 +711,14 @@ impl FleetStation {
     pub fn finish(self) -> Result<Vec<RobotRecording>, RecordError> {
         let s = self.delivery.summary();
         tracing::info!(
-            "station: {} robots, {} poses and {} health samples received, {} lost on the way, {} invalid, {} of robots beyond max_robots",
+            "station: {} robots, {} poses and {} health samples received, {} lost on the way, {} invalid, {} of robots beyond max_robots, {} refused by the access control",
             self.station.len(),
             s.poses,
             s.health,
             s.gaps,
             s.invalid,
-            self.station.excess()
+            self.station.excess(),
+            self.refusals.as_ref().map_or(0, |r| r.total())
         );
         match self.recorder {
             Some(r) => r.finish(),

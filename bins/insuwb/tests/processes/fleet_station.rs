@@ -91,6 +91,25 @@ impl Station {
         }
     }
 
+    /// Starts `insuwb fleet --config CONFIG --json --period 0.5 --duration
+    /// SECONDS`, its standard error into `err`.
+    pub(crate) fn with_config(config: &Path, seconds: u32, err: PathBuf) -> Self {
+        let seconds = seconds.to_string();
+        Self::start(
+            &[
+                "fleet",
+                "--config",
+                config.to_str().unwrap(),
+                "--json",
+                "--period",
+                "0.5",
+                "--duration",
+                &seconds,
+            ],
+            err,
+        )
+    }
+
     pub(crate) fn log(&self) -> String {
         std::fs::read_to_string(&self.err).unwrap_or_default()
     }
@@ -198,22 +217,23 @@ fn zenoh_table(robot: &str, endpoint: &str, certs: Option<&Path>, victim: bool) 
 }
 
 /// The fleet's certificates in `dir` (`tools/fleet_certs.sh`, the station's
-/// for 127.0.0.1, r3's); `None` where there is no `openssl` and `CI` is
-/// not set.
-fn fleet_certs(dir: &Path) -> Option<PathBuf> {
+/// for 127.0.0.1, those of `robots`, valid 2 days); `None` where there is
+/// no `openssl` and `CI` is not set (then the caller says what it leaves
+/// out).
+pub(crate) fn fleet_certs(dir: &Path, robots: &[&str]) -> Option<PathBuf> {
     if Command::new("openssl").arg("version").output().is_err() {
         assert!(
             std::env::var_os("CI").is_none(),
-            "no openssl command; CI is set, so this fails instead of running r3 over TCP"
+            "no openssl command; CI is set, so this fails instead of skipping TLS"
         );
-        eprintln!("no openssl command: r3 connects over TCP, TLS is not tested");
         return None;
     }
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/fleet_certs.sh");
     let out = Command::new("bash")
         .arg(script)
         .arg(dir)
-        .args(["IP:127.0.0.1", ROBOTS[TLS_ROBOT]])
+        .arg("IP:127.0.0.1")
+        .args(robots)
         .env("INSUWB_CERT_DAYS", "2")
         .output()
         .unwrap();
@@ -343,7 +363,10 @@ fn three_robots_at_a_station_one_lost_and_back_and_a_station_restart() {
     let _ = std::fs::remove_dir_all(&work);
     std::fs::create_dir_all(&work).unwrap();
     let rec = work.join("rec");
-    let certs = fleet_certs(&work.join("certs"));
+    let certs = fleet_certs(&work.join("certs"), &[ROBOTS[TLS_ROBOT]]);
+    if certs.is_none() {
+        eprintln!("no openssl command: r3 connects over TCP, TLS is not tested");
+    }
     let tcp = format!("tcp/127.0.0.1:{}", common::free_port());
     let tls = format!("tls/127.0.0.1:{}", common::free_port());
     // The station's config: certificate paths relative to the file.

@@ -108,19 +108,7 @@ fn hostile_peers_are_counted_and_a_robot_beside_them_keeps_its_rate() {
         format!("[station]\nlisten = [\"{endpoint}\"]\nmax_robots = {MAX_ROBOTS}\n"),
     )
     .unwrap();
-    let mut st = Station::start(
-        &[
-            "fleet",
-            "--config",
-            station_toml.to_str().unwrap(),
-            "--json",
-            "--period",
-            "0.5",
-            "--duration",
-            "300",
-        ],
-        work.join("station.err"),
-    );
+    let mut st = Station::with_config(&station_toml, 300, work.join("station.err"));
     let station_pid = st.child.id();
     let g = Group::with_config(
         "hostile_r1",

@@ -14,6 +14,7 @@ mod common;
 mod devices;
 mod devices_stage;
 mod faults;
+mod fleet_identity;
 mod fleet_station;
 mod foxglove_live;
 mod hostile_peers;
