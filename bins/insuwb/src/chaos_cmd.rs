@@ -36,6 +36,11 @@ pub struct ChaosReport {
     pub faults: u32,
     pub restarts: u32,
     pub max_gap_ms: f64,
+    /// When the largest gap started, s after the start.
+    pub max_gap_at_s: f64,
+    /// The last fault before it (`STAGE SIGNAL at T s`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_gap_after: Option<String>,
     /// The undisturbed run's: the scenario's own gaps (its scripted UWB
     /// dropouts, where INS-only coasting is the answer).
     pub max_gap_undisturbed_ms: f64,
@@ -162,6 +167,8 @@ pub fn run_chaos(a: &ChaosRun) -> Result<ChaosReport> {
         faults: r.faults,
         restarts: r.restarts,
         max_gap_ms: r.max_gap_ms,
+        max_gap_at_s: r.max_gap_at_s,
+        max_gap_after: r.max_gap_after.clone(),
         max_gap_undisturbed_ms: calm.max_gap_ms,
         records_lost: lost?,
         leftover_files: leftover,

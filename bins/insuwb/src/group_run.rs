@@ -50,6 +50,12 @@ pub struct GroupReport {
     pub degraded: u64,
     /// Largest gap between valid fused states from UWB updates, ms.
     pub max_gap_ms: f64,
+    /// When it started, s after the group's start.
+    pub max_gap_at_s: f64,
+    /// The last fault injected before it started (`STAGE SIGNAL at T s`),
+    /// if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_gap_after: Option<String>,
     /// Seconds run.
     pub duration_s: f64,
     /// Faults injected.
@@ -302,6 +308,7 @@ pub fn run_group_with(
         shutdown_order: shutdown_order(&cfg.stages),
     };
     let t0 = Instant::now();
+    let t0_ns = monotonic_ns();
     let end = supervise(&mut sup, t0, &loop_opts, &mut watch, Some(&mut faults))?;
     let elapsed = t0.elapsed().as_secs_f64();
     let failed = match end {
@@ -320,9 +327,21 @@ pub fn run_group_with(
         ..
     } = watch;
     let restarts = sup.total_restarts();
-    let mut report = summarise(&mut mon, restarts, elapsed);
+    let (mut report, mon_gap_start_ns) = summarise(&mut mon, restarts, elapsed);
     report.samples = sampler.map(|s| s.samples).unwrap_or_default();
     report.faults = faults.injected();
+    if report.max_gap_ms > 0.0 {
+        let start = Duration::from_nanos(mon_gap_start_ns.saturating_sub(t0_ns));
+        report.max_gap_at_s = start.as_secs_f64();
+        report.max_gap_after = faults.last_before(start).map(|f| {
+            let name = match f.signal {
+                9 => "SIGKILL".to_owned(),
+                19 => "SIGSTOP".to_owned(),
+                n => format!("signal {n}"),
+            };
+            format!("{} {name} at {:.1} s", f.stage, f.at.as_secs_f64())
+        });
+    }
     report.gave_up = sup.given_up();
     drop(tick);
     drop(waiter);
@@ -424,15 +443,17 @@ fn logger_dropped(health: &std::collections::BTreeMap<String, Health>) -> u64 {
     }
 }
 
-fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
+/// The report of a run, and when its largest gap started (CLOCK_MONOTONIC ns).
+fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> (GroupReport, u64) {
     let fig = mon.finish();
+    let gap_start_ns = fig.max_gap_start_ns;
     let dropped: u64 = mon
         .health
         .values()
         .map(|h| h.dropped_invalid + h.dropped_time + h.dropped_version)
         .sum::<u64>()
         + logger_dropped(&mon.health);
-    GroupReport {
+    let report = GroupReport {
         rmse_horizontal: fig.rmse_horizontal,
         rmse_states: fig.compared,
         fused_rate_hz: fig.fused_rate_hz,
@@ -445,6 +466,8 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
         outliers: fusion_outliers(&mon.health),
         degraded: fig.degraded,
         max_gap_ms: fig.max_gap_ms,
+        max_gap_at_s: 0.0,
+        max_gap_after: None,
         duration_s: elapsed,
         faults: 0,
         deadlocks: fig.deadlocks,
@@ -467,5 +490,6 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> GroupReport {
                 (name.clone(), f)
             })
             .collect(),
-    }
+    };
+    (report, gap_start_ns)
 }

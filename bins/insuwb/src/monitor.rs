@@ -146,6 +146,8 @@ pub struct Monitor {
     /// Publish time of the last valid update, and the largest gap so far.
     last_valid_pub: Option<u64>,
     max_gap_ns: u64,
+    /// When the largest gap ended (the publish time of the pose after it).
+    max_gap_end_ns: u64,
     deadlocks: u32,
     /// For the live line: states that carry a UWB update or are not degraded.
     live_updates: u64,
@@ -175,6 +177,7 @@ impl Monitor {
             degraded: 0,
             last_valid_pub: None,
             max_gap_ns: 0,
+            max_gap_end_ns: 0,
             deadlocks: 0,
             live_updates: 0,
             last_pos: [f64::NAN; 3],
@@ -247,7 +250,10 @@ impl Monitor {
     fn note_valid(&mut self, at: u64) {
         if let Some(prev) = self.last_valid_pub {
             let gap = at.saturating_sub(prev);
-            self.max_gap_ns = self.max_gap_ns.max(gap);
+            if gap > self.max_gap_ns {
+                self.max_gap_ns = gap;
+                self.max_gap_end_ns = at;
+            }
             if gap > DEADLOCK_NS {
                 self.deadlocks += 1;
             }
@@ -301,6 +307,7 @@ impl Monitor {
             latency_p99_us: p99,
             degraded: self.degraded,
             max_gap_ms: self.max_gap_ns as f64 * 1e-6,
+            max_gap_start_ns: self.max_gap_end_ns.saturating_sub(self.max_gap_ns),
             deadlocks: self.deadlocks,
         }
     }
@@ -332,6 +339,8 @@ pub struct Figures {
     /// Largest gap between valid poses (updates, or UWB-only poses while
     /// the INS cannot serve), ms.
     pub max_gap_ms: f64,
+    /// When it started (the publish time of the pose before it, CLOCK_MONOTONIC ns).
+    pub max_gap_start_ns: u64,
     /// Gaps of more than 5 s between valid updates.
     pub deadlocks: u32,
 }

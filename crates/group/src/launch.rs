@@ -94,6 +94,21 @@ impl std::str::FromStr for Fault {
     }
 }
 
+/// A fault as injected: when, into which stage, which signal.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Injected {
+    /// When, after the start.
+    pub at: Duration,
+    /// The stage hit (a [`StageRole`] name).
+    pub stage: String,
+    /// The signal (SIGKILL = 9, SIGSTOP = 19).
+    pub signal: i32,
+}
+
+/// The most injected faults remembered ([`FaultInjector::log`]): a day at
+/// the chaos rate (one every 3 s on average).
+const INJECTED_KEPT: usize = 30_000;
+
 /// Injects faults into a supervised group: the timed [`Fault`]s in time
 /// order, and with a chaos seed every 1-5 s a random stage of `stages`
 /// gets SIGKILL, or SIGSTOP for 2 s then SIGCONT (the draws from the
@@ -108,6 +123,7 @@ pub struct FaultInjector {
     duration: Option<Duration>,
     pending_cont: Vec<(Duration, String)>,
     injected: u32,
+    log: Vec<Injected>,
 }
 
 impl FaultInjector {
@@ -133,6 +149,18 @@ impl FaultInjector {
             duration,
             pending_cont: Vec::new(),
             injected: 0,
+            log: Vec::new(),
+        }
+    }
+
+    fn note(&mut self, at: Duration, stage: &str, signal: i32) {
+        self.injected += 1;
+        if self.log.len() < INJECTED_KEPT {
+            self.log.push(Injected {
+                at,
+                stage: stage.to_owned(),
+                signal,
+            });
         }
     }
 
@@ -140,7 +168,7 @@ impl FaultInjector {
     pub fn apply(&mut self, sup: &mut Supervisor, elapsed: Duration) {
         while let Some(f) = self.timed.next_if(|f| elapsed >= f.at) {
             tracing::warn!("injecting signal {} into stage {}", f.signal, f.stage);
-            self.injected += 1;
+            self.note(elapsed, &f.stage, f.signal);
             if let Err(e) = sup.kill_stage(&f.stage, f.signal) {
                 tracing::warn!("fault injection: {e}");
             }
@@ -153,11 +181,11 @@ impl FaultInjector {
                 let stage = self.stages[rng.random_range(0..self.stages.len())].clone();
                 let stop = rng.random::<bool>();
                 let signal = if stop { sig::STOP } else { sig::KILL };
+                let (at, s) = (elapsed, stage.clone());
                 tracing::warn!(
                     "chaos: {} {stage}",
                     if stop { "SIGSTOP (2 s)" } else { "SIGKILL" }
                 );
-                self.injected += 1;
                 if let Err(e) = sup.kill_stage(&stage, signal) {
                     tracing::warn!("chaos: {e}");
                 }
@@ -166,6 +194,7 @@ impl FaultInjector {
                         .push((elapsed + Duration::from_secs(2), stage));
                 }
                 self.next_chaos = Some(elapsed + Duration::from_secs_f64(rng.uniform_in(1.0, 5.0)));
+                self.note(at, &s, signal);
             }
         }
         self.pending_cont.retain(|(at, stage)| {
@@ -182,6 +211,19 @@ impl FaultInjector {
     #[must_use]
     pub fn injected(&self) -> u32 {
         self.injected
+    }
+
+    /// The faults injected so far, in time order (the first
+    /// [`INJECTED_KEPT`]).
+    #[must_use]
+    pub fn log(&self) -> &[Injected] {
+        &self.log
+    }
+
+    /// The last fault injected at or before `at`, if any.
+    #[must_use]
+    pub fn last_before(&self, at: Duration) -> Option<&Injected> {
+        self.log.iter().rev().find(|f| f.at <= at)
     }
 }
 

@@ -214,6 +214,20 @@ fn chaos_for_45_s_loses_nothing_and_leaves_nothing() {
     // the chaos runs in docs/RELIABILITY.md.
     assert_eq!(f(&v, "deadlocks"), 0.0, "{v}");
     assert!(f(&v, "max_gap_ms") > 0.0, "{v}");
+    // Where it was: inside the run, and named after the fault before it
+    // (the first fault comes 1-5 s in; a gap before it names none).
+    let at = f(&v, "max_gap_at_s");
+    assert!((0.0..45.0).contains(&at), "{v}");
+    if at > 5.0 {
+        let after = v["max_gap_after"].as_str().unwrap_or_default();
+        assert!(
+            ["imu", "uwb", "ins", "fusion", "logger"]
+                .iter()
+                .any(|s| after.starts_with(s))
+                && after.contains(" at "),
+            "{v}"
+        );
+    }
     assert_eq!(f(&v, "records_lost"), 0.0, "{v}");
     assert_eq!(f(&v, "leftover_files"), 0.0, "{v}");
     assert!(f(&v, "faults") >= 12.0, "{v}");
