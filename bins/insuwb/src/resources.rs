@@ -1,49 +1,12 @@
 //! What a group's processes hold, read from `/proc` and `/dev/shm`: each
-//! process's resident memory and open file descriptors, and the group's
-//! shared-memory files. `insuwb soak` samples them periodically to show
+//! process's resident memory and open file descriptors
+//! ([`insuwb_bench::cpu::of_process`]), and the group's shared-memory
+//! files. `insuwb soak` samples them periodically to show
 //! that nothing grows over hours.
 
 use std::path::Path;
 
-/// One process's resources at one time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-pub struct ProcessResources {
-    /// Its pid.
-    pub pid: u32,
-    /// Resident set size (`VmRSS`), KiB: the shared-memory pages the
-    /// process has touched included.
-    pub rss_kib: u64,
-    /// Its anonymous part (`RssAnon`: heap and stacks), KiB: what a leak
-    /// grows.
-    pub rss_anon_kib: u64,
-    /// Open file descriptors (entries of `/proc/PID/fd`).
-    pub fds: u64,
-}
-
-/// The resources of process `pid`, or `None` when it is gone (or `/proc`
-/// cannot be read).
-pub fn of_process(pid: u32) -> Option<ProcessResources> {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let kib = |key: &str| {
-        status
-            .lines()
-            .find_map(|l| l.strip_prefix(key))
-            .and_then(|v| v.split_whitespace().next())
-            .and_then(|v| v.parse::<u64>().ok())
-    };
-    let rss_kib = kib("VmRSS:")?;
-    let rss_anon_kib = kib("RssAnon:")?;
-    let fds = std::fs::read_dir(format!("/proc/{pid}/fd"))
-        .ok()?
-        .filter_map(Result::ok)
-        .count() as u64;
-    Some(ProcessResources {
-        pid,
-        rss_kib,
-        rss_anon_kib,
-        fds,
-    })
-}
+pub use insuwb_bench::cpu::{of_process, ProcessResources};
 
 /// Files of a group: those in /dev/shm whose name starts with `prefix`,
 /// and every file under its iceoryx2 root `iox_root`.

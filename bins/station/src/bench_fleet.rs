@@ -41,6 +41,39 @@ pub struct FleetBenchArgs {
     /// Print the report as one JSON object on standard output (the table goes to standard error).
     #[arg(long)]
     pub json: bool,
+    /// Seconds between two looks at the station while it runs (its
+    /// anonymous resident memory, open file descriptors, robots OK and
+    /// poses received since the last look), for runs of hours; none by
+    /// default.
+    #[arg(long)]
+    pub every: Option<f64>,
+}
+
+/// One look at the station while the fleet publishes (`--every`).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct StationLook {
+    /// Seconds since the publishing started.
+    pub t_s: f64,
+    /// The station's anonymous resident memory (`RssAnon`: heap and
+    /// stacks), KiB.
+    pub rss_anon_kib: u64,
+    /// Its open file descriptors.
+    pub fds: u64,
+    /// Robots OK in its last snapshot.
+    pub robots_ok: usize,
+    /// Poses received per second since the previous look.
+    pub poses_per_s: f64,
+}
+
+/// The station's memory and descriptors at the first look after warm-up
+/// (a fifth of the run, at most 5 minutes), at the last look and the most
+/// after warm-up.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct StationGrowth {
+    /// `RssAnon` after warm-up, at the last look and the most, KiB.
+    pub rss_anon_kib: [u64; 3],
+    /// Descriptors after warm-up, at the last look and the most.
+    pub fds: [u64; 3],
 }
 
 /// One fleet size's figures.
@@ -77,6 +110,73 @@ pub struct FleetRun {
     pub put_late_p99_us: f64,
     /// Robots the station saw as OK in its last snapshot while the load ran.
     pub robots_ok: usize,
+    /// The looks of `--every`, in order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub looks: Vec<StationLook>,
+    /// What grew after warm-up (with `--every`, from two looks on).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub growth: Option<StationGrowth>,
+}
+
+/// Looks at the station `pid` every `every` until `stop` is set.
+fn look_at(
+    pid: u32,
+    snaps: Snapshots,
+    every: Duration,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+) -> Vec<StationLook> {
+    use std::sync::atomic::Ordering;
+    let t0 = Instant::now();
+    let mut looks = Vec::new();
+    let mut prev: Option<(f64, u64)> = None;
+    let mut next = every;
+    while !stop.load(Ordering::Relaxed) {
+        if t0.elapsed() < next {
+            std::thread::sleep(Duration::from_millis(50).min(next - t0.elapsed()));
+            continue;
+        }
+        next += every;
+        let Some(r) = insuwb_bench::cpu::of_process(pid) else {
+            break;
+        };
+        let (ok, poses) = snaps
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .1
+            .as_ref()
+            .map_or((0, 0), |s| {
+                (s.count(insuwb_fleet::station::Status::Ok), s.delivery.poses)
+            });
+        let t_s = t0.elapsed().as_secs_f64();
+        let poses_per_s = prev.map_or(0.0, |(t, p)| {
+            poses.saturating_sub(p) as f64 / (t_s - t).max(1e-9)
+        });
+        prev = Some((t_s, poses));
+        looks.push(StationLook {
+            t_s,
+            rss_anon_kib: r.rss_anon_kib,
+            fds: r.fds,
+            robots_ok: ok,
+            poses_per_s,
+        });
+    }
+    looks
+}
+
+/// The growth over `looks` of a run of `seconds`.
+fn growth(looks: &[StationLook], seconds: f64) -> Option<StationGrowth> {
+    let warm = (seconds / 5.0).min(300.0);
+    let after: Vec<&StationLook> = looks.iter().filter(|l| l.t_s >= warm).collect();
+    let (first, last) = (after.first()?, after.last()?);
+    let max = |f: fn(&StationLook) -> u64| after.iter().map(|l| f(l)).max().unwrap_or(0);
+    Some(StationGrowth {
+        rss_anon_kib: [
+            first.rss_anon_kib,
+            last.rss_anon_kib,
+            max(|l| l.rss_anon_kib),
+        ],
+        fds: [first.fds, last.fds, max(|l| l.fds)],
+    })
 }
 
 /// A free loopback port (the kernel's pick, released for the station).
@@ -198,10 +298,15 @@ fn peak_rss_mib(pid: u32) -> f64 {
         .map_or(0.0, |kib| kib / 1024.0)
 }
 
+/// What one fleet's run measured before the station stops: connect time,
+/// the generator's report, the station's and the generator's CPU percent,
+/// the station's peak RSS, robots OK, the looks.
+type Measured = (f64, LoadReport, f64, f64, f64, usize, Vec<StationLook>);
+
 fn one_fleet(robots: usize, a: &FleetBenchArgs, dir: &std::path::Path) -> Result<FleetRun> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
     let mut station = StationProc::start(&endpoint, dir.join(format!("station-{robots}.log")))?;
-    let result = (|| -> Result<(f64, LoadReport, f64, f64, f64, usize)> {
+    let result = (|| -> Result<Measured> {
         station.wait_up(Duration::from_secs(30))?;
         let t0 = Instant::now();
         let spec = LoadSpec {
@@ -219,7 +324,16 @@ fn one_fleet(robots: usize, a: &FleetBenchArgs, dir: &std::path::Path) -> Result
             insuwb_bench::cpu::cpu_time_ns(me)?,
             Instant::now(),
         );
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let looker = a.every.map(|every| {
+            let (snaps, stop) = (station.snaps.clone(), stop.clone());
+            std::thread::spawn(move || look_at(spid, snaps, Duration::from_secs_f64(every), stop))
+        });
         let report = fleet.run(Duration::from_secs_f64(a.seconds), &|| false);
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        let looks = looker
+            .map(|h| h.join().unwrap_or_default())
+            .unwrap_or_default();
         let wall = u64::try_from(w0.elapsed().as_nanos()).unwrap_or(u64::MAX);
         let (s1, g1) = (
             insuwb_bench::cpu::cpu_time_ns(spid)?,
@@ -240,10 +354,11 @@ fn one_fleet(robots: usize, a: &FleetBenchArgs, dir: &std::path::Path) -> Result
             insuwb_bench::cpu::percent_of_core(g1.saturating_sub(g0), wall),
             rss,
             ok,
+            looks,
         ))
     })();
     let last = station.stop(Duration::from_secs(20));
-    let (connect_s, report, station_cpu, gen_cpu, rss, robots_ok) = result?;
+    let (connect_s, report, station_cpu, gen_cpu, rss, robots_ok, looks) = result?;
     let last = last?;
     let received: u64 = last.robots.iter().map(|r| r.poses).sum();
     let dropped: u64 = report
@@ -274,6 +389,8 @@ fn one_fleet(robots: usize, a: &FleetBenchArgs, dir: &std::path::Path) -> Result
         delay_max_ms: last.delivery.delay_max_ms,
         put_late_p99_us: report.late_p99_us,
         robots_ok,
+        growth: growth(&looks, report.seconds),
+        looks,
     })
 }
 
@@ -282,8 +399,13 @@ pub fn fleet(a: &FleetBenchArgs) -> Result<()> {
     if a.robots.is_empty() || a.robots.contains(&0) {
         bail!("--robots: give fleet sizes of at least 1, e.g. 10,100,500");
     }
-    if !(a.seconds.is_finite() && (1.0..=3600.0).contains(&a.seconds)) {
-        bail!("--seconds must be in [1, 3600], got {}", a.seconds);
+    if !(a.seconds.is_finite() && (1.0..=86_400.0).contains(&a.seconds)) {
+        bail!("--seconds must be in [1, 86400], got {}", a.seconds);
+    }
+    if let Some(e) = a.every {
+        if !(e.is_finite() && (1.0..=a.seconds).contains(&e)) {
+            bail!("--every must be in [1, --seconds], got {e}");
+        }
     }
     let dir = std::env::temp_dir().join(format!("insuwb-bench-fleet-{}", std::process::id()));
     insuwb_runtime::perm::create_private_dir(&dir)

@@ -1,11 +1,13 @@
-//! CPU time of processes, read from Linux `/proc`.
+//! CPU time and resources of processes, read from Linux `/proc`.
 //!
 //! [`cpu_time_ns`] sums the scheduler's run time of every thread of a process
 //! (`/proc/PID/task/TID/schedstat`, nanoseconds, exact) and falls back to
 //! `utime + stime` of `/proc/PID/stat` (clock ticks of 10 ms, the kernel's
 //! fixed `USER_HZ` of 100) where schedstat is missing. The percentage of one
 //! core a process used over a window is the difference of two readings over
-//! the wall time between them ([`percent_of_core`]).
+//! the wall time between them ([`percent_of_core`]). [`of_process`] reads
+//! a process's resident memory and open file descriptors, what a leak
+//! grows over hours.
 
 use std::path::Path;
 
@@ -127,6 +129,46 @@ pub fn percent_of_core(cpu_ns: u64, wall_ns: u64) -> f64 {
         return 0.0;
     }
     cpu_ns as f64 / wall_ns as f64 * 100.0
+}
+
+/// One process's resources at one time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct ProcessResources {
+    /// Its pid.
+    pub pid: u32,
+    /// Resident set size (`VmRSS`), KiB: the shared-memory pages the
+    /// process has touched included.
+    pub rss_kib: u64,
+    /// Its anonymous part (`RssAnon`: heap and stacks), KiB: what a leak
+    /// grows.
+    pub rss_anon_kib: u64,
+    /// Open file descriptors (entries of `/proc/PID/fd`).
+    pub fds: u64,
+}
+
+/// The resources of process `pid`, or `None` when it is gone (or `/proc`
+/// cannot be read).
+pub fn of_process(pid: u32) -> Option<ProcessResources> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let kib = |key: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(key))
+            .and_then(|v| v.split_whitespace().next())
+            .and_then(|v| v.parse::<u64>().ok())
+    };
+    let rss_kib = kib("VmRSS:")?;
+    let rss_anon_kib = kib("RssAnon:")?;
+    let fds = std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .ok()?
+        .filter_map(Result::ok)
+        .count() as u64;
+    Some(ProcessResources {
+        pid,
+        rss_kib,
+        rss_anon_kib,
+        fds,
+    })
 }
 
 #[cfg(test)]
