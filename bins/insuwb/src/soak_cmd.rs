@@ -86,9 +86,14 @@ fn growth(
         return (BTreeMap::new(), 0, 0, 0.0);
     };
     let mut out = BTreeMap::new();
-    for (name, w) in &warm.processes {
-        // A stage restarting at the last look: its last look alive.
-        let Some(l) = after.iter().rev().find_map(|s| s.processes.get(name)) else {
+    let names: std::collections::BTreeSet<&String> =
+        after.iter().flat_map(|s| s.processes.keys()).collect();
+    for name in names {
+        // A stage restarting at a look: its first and last looks alive.
+        let (Some(w), Some(l)) = (
+            after.iter().find_map(|s| s.processes.get(name)),
+            after.iter().rev().find_map(|s| s.processes.get(name)),
+        ) else {
             continue;
         };
         let seen = after.iter().filter_map(|s| s.processes.get(name));
@@ -197,5 +202,10 @@ mod tests {
         assert_eq!((warm, last), (7, 7));
         assert_eq!(rate, 9.5);
         assert!(growth(&samples, 500.0).0.is_empty());
+        // A stage restarting at the end of warm-up: from its next look.
+        let mut gone = samples.clone();
+        gone[1].processes.clear();
+        let (g, ..) = growth(&gone, 120.0);
+        assert_eq!(g["fusion"].rss_anon_warm_kib, 260);
     }
 }

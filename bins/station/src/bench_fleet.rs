@@ -468,3 +468,37 @@ pub fn fleet(a: &FleetBenchArgs) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn look(t_s: f64, rss_anon_kib: u64, fds: u64) -> StationLook {
+        StationLook {
+            t_s,
+            rss_anon_kib,
+            fds,
+            robots_ok: 100,
+            poses_per_s: 1000.0,
+        }
+    }
+
+    /// Growth is read after warm-up (a fifth of the run, at most 5
+    /// minutes): the first look from then on, the last, and the most.
+    #[test]
+    fn growth_is_read_after_warm_up() {
+        let looks = [
+            look(60.0, 900, 20),
+            look(300.0, 1000, 30),
+            look(360.0, 1200, 31),
+            look(420.0, 1100, 30),
+        ];
+        let g = growth(&looks, 3600.0).unwrap();
+        assert_eq!(g.rss_anon_kib, [1000, 1100, 1200]);
+        assert_eq!(g.fds, [30, 30, 31]);
+        // A short run warms up for a fifth of it.
+        let g = growth(&looks, 500.0).unwrap();
+        assert_eq!(g.rss_anon_kib[0], 1000);
+        assert!(growth(&looks[..1], 3600.0).is_none());
+    }
+}
