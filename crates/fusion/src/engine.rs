@@ -387,6 +387,24 @@ impl FusionEngine {
         &self.monitor
     }
 
+    /// Resumes a filter restored from a checkpoint (a restarted fusion
+    /// stage whose INS kept running, corrected all along): the engine is
+    /// initialised, so the first fix updates the filter instead of
+    /// resetting the INS to that fix and the filter to its `P_0` and
+    /// `R_0`, which would throw away the restored covariance and adaptive
+    /// noise and move the INS onto one raw fix (in NLOS, off by the fix's
+    /// bias).
+    pub fn resume_initialised(&mut self) {
+        self.initialised = true;
+    }
+
+    /// Whether the INS position and the filter are initialised (from a
+    /// first fix, or resumed).
+    #[must_use]
+    pub fn is_initialised(&self) -> bool {
+        self.initialised
+    }
+
     /// Whether a re-initialisation from UWB is pending: the monitor fired
     /// (or the covariance stopped being finite) and the engine waits for
     /// agreeing fixes. Fused states published meanwhile are not valid.

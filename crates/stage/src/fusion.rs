@@ -102,6 +102,10 @@ fn resume(engine: &mut FusionEngine, path: &Path, generation: u32) {
         // The adaptive state goes on the restored covariance (a restore
         // resets the estimators, which the state then resumes).
         let adaptive = restored && !c.adaptive.is_empty() && est.restore_adaptive(&c.adaptive);
+        if restored {
+            // The INS ran on, corrected: carry on from it.
+            engine.resume_initialised();
+        }
         let word = |ok: bool| if ok { "restored" } else { "not restored" };
         tracing::warn!(
             "generation {generation}: resumed from the checkpoint (correction id {}, covariance {}, adaptive noise {})",
@@ -388,15 +392,18 @@ mod tests {
     use super::*;
 
     fn engine(kind: FilterKind) -> FusionEngine {
-        let fcfg = FusionConfig::default();
+        let mut fcfg = FusionConfig::default();
+        // As the robots' presets: the INS takes its position from a fix.
+        fcfg.engine.init_from_first_fix = true;
         let est = build_estimator(kind, &fcfg).unwrap();
         FusionEngine::new(fcfg.engine.clone(), est)
     }
 
     /// A checkpoint carries the IAKF's adaptive `R` and update count beside
-    /// the covariance, and a restarted stage resumes both; a checkpoint
-    /// written before the adaptive state was kept still resumes the
-    /// covariance.
+    /// the covariance, and a restarted stage resumes both, initialised (it
+    /// carries on from the INS instead of resetting it to the next fix); a
+    /// checkpoint written before the adaptive state was kept still resumes
+    /// the covariance.
     #[test]
     fn a_restart_resumes_the_adaptive_r_from_the_checkpoint() {
         let dir = std::env::temp_dir().join(format!("insuwb-fusion-ckpt-{}", std::process::id()));
@@ -418,10 +425,13 @@ mod tests {
         writer.finish();
 
         let mut after = engine(FilterKind::Iakf);
+        assert!(!after.is_initialised(), "waits for a first fix");
         resume(&mut after, &path, 1);
         let mut resumed = Vec::new();
         after.estimator().adaptive_snapshot(&mut resumed);
         assert_eq!(resumed, state);
+        // The INS ran on: the first fix updates, it does not reset.
+        assert!(after.is_initialised());
 
         // An older checkpoint: no `adaptive` key.
         let c: Checkpoint = crate::checkpoint::read(&path).unwrap();
