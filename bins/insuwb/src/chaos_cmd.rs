@@ -56,6 +56,10 @@ pub struct ChaosReport {
     /// The periodic looks at the faulted group (`sample_every`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub samples: Vec<crate::group_run::ResourceSample>,
+    /// The undisturbed twin's horizontal RMS over each of the same periods
+    /// (`sample_every`), beside `samples`' `rmse_horizontal`, m.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub undisturbed_rmse_per_look: Vec<Option<f64>>,
 }
 
 /// Runs `insuwb chaos`: the group on simulated sensors under random SIGKILL
@@ -115,6 +119,7 @@ pub fn run_chaos(a: &ChaosRun) -> Result<ChaosReport> {
     // chaos group on the same machine at the same time.
     let calm = std::thread::spawn({
         let (path, cfg) = (control.cfg_path.clone(), control.cfg.clone());
+        let sample_every = a.sample_every;
         move || {
             run_group(
                 &path,
@@ -124,7 +129,7 @@ pub fn run_chaos(a: &ChaosRun) -> Result<ChaosReport> {
                     live: false,
                     faults: Vec::new(),
                     chaos_seed: None,
-                    sample_every: None,
+                    sample_every,
                     env: Vec::new(),
                 },
             )
@@ -178,6 +183,7 @@ pub fn run_chaos(a: &ChaosRun) -> Result<ChaosReport> {
         rmse_ratio,
         fused_rate_hz: r.fused_rate_hz,
         samples: r.samples,
+        undisturbed_rmse_per_look: calm.samples.iter().map(|s| s.rmse_horizontal).collect(),
     })
 }
 
