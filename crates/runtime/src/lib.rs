@@ -235,7 +235,9 @@ pub fn command_main<E: std::fmt::Display>(
 }
 
 /// [`command_main`] with `extra`, a layer beside the log's (with its own
-/// filter, e.g. one that counts what a library reports as events).
+/// filter, e.g. one that counts what a library reports as events). Without
+/// one, the log's filter is the subscriber's global filter, as before:
+/// events no one prints are not even built.
 pub fn command_main_with<E: std::fmt::Display>(
     extra: Option<Box<dyn tracing_subscriber::Layer<tracing_subscriber::Registry> + Send + Sync>>,
     run: impl FnOnce() -> Result<(), E>,
@@ -243,17 +245,31 @@ pub fn command_main_with<E: std::fmt::Display>(
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
     use tracing_subscriber::Layer as _;
-    let log = tracing_subscriber::fmt::layer()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER)),
-        );
-    let _ = tracing_subscriber::registry()
-        .with(extra)
-        .with(log)
-        .try_init();
+    let filter = || {
+        tracing_subscriber::EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER))
+    };
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    // A subscriber set before (a test's) stays.
+    let _already_set = match extra {
+        None => tracing_subscriber::fmt()
+            .with_writer(std::io::stderr)
+            .with_ansi(ansi)
+            .with_env_filter(filter())
+            .try_init()
+            .is_err(),
+        Some(extra) => {
+            let log = tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_ansi(ansi)
+                .with_filter(filter());
+            tracing_subscriber::registry()
+                .with(extra)
+                .with(log)
+                .try_init()
+                .is_err()
+        }
+    };
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
