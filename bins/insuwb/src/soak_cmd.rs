@@ -10,6 +10,8 @@ use std::time::Duration;
 
 use anyhow::{bail, Result};
 
+use insuwb_bench::cpu::warm_up_s;
+
 use crate::chaos_cmd::{print_report, run_chaos, ChaosReport, ChaosRun};
 use crate::group_run::ResourceSample;
 
@@ -68,11 +70,6 @@ struct SoakReport {
     group_files_last: usize,
     /// The lowest fused rate of a look after warm-up, Hz.
     fused_rate_min_hz: f64,
-}
-
-/// Warm-up: a fifth of the run, at most 5 minutes.
-fn warm_up_s(duration_s: f64) -> f64 {
-    (duration_s / 5.0).min(300.0)
 }
 
 /// Each process's growth between the first look at or after `warm_s` and

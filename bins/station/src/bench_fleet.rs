@@ -165,7 +165,7 @@ fn look_at(
 
 /// The growth over `looks` of a run of `seconds`.
 fn growth(looks: &[StationLook], seconds: f64) -> Option<StationGrowth> {
-    let warm = (seconds / 5.0).min(300.0);
+    let warm = insuwb_bench::cpu::warm_up_s(seconds);
     let after: Vec<&StationLook> = looks.iter().filter(|l| l.t_s >= warm).collect();
     let (first, last) = (after.first()?, after.last()?);
     let max = |f: fn(&StationLook) -> u64| after.iter().map(|l| f(l)).max().unwrap_or(0);

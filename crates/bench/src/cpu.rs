@@ -131,6 +131,14 @@ pub fn percent_of_core(cpu_ns: u64, wall_ns: u64) -> f64 {
     cpu_ns as f64 / wall_ns as f64 * 100.0
 }
 
+/// The warm-up of a run of `duration_s` seconds before which a long run's
+/// growth is not judged: a fifth of it, at most 5 minutes (`insuwb soak`,
+/// `insuwb bench fleet --every`).
+#[must_use]
+pub fn warm_up_s(duration_s: f64) -> f64 {
+    (duration_s / 5.0).min(300.0)
+}
+
 /// One process's resources at one time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct ProcessResources {
