@@ -284,11 +284,17 @@ def self_calibrated(epochs, z, a, b, pa, pb, rounds=30):
     return float(np.sqrt(np.mean(sq)))
 
 
+def manifest(argv, usage):
+    """The data directory of `argv[1]` and its manifest's rows; `usage`
+    (a tool's docstring) when it is missing."""
+    if len(argv) < 2:
+        raise SystemExit(usage)
+    data_dir = Path(argv[1])
+    return data_dir, list(csv.DictReader(open(data_dir / "flights.csv")))
+
+
 def main():
-    if len(sys.argv) < 2:
-        raise SystemExit(__doc__)
-    data_dir = Path(sys.argv[1])
-    rows = list(csv.DictReader(open(data_dir / "flights.csv")))
+    data_dir, rows = manifest(sys.argv, __doc__)
     want = set(sys.argv[2:])
     # Every flight of the manifest is prepared: the calibration of one is
     # learnt on all the others, whichever are printed.

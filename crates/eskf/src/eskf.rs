@@ -552,8 +552,15 @@ pub struct Eskf {
 /// ([`Eskf::set_multirotor`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MultirotorDynamics {
-    /// Linear drag coefficient, 1/s.
+    /// Linear drag coefficient the error dynamics assume, 1/s: the velocity
+    /// damping of the filter's model of the vehicle.
     pub drag_per_s: f64,
+    /// Linear drag coefficient the INS integrates, 1/s. Where the model's
+    /// damping is larger, the true velocity decays faster than the INS's,
+    /// and the error state's mean takes up the difference,
+    /// `δv̇ += (k - k_ins) C diag(1, 1, 0) C^T v` (closed loop: the next
+    /// correction hands it to the INS).
+    pub ins_drag_per_s: f64,
     /// White-noise density of the unmodelled body x/y force, m/s^2/sqrt(Hz).
     pub model_noise_mps2_per_rthz: f64,
 }
@@ -863,6 +870,15 @@ impl Eskf {
         if self.x.iter().any(|&v| v != 0.0) {
             self.x += apply_f(&rows, &rot, &self.x) * dt_s;
         }
+        if let Some(m) = self.multirotor {
+            let extra = m.drag_per_s - m.ins_drag_per_s;
+            if extra != 0.0 {
+                let e = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0));
+                let dv = rot * e * rot.transpose() * Vector3::from(vel_nav_mps) * (extra * dt_s);
+                let mut v = self.x.fixed_rows_mut::<3>(IDX_VEL);
+                v += dv;
+            }
+        }
         self.time_s += dt_s;
         self.stats.predicts += 1;
         if !self.p.iter().all(|v| v.is_finite()) {
@@ -882,7 +898,7 @@ impl Eskf {
     /// the filter unchanged).
     pub fn set_multirotor(&mut self, model: Option<MultirotorDynamics>) -> bool {
         if let Some(m) = model {
-            let ok = [m.drag_per_s, m.model_noise_mps2_per_rthz]
+            let ok = [m.drag_per_s, m.ins_drag_per_s, m.model_noise_mps2_per_rthz]
                 .iter()
                 .all(|v| v.is_finite() && *v >= 0.0);
             if !ok {

@@ -7,6 +7,10 @@ use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
 
+/// Most pieces a loose filter's prediction over one long interval is cut
+/// into (`model.max_steps_per_predict` AR steps each: 20 s at the default
+/// 100 Hz and 20 steps); a longer one is refused and counted.
+const MAX_PREDICT_SPLIT: u32 = 100;
 /// The INS state at a measurement's epoch (interpolated between two samples).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct InsAt {
@@ -616,8 +620,24 @@ impl PaperEstimator {
             return;
         }
         let (ae, an) = (self.acc_ae / self.acc_dt, self.acc_an / self.acc_dt);
-        if self.filter.predict(self.acc_dt, ae, an).is_err() {
+        // A long interval (an IMU gap, a restarted INS) in equal pieces the
+        // model accepts: its covariance must grow by the whole interval, or
+        // the filter would trust an INS that coasted through the gap.
+        let chunk_s =
+            self.step_s * f64::from(self.filter.model().config().max_steps_per_predict.max(1));
+        let n = (self.acc_dt / chunk_s).ceil().max(1.0);
+        if n > f64::from(MAX_PREDICT_SPLIT) {
             self.predict_errors += 1;
+        } else {
+            let dt = self.acc_dt / n;
+            // n is an integer in [1, MAX_PREDICT_SPLIT].
+            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+            for _ in 0..(n as u32) {
+                if self.filter.predict(dt, ae, an).is_err() {
+                    self.predict_errors += 1;
+                    break;
+                }
+            }
         }
         self.acc_dt = 0.0;
         self.acc_ae = 0.0;
@@ -988,6 +1008,40 @@ mod tests {
         let model = insuwb_filter::PaperModel::new(cfg.model.clone()).unwrap();
         let f = insuwb_filter::build(FilterKind::Kf, model, &cfg.filter, &cfg.setup).unwrap();
         PaperEstimator::new(f, loose, cfg.setup.p0()).with_gravity(G)
+    }
+
+    /// A 2 s IMU gap (an INS state 2 s after the last): the covariance grows
+    /// as over ten 0.2 s intervals, none refused.
+    #[test]
+    fn a_long_interval_is_predicted_in_pieces() {
+        let nav = NavState {
+            quat: [1.0, 0.0, 0.0, 0.0],
+            ..NavState::default()
+        };
+        let mut gap = paper_with(LooseConfig::default());
+        gap.predict(2.0, &nav);
+        gap.flush_predict();
+        let mut steps = paper_with(LooseConfig::default());
+        for _ in 0..10 {
+            steps.predict(0.2, &nav);
+        }
+        steps.flush_predict();
+        assert_eq!(gap.predict_errors(), 0);
+        let (a, b) = (gap.pos_vel_cov(), steps.pos_vel_cov());
+        for i in [0, 1, 3, 4] {
+            assert!(a[i][i] > 0.0);
+            assert!(
+                (a[i][i] - b[i][i]).abs() <= 1e-9 * b[i][i],
+                "{i}: {} vs {}",
+                a[i][i],
+                b[i][i]
+            );
+        }
+        // Beyond 100 pieces (20 s): refused and counted, as before.
+        let mut long = paper_with(LooseConfig::default());
+        long.predict(30.0, &nav);
+        long.flush_predict();
+        assert_eq!(long.predict_errors(), 1);
     }
 
     fn ins_at(pos_m: [f64; 3]) -> InsAt {

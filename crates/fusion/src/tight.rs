@@ -29,6 +29,10 @@ use crate::estimator::{Delta, Estimator, InsAt, UpdateInfo};
 /// ESKF's `max_dt_s`; a longer interval is refused (counted).
 const MAX_PREDICT_SPLIT: u32 = 100;
 
+/// How long an applied velocity measurement counts as aiding the filter, s
+/// (the flow deck reads at 100 Hz, odometry at 10-50 Hz).
+const AIDED_HOLD_S: f64 = 1.0;
+
 /// Settings of the tight coupling that are not the ESKF's own.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -154,6 +158,12 @@ pub struct TightEstimator {
     velocity_rejected: u64,
     predict_errors: u64,
     update_errors: u64,
+    /// The multirotor's drag (the INS's) and the model's damping, 1/s
+    /// ([`crate::vehicle::MultirotorConfig::damping_per_s`]).
+    damping: Option<(f64, f64, f64)>,
+    /// Filter time until which a velocity measurement aids the filter, s:
+    /// until then the model's damping is the drag alone.
+    aided_until_s: f64,
 }
 
 impl TightEstimator {
@@ -182,6 +192,8 @@ impl TightEstimator {
             mech: Mechanisation::Free,
             drag: None,
             ground: None,
+            damping: None,
+            aided_until_s: f64::NEG_INFINITY,
             acc_dt_s: 0.0,
             acc_f: [0.0; 3],
             acc_n: 0,
@@ -215,17 +227,46 @@ impl TightEstimator {
         match self.mech {
             Mechanisation::Free => {
                 let _ = self.eskf.set_multirotor(None);
+                self.damping = None;
             }
             Mechanisation::ThrustDrag { drag_per_s } => {
                 let m = vehicle.multirotor;
-                let _ = self.eskf.set_multirotor(Some(MultirotorDynamics {
-                    drag_per_s,
-                    model_noise_mps2_per_rthz: m.model_noise_mps2_per_rthz,
-                }));
+                let damping = m.damping_per_s.max(drag_per_s);
+                self.damping = Some((drag_per_s, damping, m.model_noise_mps2_per_rthz));
+                self.set_damping(damping);
                 self.drag = Some(DragMeter::new(m));
             }
         }
         self
+    }
+
+    /// Sets the multirotor error dynamics with velocity damping `k` (1/s)
+    /// over the INS's drag.
+    fn set_damping(&mut self, k: f64) {
+        if let Some((drag, _, noise)) = self.damping {
+            let _ = self.eskf.set_multirotor(Some(MultirotorDynamics {
+                drag_per_s: k,
+                ins_drag_per_s: drag,
+                model_noise_mps2_per_rthz: noise,
+            }));
+        }
+    }
+
+    /// The model's damping as it should be now: the drag while a velocity
+    /// measurement aids the filter (the damping stands for the velocity
+    /// information the IMU lacks, which the measurement supplies), the
+    /// configured damping otherwise.
+    fn update_damping(&mut self) {
+        if let Some((drag, damping, _)) = self.damping {
+            let k = if self.eskf.time_s() < self.aided_until_s {
+                drag
+            } else {
+                damping
+            };
+            if self.eskf.multirotor().map(|m| m.drag_per_s) != Some(k) {
+                self.set_damping(k);
+            }
+        }
     }
 
     /// Pseudo-measurements (drag, velocity constraints) applied and
@@ -281,6 +322,7 @@ impl TightEstimator {
             return;
         }
         let step = dt_s / n;
+        self.update_damping();
         // n is an integer in [1, MAX_PREDICT_SPLIT].
         #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         for _ in 0..(n as u32) {
@@ -596,6 +638,7 @@ impl Estimator for TightEstimator {
                     }
                     if rep.applied {
                         self.velocity_applied += 1;
+                        self.aided_until_s = self.eskf.time_s() + AIDED_HOLD_S;
                         info.nis += rep.nis;
                         info.dim += 1;
                     } else {
@@ -695,6 +738,51 @@ mod tests {
             accel_nav_mps2: [0.0; 3],
             ..NavState::default()
         }
+    }
+
+    /// A multirotor's model damps the velocity at `damping_per_s` over the
+    /// INS's drag while no velocity measurement aids it, and at the drag
+    /// alone for a second after each applied one.
+    #[test]
+    fn damping_is_the_drag_while_a_velocity_measurement_aids() {
+        let mr = crate::vehicle::MultirotorConfig {
+            drag_per_s: 0.5,
+            damping_per_s: 1.5,
+            ..crate::vehicle::MultirotorConfig::default()
+        };
+        let ground = GroundConfig::default();
+        let mut e = estimator([0.0; 3]).with_vehicle(&VehicleSettings {
+            kind: insuwb_nav::vehicle::VehicleKind::Multirotor,
+            multirotor: &mr,
+            ground: &ground,
+        });
+        let damping = |e: &TightEstimator| {
+            e.eskf()
+                .multirotor()
+                .map(|m| (m.drag_per_s, m.ins_drag_per_s))
+        };
+        assert_eq!(damping(&e), Some((1.5, 0.5)));
+        let mut t_ns = 0;
+        let step = |e: &mut TightEstimator, t_ns: &mut u64| {
+            *t_ns += 10_000_000;
+            e.predict(0.01, &level_nav(*t_ns));
+            e.flush_predict();
+        };
+        step(&mut e, &mut t_ns);
+        let flow = BodyVelocity {
+            header: Header::new(0, t_ns),
+            vel_mps: [0.0; 3],
+            sigma_mps: [0.3, 0.3, 0.0],
+            source: BodyVelocity::SOURCE_FLOW,
+            reserved: 0,
+        };
+        assert!(e.update_velocity(&ins_at([0.0; 3]), &flow).is_some());
+        step(&mut e, &mut t_ns);
+        assert_eq!(damping(&e), Some((0.5, 0.5)), "aided: the drag");
+        for _ in 0..110 {
+            step(&mut e, &mut t_ns);
+        }
+        assert_eq!(damping(&e), Some((1.5, 0.5)), "a second later: the damping");
     }
 
     fn ins_at(pos_m: [f64; 3]) -> InsAt {

@@ -29,6 +29,15 @@ pub struct MultirotorConfig {
     /// estimate. Default 0.3 (a Crazyflie 2.x: about 0.2-0.35 from its
     /// rotor-drag identification, Förster 2015).
     pub drag_per_s: f64,
+    /// Velocity damping of the tight filter's model of the vehicle, 1/s:
+    /// the drag plus what stands for the velocity information the IMU
+    /// lacks between UWB updates (the thrust's tilt carries little over a
+    /// second on small quadrotors, and without damping the filter's
+    /// velocity wanders with the radio's slow errors). The INS, and with it
+    /// every loose filter, integrates `drag_per_s`; the tight filter's
+    /// error state takes up the difference. Values at or below
+    /// `drag_per_s` (default 0) use the drag.
+    pub damping_per_s: f64,
     /// Standard deviation of the prior on the drag coefficient, 1/s; 0
     /// holds it at the prior (no online estimate). Default 0.15.
     pub drag_prior_sigma_per_s: f64,
@@ -52,6 +61,7 @@ impl Default for MultirotorConfig {
     fn default() -> Self {
         Self {
             drag_per_s: 0.3,
+            damping_per_s: 0.0,
             drag_prior_sigma_per_s: 0.15,
             offset_walk_mps2_per_rts: 0.3,
             model_noise_mps2_per_rthz: 0.5,
@@ -144,6 +154,13 @@ impl VehicleSettings<'_> {
         check(
             "multirotor.drag_per_s",
             m.drag_per_s,
+            0.0,
+            10.0,
+            "in [0, 10] 1/s",
+        )?;
+        check(
+            "multirotor.damping_per_s",
+            m.damping_per_s,
             0.0,
             10.0,
             "in [0, 10] 1/s",
