@@ -546,6 +546,9 @@ pub struct Eskf {
     q_vel_extra: f64,
     /// The multirotor error dynamics ([`Eskf::set_multirotor`]); `None`: free.
     multirotor: Option<MultirotorDynamics>,
+    /// Factor on the TDOA sigma of the updates that follow
+    /// ([`Eskf::set_tdoa_sigma_scale`]).
+    tdoa_sigma_scale: f64,
 }
 
 /// The multirotor model's parameters in the error dynamics
@@ -732,6 +735,7 @@ impl Eskf {
             f_last: [0.0; 3],
             q_vel_extra: 0.0,
             multirotor: None,
+            tdoa_sigma_scale: 1.0,
         })
     }
 
@@ -990,6 +994,19 @@ impl Eskf {
         self.predict(dt_s, nav.quat, [a[0], a[1], a[2] + gravity_mps2])
     }
 
+    /// Sets the factor on the TDOA sigma (configured or learnt) of the
+    /// updates that follow: a pair's noise relative to the typical pair's,
+    /// from a site calibration (`insuwb_uwb::calibration`). 1 (the default)
+    /// treats every pair alike; a value that is not finite and positive is
+    /// taken as 1.
+    pub fn set_tdoa_sigma_scale(&mut self, scale: f64) {
+        self.tdoa_sigma_scale = if scale.is_finite() && scale > 0.0 {
+            scale
+        } else {
+            1.0
+        };
+    }
+
     /// Fuses one TDOA measurement `diff_m = |p_ant - b| - |p_ant - a|`
     /// (`p_ant = p + C(q) lever`) taken at the INS state `(p_ins_m, quat)`.
     ///
@@ -1142,7 +1159,11 @@ impl Eskf {
         let v = z - model.predicted_m - h.dot(&self.x);
         let c = self.p * h;
         let hph = h.dot(&c).max(0.0);
-        let sigma2 = self.uwb_sigma2(kind);
+        let scale = match kind {
+            UwbNoise::Tdoa => self.tdoa_sigma_scale,
+            UwbNoise::Range => 1.0,
+        };
+        let sigma2 = self.uwb_sigma2(kind) * scale * scale;
         let s = hph + sigma2;
         let nis = v * v / s;
         let r = nis.sqrt();
@@ -1201,7 +1222,15 @@ impl Eskf {
             let min = self.config.sigma_adapt_min_m.min(sigma_cfg);
             let t = self.time_s;
             if let Some(a) = self.r_adapt.get_mut(kind as usize) {
-                a.push(v, hph, t, tau, min * min, sigma_cfg * sigma_cfg);
+                // What is learnt is the unscaled sigma.
+                a.push(
+                    v / scale,
+                    hph / (scale * scale),
+                    t,
+                    tau,
+                    min * min,
+                    sigma_cfg * sigma_cfg,
+                );
             }
         }
         self.scalar_update(&c, hph, r_gain, v_used);

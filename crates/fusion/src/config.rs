@@ -185,7 +185,8 @@ pub fn build_estimator(
             )?
             .with_vibration(cfg.vibration.clone())
             .with_vehicle(&vehicle)
-            .with_aiding(&cfg.aiding, cfg.loose.scale_baseline_m),
+            .with_aiding(&cfg.aiding, cfg.loose.scale_baseline_m)
+            .with_calibration(cfg.calibration.as_deref()),
         ));
     }
     let model = insuwb_filter::PaperModel::new(cfg.model.clone())?;

@@ -11,6 +11,8 @@
 //! the engine's monitor finds from each update's NIS as for every filter
 //! (and [`Estimator::needs_reset`] when the covariance stops being finite).
 
+use std::collections::BTreeMap;
+
 use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
 use crate::vehicle::{DragMeasurement, DragMeter, GroundConfig, VehicleSettings};
 use crate::vibration::{VibrationConfig, VibrationMeter};
@@ -20,6 +22,7 @@ use insuwb_eskf::{
 };
 use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
 use insuwb_nav::vehicle::{model_accel_nav, Mechanisation};
+use insuwb_uwb::calibration::SiteCalibration;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -34,7 +37,7 @@ const MAX_PREDICT_SPLIT: u32 = 100;
 const AIDED_HOLD_S: f64 = 1.0;
 
 /// Settings of the tight coupling that are not the ESKF's own.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TightConfig {
     /// Position of the UWB antenna in the body frame (FLU), m. Default
@@ -55,6 +58,59 @@ pub struct TightConfig {
     /// update; 0 (default) propagates on every INS interval. A 1 kHz IMU
     /// need not propagate a 15-state covariance 1000 times a second.
     pub predict_period_s: f64,
+    /// With a site calibration (`[uwb] calibration`, `--calibration`):
+    /// weight each anchor pair by the noise the calibration measured on it
+    /// after its bias, its TDOA sigma scaled by its noise over the median
+    /// pair's (bounded to [0.5, 3]), so that a pair the site's multipath
+    /// makes noisy counts less. Default true; without a calibration every
+    /// pair has the configured sigma.
+    pub calibrated_noise: bool,
+}
+
+impl Default for TightConfig {
+    fn default() -> Self {
+        Self {
+            lever_arm_m: [0.0; 3],
+            specific_force_tau_s: 0.0,
+            predict_period_s: 0.0,
+            calibrated_noise: true,
+        }
+    }
+}
+
+/// Bounds of a pair's TDOA sigma scale from a calibration's noise
+/// ([`TightConfig::calibrated_noise`]).
+const PAIR_SCALE_BOUNDS: (f64, f64) = (0.7, 1.5);
+
+/// Each calibrated pair's sigma scale (its noise over the median pair's,
+/// bounded), keyed by its anchor ids in increasing order; empty when the
+/// calibration measured no noise.
+fn pair_scales(cal: &SiteCalibration) -> BTreeMap<(u32, u32), f64> {
+    let mut noise: Vec<f64> = cal
+        .pairs()
+        .values()
+        .map(|m| m.noise_m)
+        .filter(|n| n.is_finite() && *n > 0.0)
+        .collect();
+    if noise.is_empty() {
+        return BTreeMap::new();
+    }
+    noise.sort_by(f64::total_cmp);
+    let mid = noise.len() / 2;
+    let median = if noise.len().is_multiple_of(2) {
+        0.5 * (noise[mid - 1] + noise[mid])
+    } else {
+        noise[mid]
+    };
+    cal.pairs()
+        .iter()
+        .filter(|(_, m)| m.noise_m.is_finite() && m.noise_m > 0.0)
+        .map(|(&(a, b), m)| {
+            let key = (a.min(b), a.max(b));
+            let (lo, hi) = PAIR_SCALE_BOUNDS;
+            (key, (m.noise_m / median).clamp(lo, hi))
+        })
+        .collect()
 }
 
 /// A [`TightConfig`] value out of range.
@@ -164,6 +220,8 @@ pub struct TightEstimator {
     /// Filter time until which a velocity measurement aids the filter, s:
     /// until then the model's damping is the drag alone.
     aided_until_s: f64,
+    /// Each calibrated pair's TDOA sigma scale ([`TightConfig::calibrated_noise`]).
+    pair_scale: BTreeMap<(u32, u32), f64>,
 }
 
 impl TightEstimator {
@@ -194,6 +252,7 @@ impl TightEstimator {
             ground: None,
             damping: None,
             aided_until_s: f64::NEG_INFINITY,
+            pair_scale: BTreeMap::new(),
             acc_dt_s: 0.0,
             acc_f: [0.0; 3],
             acc_n: 0,
@@ -267,6 +326,18 @@ impl TightEstimator {
                 self.set_damping(k);
             }
         }
+    }
+
+    /// Weights each anchor pair by the noise `calibration` measured on it
+    /// ([`TightConfig::calibrated_noise`]); `None`, or the setting off,
+    /// treats every pair alike.
+    #[must_use]
+    pub fn with_calibration(mut self, calibration: Option<&SiteCalibration>) -> Self {
+        self.pair_scale = match calibration {
+            Some(c) if self.cfg.calibrated_noise => pair_scales(c),
+            _ => BTreeMap::new(),
+        };
+        self
     }
 
     /// Pseudo-measurements (drag, velocity constraints) applied and
@@ -574,6 +645,11 @@ impl Estimator for TightEstimator {
 
     fn update_tdoa(&mut self, ins: &InsAt, m: &UwbTdoa) -> Option<UpdateInfo> {
         self.propagate();
+        if !self.pair_scale.is_empty() {
+            let key = (m.anchor_a.min(m.anchor_b), m.anchor_a.max(m.anchor_b));
+            let scale = self.pair_scale.get(&key).copied().unwrap_or(1.0);
+            self.eskf.set_tdoa_sigma_scale(scale);
+        }
         let res = self.eskf.update_tdoa(
             ins.pos_m,
             ins.quat,
@@ -792,6 +868,50 @@ mod tests {
             vel_mps: [0.0; 3],
             quat: [1.0, 0.0, 0.0, 0.0],
         }
+    }
+
+    /// A calibration's per-pair noise sets each pair's TDOA sigma relative
+    /// to the median pair's, within the bounds: pair (0, 1) measured twice
+    /// as noisy as the median is weighted with 1.5 times the sigma, its
+    /// innovation variance is the known one; with the setting off, or no
+    /// calibration, the configured sigma.
+    #[test]
+    fn a_calibrated_pair_noise_sets_its_sigma() {
+        let text = "format_version = 1\n[site]\nfamily = \"pair_constant\"\n\
+            anchors = [{ id = 0, pos_m = [-4, 0, 1.1] }, { id = 1, pos_m = [4, 0, 1.1] }, \
+            { id = 2, pos_m = [0, 4, 1.1] }]\n\
+            [[pairs]]\na = 0\nb = 1\nbias_m = 0\nnoise_m = 0.4\n\
+            [[pairs]]\na = 0\nb = 2\nbias_m = 0\nnoise_m = 0.2\n\
+            [[pairs]]\na = 1\nb = 2\nbias_m = 0\nnoise_m = 0.05\n";
+        let cal = SiteCalibration::from_toml(text, "test").unwrap();
+        let scales = pair_scales(&cal);
+        assert_eq!(scales.get(&(0, 1)), Some(&1.5), "2x the median, bounded");
+        assert_eq!(scales.get(&(0, 2)), Some(&1.0));
+        assert_eq!(scales.get(&(1, 2)), Some(&0.7), "0.25x, bounded");
+        let c = EskfConfig::default();
+        let (a, b) = ([-4.0, 0.0, 1.1], [4.0, 0.0, 1.1]);
+        let var = |cfg: TightConfig, cal: Option<&SiteCalibration>| {
+            let mut e = TightEstimator::new(EskfConfig::default(), cfg, G)
+                .unwrap()
+                .with_calibration(cal);
+            let info = e
+                .update_tdoa(&ins_at([0.0, 0.0, 1.0]), &tdoa(0, a, b, 0.0))
+                .unwrap();
+            info.innovation_var[0]
+        };
+        let r = c.tdoa_sigma_m.powi(2);
+        let off = TightConfig {
+            calibrated_noise: false,
+            ..TightConfig::default()
+        };
+        // H P H^T + sigma^2: the same H P H^T, the sigma 1.5 times.
+        let plain = var(off, Some(&cal));
+        let weighted = var(TightConfig::default(), Some(&cal));
+        assert!(
+            (weighted - plain - 1.25 * r).abs() < 1e-12,
+            "{weighted} {plain}"
+        );
+        assert!((var(TightConfig::default(), None) - plain).abs() < 1e-15);
     }
 
     fn tdoa(t_ns: u64, a: [f64; 3], b: [f64; 3], diff_m: f64) -> UwbTdoa {
