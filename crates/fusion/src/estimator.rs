@@ -7,6 +7,26 @@ use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
 
+/// The acceleration an INS that coasted through an IMU gap missed, m/s^2
+/// (a robot's manoeuvres: 1 m/s^2 is a 0.8 m/s loop of 0.64 m radius).
+pub const GAP_ACCEL_MPS2: f64 = 1.0;
+
+/// The velocity noise density (m^2/s^3) a filter adds over an INS interval
+/// that coasted through an IMU gap (`NavState::FLAG_GAP`: a driver frozen
+/// or restarted, samples lost): `GAP_ACCEL_MPS2^2 dt`, so that its
+/// velocity error grows by `GAP_ACCEL_MPS2 dt` and its position error by
+/// about `GAP_ACCEL_MPS2 dt^2 / sqrt(3)` over the gap. Without it the
+/// first fixes after the gap read as a radio far noisier than it is, and
+/// an adaptive `R` learns that; 0 for any other interval.
+#[must_use]
+pub fn gap_velocity_noise(dt_s: f64, nav: &NavState) -> f64 {
+    if nav.header.flags & NavState::FLAG_GAP != 0 && dt_s.is_finite() && dt_s > 0.0 {
+        GAP_ACCEL_MPS2 * GAP_ACCEL_MPS2 * dt_s
+    } else {
+        0.0
+    }
+}
+
 /// Most pieces a loose filter's prediction over one long interval is cut
 /// into (`model.max_steps_per_predict` AR steps each: 20 s at the default
 /// 100 Hz and 20 steps); a longer one is refused and counted.
@@ -688,7 +708,7 @@ impl Estimator for PaperEstimator {
             return;
         }
         self.last_quat = nav.quat;
-        let q = self.vib.push(&self.vib_cfg, dt_s, nav);
+        let q = self.vib.push(&self.vib_cfg, dt_s, nav) + gap_velocity_noise(dt_s, nav);
         self.filter.set_extra_velocity_noise(q);
         let a = insuwb_nav::vehicle::model_accel_nav(
             self.mech,
@@ -1037,6 +1057,24 @@ mod tests {
                 b[i][i]
             );
         }
+        // The same interval flagged as an IMU gap: the velocity variance
+        // grows by (GAP_ACCEL_MPS2 * 2 s)^2 more.
+        let mut flagged = paper_with(LooseConfig::default());
+        let mut gap_nav = nav;
+        gap_nav.header.flags |= NavState::FLAG_GAP;
+        flagged.predict(2.0, &gap_nav);
+        flagged.flush_predict();
+        let c = flagged.pos_vel_cov();
+        let extra = (GAP_ACCEL_MPS2 * 2.0).powi(2);
+        for i in [3, 4] {
+            assert!(
+                (c[i][i] - a[i][i] - extra).abs() < 1e-9 * extra,
+                "{i}: {} vs {}",
+                c[i][i],
+                a[i][i]
+            );
+        }
+        assert!(c[0][0] > a[0][0] + 0.5 * extra);
         // Beyond 100 pieces (20 s): refused and counted, as before.
         let mut long = paper_with(LooseConfig::default());
         long.predict(30.0, &nav);

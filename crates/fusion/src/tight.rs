@@ -561,7 +561,8 @@ impl Estimator for TightEstimator {
             nav.accel_nav_mps2,
             self.gravity_mps2,
         );
-        let q = self.vib.push(&self.vib_cfg, dt_s, nav);
+        let q = self.vib.push(&self.vib_cfg, dt_s, nav)
+            + crate::estimator::gap_velocity_noise(dt_s, nav);
         self.eskf.set_extra_velocity_noise(q);
         let raw = [a[0], a[1], a[2] + self.gravity_mps2];
         let tau = self.cfg.specific_force_tau_s;
