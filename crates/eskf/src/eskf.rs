@@ -830,11 +830,14 @@ impl Eskf {
             a_vb: rot,
             a_vv: None,
         };
-        if let Some(m) = self.multirotor {
+        // C diag(1, 1, 0) C^T: the body x/y plane in ENU (multirotor only).
+        let horizontal_body = self
+            .multirotor
+            .map(|_| rot * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0)) * rot.transpose());
+        if let (Some(m), Some(plane)) = (self.multirotor, horizontal_body) {
             // Body x/y force -k E C^T v: its error is -k C E C^T (δv + [v x] δθ);
             // only the thrust axis's bias is integrated.
-            let e = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0));
-            let drag = rot * e * rot.transpose() * (-m.drag_per_s);
+            let drag = plane * (-m.drag_per_s);
             rows.a_vtheta += drag * skew(&Vector3::from(vel_nav_mps));
             rows.a_vv = Some(drag);
             rows.a_vb = rot * Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, 1.0));
@@ -874,11 +877,10 @@ impl Eskf {
         if self.x.iter().any(|&v| v != 0.0) {
             self.x += apply_f(&rows, &rot, &self.x) * dt_s;
         }
-        if let Some(m) = self.multirotor {
+        if let (Some(m), Some(plane)) = (self.multirotor, horizontal_body) {
             let extra = m.drag_per_s - m.ins_drag_per_s;
             if extra != 0.0 {
-                let e = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0));
-                let dv = rot * e * rot.transpose() * Vector3::from(vel_nav_mps) * (extra * dt_s);
+                let dv = plane * Vector3::from(vel_nav_mps) * (extra * dt_s);
                 let mut v = self.x.fixed_rows_mut::<3>(IDX_VEL);
                 v += dv;
             }

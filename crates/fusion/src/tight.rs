@@ -61,7 +61,7 @@ pub struct TightConfig {
     /// With a site calibration (`[uwb] calibration`, `--calibration`):
     /// weight each anchor pair by the noise the calibration measured on it
     /// after its bias, its TDOA sigma scaled by its noise over the median
-    /// pair's (bounded to [0.5, 3]), so that a pair the site's multipath
+    /// pair's (bounded to [0.7, 1.5]), so that a pair the site's multipath
     /// makes noisy counts less. Default true; without a calibration every
     /// pair has the configured sigma.
     pub calibrated_noise: bool,
@@ -76,6 +76,18 @@ impl Default for TightConfig {
             calibrated_noise: true,
         }
     }
+}
+
+/// A multirotor's velocity damping in the tight filter's model
+/// ([`crate::vehicle::MultirotorConfig::damping_per_s`]).
+#[derive(Debug, Clone, Copy)]
+struct Damping {
+    /// The drag the INS integrates, 1/s.
+    drag_per_s: f64,
+    /// The model's damping while no velocity measurement aids, 1/s.
+    damping_per_s: f64,
+    /// The unmodelled body x/y force, m/s^2/sqrt(Hz).
+    model_noise_mps2_per_rthz: f64,
 }
 
 /// Bounds of a pair's TDOA sigma scale from a calibration's noise
@@ -105,8 +117,7 @@ fn pair_scales(cal: &SiteCalibration) -> BTreeMap<(u32, u32), f64> {
     cal.pairs()
         .iter()
         .filter(|(_, m)| m.noise_m.is_finite() && m.noise_m > 0.0)
-        .map(|(&(a, b), m)| {
-            let key = (a.min(b), a.max(b));
+        .map(|(&key, m)| {
             let (lo, hi) = PAIR_SCALE_BOUNDS;
             (key, (m.noise_m / median).clamp(lo, hi))
         })
@@ -214,9 +225,8 @@ pub struct TightEstimator {
     velocity_rejected: u64,
     predict_errors: u64,
     update_errors: u64,
-    /// The multirotor's drag (the INS's) and the model's damping, 1/s
-    /// ([`crate::vehicle::MultirotorConfig::damping_per_s`]).
-    damping: Option<(f64, f64, f64)>,
+    /// The multirotor's velocity damping (`None`: a free vehicle).
+    damping: Option<Damping>,
     /// Filter time until which a velocity measurement aids the filter, s:
     /// until then the model's damping is the drag alone.
     aided_until_s: f64,
@@ -291,7 +301,11 @@ impl TightEstimator {
             Mechanisation::ThrustDrag { drag_per_s } => {
                 let m = vehicle.multirotor;
                 let damping = m.damping_per_s.max(drag_per_s);
-                self.damping = Some((drag_per_s, damping, m.model_noise_mps2_per_rthz));
+                self.damping = Some(Damping {
+                    drag_per_s,
+                    damping_per_s: damping,
+                    model_noise_mps2_per_rthz: m.model_noise_mps2_per_rthz,
+                });
                 self.set_damping(damping);
                 self.drag = Some(DragMeter::new(m));
             }
@@ -302,11 +316,11 @@ impl TightEstimator {
     /// Sets the multirotor error dynamics with velocity damping `k` (1/s)
     /// over the INS's drag.
     fn set_damping(&mut self, k: f64) {
-        if let Some((drag, _, noise)) = self.damping {
+        if let Some(d) = self.damping {
             let _ = self.eskf.set_multirotor(Some(MultirotorDynamics {
                 drag_per_s: k,
-                ins_drag_per_s: drag,
-                model_noise_mps2_per_rthz: noise,
+                ins_drag_per_s: d.drag_per_s,
+                model_noise_mps2_per_rthz: d.model_noise_mps2_per_rthz,
             }));
         }
     }
@@ -316,11 +330,11 @@ impl TightEstimator {
     /// information the IMU lacks, which the measurement supplies), the
     /// configured damping otherwise.
     fn update_damping(&mut self) {
-        if let Some((drag, damping, _)) = self.damping {
+        if let Some(d) = self.damping {
             let k = if self.eskf.time_s() < self.aided_until_s {
-                drag
+                d.drag_per_s
             } else {
-                damping
+                d.damping_per_s
             };
             if self.eskf.multirotor().map(|m| m.drag_per_s) != Some(k) {
                 self.set_damping(k);
