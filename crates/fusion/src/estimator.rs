@@ -27,10 +27,22 @@ pub fn gap_velocity_noise(dt_s: f64, nav: &NavState) -> f64 {
     }
 }
 
-/// Most pieces a loose filter's prediction over one long interval is cut
-/// into (`model.max_steps_per_predict` AR steps each: 20 s at the default
-/// 100 Hz and 20 steps); a longer one is refused and counted.
-const MAX_PREDICT_SPLIT: u32 = 100;
+/// Most pieces a filter's prediction over one long interval (an IMU gap, a
+/// restarted INS) is cut into; a longer one is refused and counted.
+pub(crate) const MAX_PREDICT_SPLIT: u32 = 100;
+
+/// `dt_s` cut into equal pieces of at most `max_piece_s`: their number and
+/// length, or `None` beyond [`MAX_PREDICT_SPLIT`] pieces.
+pub(crate) fn split_interval(dt_s: f64, max_piece_s: f64) -> Option<(u32, f64)> {
+    let n = (dt_s / max_piece_s).ceil().max(1.0);
+    if n > f64::from(MAX_PREDICT_SPLIT) {
+        return None;
+    }
+    // n is an integer in [1, MAX_PREDICT_SPLIT].
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    Some((n as u32, dt_s / n))
+}
+
 /// The INS state at a measurement's epoch (interpolated between two samples).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct InsAt {
@@ -645,17 +657,14 @@ impl PaperEstimator {
         // the filter would trust an INS that coasted through the gap.
         let chunk_s =
             self.step_s * f64::from(self.filter.model().config().max_steps_per_predict.max(1));
-        let n = (self.acc_dt / chunk_s).ceil().max(1.0);
-        if n > f64::from(MAX_PREDICT_SPLIT) {
-            self.predict_errors += 1;
-        } else {
-            let dt = self.acc_dt / n;
-            // n is an integer in [1, MAX_PREDICT_SPLIT].
-            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-            for _ in 0..(n as u32) {
-                if self.filter.predict(dt, ae, an).is_err() {
-                    self.predict_errors += 1;
-                    break;
+        match split_interval(self.acc_dt, chunk_s) {
+            None => self.predict_errors += 1,
+            Some((n, dt)) => {
+                for _ in 0..n {
+                    if self.filter.predict(dt, ae, an).is_err() {
+                        self.predict_errors += 1;
+                        break;
+                    }
                 }
             }
         }

@@ -26,11 +26,7 @@ use insuwb_uwb::calibration::SiteCalibration;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::estimator::{Delta, Estimator, InsAt, UpdateInfo};
-
-/// Most sub-steps one INS interval is split into when it is longer than the
-/// ESKF's `max_dt_s`; a longer interval is refused (counted).
-const MAX_PREDICT_SPLIT: u32 = 100;
+use crate::estimator::{split_interval, Delta, Estimator, InsAt, UpdateInfo};
 
 /// How long an applied velocity measurement counts as aiding the filter, s
 /// (the flow deck reads at 100 Hz, odometry at 10-50 Hz).
@@ -401,16 +397,12 @@ impl TightEstimator {
         self.acc_n = 0;
         let max_dt = self.eskf.config().max_dt_s;
         // Split a long interval (an IMU gap) into equal steps the ESKF accepts.
-        let n = (dt_s / max_dt).ceil().max(1.0);
-        if n > f64::from(MAX_PREDICT_SPLIT) {
+        let Some((n, step)) = split_interval(dt_s, max_dt) else {
             self.predict_errors += 1;
             return;
-        }
-        let step = dt_s / n;
+        };
         self.update_damping();
-        // n is an integer in [1, MAX_PREDICT_SPLIT].
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-        for _ in 0..(n as u32) {
+        for _ in 0..n {
             if self.eskf.predict_moving(step, quat, f, vel).is_err() {
                 self.predict_errors += 1;
                 return;
@@ -490,7 +482,7 @@ impl TightEstimator {
     }
 
     /// INS intervals the ESKF refused (non-finite input, or longer than
-    /// `MAX_PREDICT_SPLIT` times `max_dt_s`).
+    /// `crate::estimator::MAX_PREDICT_SPLIT` times `max_dt_s`).
     #[must_use]
     pub fn predict_errors(&self) -> u64 {
         self.predict_errors
