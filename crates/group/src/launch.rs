@@ -106,8 +106,46 @@ pub struct Injected {
 }
 
 /// The most injected faults remembered ([`FaultInjector::log`]): a day at
-/// the chaos rate (one every 3 s on average).
+/// the chaos rate (one every 3 s on average), 8 bytes each.
 const INJECTED_KEPT: usize = 30_000;
+
+/// A fault as kept in the log: milliseconds after the start (saturating),
+/// the stage's index in [`StageRole::NAMES`], the signal. Fixed size and
+/// no heap of its own, so that hours of faults cost the launcher 8 bytes
+/// each.
+#[derive(Debug, Clone, Copy)]
+struct Kept {
+    at_ms: u32,
+    role: u8,
+    signal: u8,
+}
+
+impl Kept {
+    fn new(at: Duration, stage: &str, signal: i32) -> Option<Self> {
+        let role = StageRole::NAMES.iter().position(|n| *n == stage)?;
+        Some(Self {
+            at_ms: u32::try_from(at.as_millis()).unwrap_or(u32::MAX),
+            role: u8::try_from(role).ok()?,
+            signal: u8::try_from(signal).ok()?,
+        })
+    }
+
+    fn at(self) -> Duration {
+        Duration::from_millis(u64::from(self.at_ms))
+    }
+
+    fn expand(self) -> Injected {
+        Injected {
+            at: self.at(),
+            stage: StageRole::NAMES
+                .get(usize::from(self.role))
+                .copied()
+                .unwrap_or("?")
+                .to_owned(),
+            signal: i32::from(self.signal),
+        }
+    }
+}
 
 /// Injects faults into a supervised group: the timed [`Fault`]s in time
 /// order, and with a chaos seed every 1-5 s a random stage of `stages`
@@ -123,7 +161,7 @@ pub struct FaultInjector {
     duration: Option<Duration>,
     pending_cont: Vec<(Duration, String)>,
     injected: u32,
-    log: Vec<Injected>,
+    log: Vec<Kept>,
 }
 
 impl FaultInjector {
@@ -156,11 +194,9 @@ impl FaultInjector {
     fn note(&mut self, at: Duration, stage: &str, signal: i32) {
         self.injected += 1;
         if self.log.len() < INJECTED_KEPT {
-            self.log.push(Injected {
-                at,
-                stage: stage.to_owned(),
-                signal,
-            });
+            if let Some(k) = Kept::new(at, stage, signal) {
+                self.log.push(k);
+            }
         }
     }
 
@@ -214,16 +250,20 @@ impl FaultInjector {
     }
 
     /// The faults injected so far, in time order (the first
-    /// [`INJECTED_KEPT`]).
+    /// [`INJECTED_KEPT`]), their times to the millisecond.
     #[must_use]
-    pub fn log(&self) -> &[Injected] {
-        &self.log
+    pub fn log(&self) -> Vec<Injected> {
+        self.log.iter().map(|k| k.expand()).collect()
     }
 
-    /// The last fault injected at or before `at`, if any.
+    /// The last fault injected at or before `at` (to the millisecond), if any.
     #[must_use]
-    pub fn last_before(&self, at: Duration) -> Option<&Injected> {
-        self.log.iter().rev().find(|f| f.at <= at)
+    pub fn last_before(&self, at: Duration) -> Option<Injected> {
+        self.log
+            .iter()
+            .rev()
+            .find(|k| k.at() <= at)
+            .map(|k| k.expand())
     }
 }
 
@@ -364,6 +404,43 @@ mod tests {
             let e = s.parse::<Fault>().unwrap_err().to_string();
             assert!(e.contains(want) && e.contains(s), "{s}: {e}");
         }
+    }
+
+    /// The compact log gives back each fault as injected (times to the
+    /// millisecond) and attributes a time to the fault before it.
+    #[test]
+    fn the_fault_log_keeps_each_fault_and_finds_the_one_before() {
+        let faults = vec![
+            "imu@1".parse().unwrap(),
+            "ins@2.5:19".parse().unwrap(),
+            "fusion@4:15".parse().unwrap(),
+        ];
+        let mut inj = FaultInjector::new(faults, None, Vec::new(), None);
+        // Never started: each signal is refused (and warned about) but the
+        // fault is still counted and kept.
+        let spec = insuwb_launch::StageSpec {
+            name: "imu".to_owned(),
+            program: "true".into(),
+            args: Vec::new(),
+            env: Vec::new(),
+        };
+        let mut sup = Supervisor::new(insuwb_launch::RestartPolicy::default(), vec![spec]).unwrap();
+        for ms in [500, 1000, 2600, 3000, 4200] {
+            inj.apply(&mut sup, Duration::from_millis(ms));
+        }
+        assert_eq!(inj.injected(), 3);
+        let log = inj.log();
+        let got: Vec<(u128, &str, i32)> = log
+            .iter()
+            .map(|f| (f.at.as_millis(), f.stage.as_str(), f.signal))
+            .collect();
+        assert_eq!(
+            got,
+            [(1000, "imu", 9), (2600, "ins", 19), (4200, "fusion", 15)]
+        );
+        assert_eq!(inj.last_before(Duration::from_millis(999)), None);
+        let f = inj.last_before(Duration::from_millis(3000)).unwrap();
+        assert_eq!((f.stage.as_str(), f.signal), ("ins", 19));
     }
 
     #[test]

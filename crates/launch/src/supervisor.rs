@@ -12,8 +12,12 @@ use crate::policy::{
 };
 use crate::sys;
 
-/// Most events kept by [`Supervisor::events`]; beyond it the oldest half is dropped.
-pub const MAX_EVENT_HISTORY: usize = 4096;
+/// Most events kept by [`Supervisor::events`]; beyond it the oldest half is
+/// dropped. A restart is 3-4 events, so this is the last 64-128 restarts
+/// (a few minutes of a chaos run): enough to see what just happened, and
+/// filled early, so that a launcher running for days holds it at a
+/// constant size.
+pub const MAX_EVENT_HISTORY: usize = 512;
 /// How long [`Supervisor::shutdown`] (and drop) waits for a SIGKILLed stage
 /// to be reaped before giving up on it (a process stuck in the kernel).
 pub const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
@@ -354,7 +358,7 @@ impl Supervisor {
             slots,
             state: SupervisorState::Stopped,
             started: false,
-            history: Vec::new(),
+            history: Vec::with_capacity(MAX_EVENT_HISTORY),
             before_restart: None,
         })
     }
