@@ -26,7 +26,7 @@ use insuwb_uwb::calibration::SiteCalibration;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::estimator::{split_interval, Delta, Estimator, InsAt, UpdateInfo};
+use crate::estimator::{gap_velocity_noise, split_interval, Delta, Estimator, InsAt, UpdateInfo};
 
 /// How long an applied velocity measurement counts as aiding the filter, s
 /// (the flow deck reads at 100 Hz, odometry at 10-50 Hz).
@@ -567,8 +567,7 @@ impl Estimator for TightEstimator {
             nav.accel_nav_mps2,
             self.gravity_mps2,
         );
-        let q = self.vib.push(&self.vib_cfg, dt_s, nav)
-            + crate::estimator::gap_velocity_noise(dt_s, nav);
+        let q = self.vib.push(&self.vib_cfg, dt_s, nav) + gap_velocity_noise(dt_s, nav);
         self.eskf.set_extra_velocity_noise(q);
         let raw = [a[0], a[1], a[2] + self.gravity_mps2];
         let tau = self.cfg.specific_force_tau_s;

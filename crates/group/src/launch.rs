@@ -217,7 +217,6 @@ impl FaultInjector {
                 let stage = self.stages[rng.random_range(0..self.stages.len())].clone();
                 let stop = rng.random::<bool>();
                 let signal = if stop { sig::STOP } else { sig::KILL };
-                let (at, s) = (elapsed, stage.clone());
                 tracing::warn!(
                     "chaos: {} {stage}",
                     if stop { "SIGSTOP (2 s)" } else { "SIGKILL" }
@@ -225,12 +224,12 @@ impl FaultInjector {
                 if let Err(e) = sup.kill_stage(&stage, signal) {
                     tracing::warn!("chaos: {e}");
                 }
+                self.next_chaos = Some(elapsed + Duration::from_secs_f64(rng.uniform_in(1.0, 5.0)));
+                self.note(elapsed, &stage, signal);
                 if stop {
                     self.pending_cont
                         .push((elapsed + Duration::from_secs(2), stage));
                 }
-                self.next_chaos = Some(elapsed + Duration::from_secs_f64(rng.uniform_in(1.0, 5.0)));
-                self.note(at, &s, signal);
             }
         }
         self.pending_cont.retain(|(at, stage)| {
