@@ -244,9 +244,10 @@ pub fn run_group_with(
             cfg.group.run_dir.display()
         )
     })?;
+    // Resources left by a previous run of this group that died are removed
+    // by the first stage that starts (`Stage::new` cleans its deployment's
+    // dead nodes), the launcher's own monitor node included.
     let rt = cfg.runtime("launcher");
-    // Resources left by a previous run of this group that died.
-    let _ = cleanup::cleanup_dead_nodes(&rt);
     let epoch = extras
         .start_epoch_ns
         .unwrap_or_else(|| choose_start_epoch(monotonic_ns() + 500_000_000));
@@ -286,15 +287,12 @@ pub fn run_group_with(
         }),
     };
 
+    // No before-restart hook: a restarted stage removes the dead nodes of its
+    // deployment itself when it starts (`Stage::new`), before it creates its
+    // own. Listing iceoryx2's nodes here made some 40 000 short-lived
+    // allocations per restart in the launcher, which fragmented its heap
+    // over hours (docs/RELIABILITY.md).
     let mut sup = Supervisor::new(cfg.launch.clone(), specs)?;
-    let hook_rt = rt.clone();
-    sup.set_before_restart(Box::new(
-        move |stage: &str| match cleanup::cleanup_dead_nodes(&hook_rt) {
-            Ok(n) if n > 0 => tracing::info!("cleaned {n} dead node(s) before restarting {stage}"),
-            Ok(_) => {}
-            Err(e) => tracing::warn!("cleaning dead nodes before restarting {stage}: {e}"),
-        },
-    ));
     let mut faults = FaultInjector::new(
         opts.faults.clone(),
         opts.chaos_seed,
