@@ -20,6 +20,8 @@ pub struct Estimate {
     pub vel_en_mps: Option<[f64; 2]>,
     /// Covariance of `[pe, pn, ve, vn]`, when the solution has one (for NEES).
     pub cov4: Option<[[f64; 4]; 4]>,
+    /// Heading (rad, ENU: 0 east, counter-clockwise), when the solution has one.
+    pub yaw_rad: Option<f64>,
 }
 
 /// Why metrics could not be computed.
@@ -116,6 +118,27 @@ impl<'a> TruthTrack<'a> {
             _ => None,
         };
         Some((pos, windowed.unwrap_or_else(|| slope(lo, hi))))
+    }
+
+    /// Heading (rad, ENU: 0 east, counter-clockwise) of the truth sample
+    /// nearest `t_ns`, where the truth has an attitude (a unit quaternion);
+    /// `None` outside the span, across a long gap or without one.
+    #[must_use]
+    pub fn yaw_at(&self, t_ns: u64) -> Option<f64> {
+        let (_, lo, hi) = self.position(t_ns)?;
+        let near = if t_ns - lo.header.meas_time_ns.min(t_ns)
+            <= hi.header.meas_time_ns.saturating_sub(t_ns)
+        {
+            lo
+        } else {
+            hi
+        };
+        let [w, x, y, z] = near.quat;
+        let n2 = w * w + x * x + y * y + z * z;
+        if !(0.5..=1.5).contains(&n2) {
+            return None;
+        }
+        Some((2.0 * (w * z + x * y)).atan2(n2 - 2.0 * (y * y + z * z)))
     }
 
     /// Interpolated position at `t_ns` with the two samples around it.
@@ -316,6 +339,7 @@ mod tests {
             pos_en_m: p,
             vel_en_mps: None,
             cov4: None,
+            yaw_rad: None,
         });
         let m = compute(&est, &track, None, &[]).unwrap();
         let re = ((0.09 + 0.01) / 3.0f64).sqrt();
@@ -342,6 +366,7 @@ mod tests {
                 pos_en_m: [0.0, 2.0],
                 vel_en_mps: None,
                 cov4: None,
+                yaw_rad: None,
             })
             .collect();
         let m = compute(&est, &track, Some((400_000_000, 3_000_000_000)), &[]).unwrap();
@@ -363,6 +388,7 @@ mod tests {
             pos_en_m: [0.1 + 0.5, 2.0],
             vel_en_mps: Some([1.0, 0.5]),
             cov4: Some(cov),
+            yaw_rad: None,
         }];
         let m = compute(&est, &track, None, &[1.0, 3.0, f64::NAN]).unwrap();
         // (0.5^2 + 0.5^2) / 0.25 = 2
@@ -379,6 +405,7 @@ mod tests {
             pos_en_m: [f64::NAN, 0.0],
             vel_en_mps: None,
             cov4: None,
+            yaw_rad: None,
         }];
         assert_eq!(
             compute(&est, &track, None, &[]),

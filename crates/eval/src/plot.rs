@@ -977,6 +977,7 @@ mod tests {
                             pos_en_m: [t + de, 0.5 * t + dn],
                             vel_en_mps: None,
                             cov4: None,
+                            yaw_rad: None,
                         }
                     })
                     .collect(),
@@ -1005,6 +1006,7 @@ mod tests {
                 pos_en_m: [0.155 + 0.3, 0.0775 - 0.4],
                 vel_en_mps: None,
                 cov4: None,
+                yaw_rad: None,
             },
             // Outside the truth's span: skipped.
             Estimate {
@@ -1012,6 +1014,7 @@ mod tests {
                 pos_en_m: [0.0, 0.0],
                 vel_en_mps: None,
                 cov4: None,
+                yaw_rad: None,
             },
             // Not finite: skipped.
             Estimate {
@@ -1019,12 +1022,14 @@ mod tests {
                 pos_en_m: [f64::NAN, 0.0],
                 vel_en_mps: None,
                 cov4: None,
+                yaw_rad: None,
             },
             Estimate {
                 t_ns: 2_000_000_000,
                 pos_en_m: [1.0 - 0.6, 0.5 + 0.8],
                 vel_en_mps: None,
                 cov4: None,
+                yaw_rad: None,
             },
         ];
         let s = error_series(&est, &tt, 1_100_000_000);

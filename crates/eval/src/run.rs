@@ -271,6 +271,7 @@ fn fix_estimate(f: &UwbFix) -> Estimate {
         pos_en_m: [f.pos_m[0], f.pos_m[1]],
         vel_en_mps: None,
         cov4: None,
+        yaw_rad: None,
     }
 }
 
@@ -298,6 +299,7 @@ fn sample_nav(nav: &[NavState], epochs: &[u64]) -> Vec<Estimate> {
                 pos_en_m: [p(0), p(1)],
                 vel_en_mps: None,
                 cov4: None,
+                yaw_rad: None,
             })
         })
         .collect()
@@ -368,6 +370,15 @@ pub fn interpolate(track: &[Estimate], epochs: &[u64], max_gap_ns: u64) -> Vec<E
             })),
             _ => None,
         };
+        // Along the shorter way round.
+        let yaw_rad = match (a.yaw_rad, b.yaw_rad) {
+            (Some(ya), Some(yb)) => {
+                let d = (yb - ya + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                    - std::f64::consts::PI;
+                Some(wrap_pi(ya + w * d))
+            }
+            _ => None,
+        };
         out.push(Estimate {
             t_ns: t,
             pos_en_m: [
@@ -376,6 +387,7 @@ pub fn interpolate(track: &[Estimate], epochs: &[u64], max_gap_ns: u64) -> Vec<E
             ],
             vel_en_mps,
             cov4,
+            yaw_rad,
         });
     }
     out
@@ -402,6 +414,11 @@ fn sample_fused(fused: &[FusedState], epochs: &[u64]) -> Vec<Estimate> {
     out
 }
 
+/// `a` in [-pi, pi).
+fn wrap_pi(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
 /// A fused state as an [`Estimate`] with its covariance.
 #[must_use]
 pub fn fused_estimate(f: &FusedState) -> Estimate {
@@ -417,6 +434,7 @@ pub fn fused_estimate(f: &FusedState) -> Estimate {
         pos_en_m: [f.pos_m[0], f.pos_m[1]],
         vel_en_mps: Some([f.vel_mps[0], f.vel_mps[1]]),
         cov4: Some(cov4),
+        yaw_rad: Some(f.yaw_rad),
     }
 }
 
@@ -456,6 +474,7 @@ mod tests {
             pos_en_m: [e, -e],
             vel_en_mps: Some([2.0 * e, 0.0]),
             cov4: Some([[cov; 4]; 4]),
+            yaw_rad: None,
         }
     }
 
@@ -481,6 +500,7 @@ mod tests {
             pos_en_m: [0.0, 0.0],
             vel_en_mps: None,
             cov4: None,
+            yaw_rad: None,
         };
         let b = est(10, 1.0, 1.0);
         let out = interpolate(&[a, b], &[5], 100);

@@ -3,9 +3,12 @@
 //! the signed error beside each estimate.
 //!
 //! Columns: `solution, t_ns, east_m, north_m, truth_east_m, truth_north_m,
-//! err_east_m, err_north_m, in_segment`. Truth and error are empty where the
-//! truth does not cover the epoch; `in_segment` is 1 for the epochs the
-//! metrics count (the flight segment), else 0. The file is written whole
+//! err_east_m, err_north_m, in_segment, vel_east_mps, vel_north_mps,
+//! truth_vel_east_mps, truth_vel_north_mps, yaw_rad, truth_yaw_rad`. Truth
+//! and error are empty where the truth does not cover the epoch; `in_segment`
+//! is 1 for the epochs the metrics count (the flight segment), else 0. A
+//! solution's velocity and heading are empty where it has none (the fix, the
+//! INS), the truth's heading where it has no attitude. The file is written whole
 //! through a temporary file and renamed, so a reader never sees half of it.
 
 use std::fmt::Write as _;
@@ -29,7 +32,8 @@ pub enum TracksError {
 
 /// The CSV header line.
 pub const HEADER: &str =
-    "solution,t_ns,east_m,north_m,truth_east_m,truth_north_m,err_east_m,err_north_m,in_segment";
+    "solution,t_ns,east_m,north_m,truth_east_m,truth_north_m,err_east_m,err_north_m,in_segment,\
+vel_east_mps,vel_north_mps,truth_vel_east_mps,truth_vel_north_mps,yaw_rad,truth_yaw_rad";
 
 /// The CSV text of every solution's track in `rep` against `data`'s truth.
 #[must_use]
@@ -44,7 +48,8 @@ pub fn to_csv(rep: &EvalReport, data: &Dataset) -> String {
             let [east, north] = e.pos_en_m;
             // Writing into a String cannot fail.
             let _ = write!(out, "{},{},{east:.6},{north:.6},", s.key, e.t_ns);
-            match truth.at(e.t_ns) {
+            let at = truth.at(e.t_ns);
+            match at {
                 Some((p, _)) => {
                     let _ = write!(
                         out,
@@ -57,7 +62,27 @@ pub fn to_csv(rep: &EvalReport, data: &Dataset) -> String {
                 }
                 None => out.push_str(",,,,"),
             }
-            out.push_str(if inside { "1\n" } else { "0\n" });
+            out.push_str(if inside { "1," } else { "0," });
+            match e.vel_en_mps {
+                Some([ve, vn]) => {
+                    let _ = write!(out, "{ve:.6},{vn:.6},");
+                }
+                None => out.push_str(",,"),
+            }
+            match at {
+                Some((_, v)) => {
+                    let _ = write!(out, "{:.6},{:.6},", v[0], v[1]);
+                }
+                None => out.push_str(",,"),
+            }
+            if let Some(y) = e.yaw_rad {
+                let _ = write!(out, "{y:.6}");
+            }
+            out.push(',');
+            if let Some(y) = truth.yaw_at(e.t_ns) {
+                let _ = write!(out, "{y:.6}");
+            }
+            out.push('\n');
         }
     }
     out
@@ -94,6 +119,9 @@ mod tests {
         let mut g = GroundTruth::default();
         g.header.meas_time_ns = t_ns;
         g.pos_m = [e, 2.0, 1.0];
+        // Heading north (90 degrees from east).
+        let h = std::f64::consts::FRAC_PI_4;
+        g.quat = [h.cos(), 0.0, 0.0, h.sin()];
         g
     }
 
@@ -103,6 +131,15 @@ mod tests {
             pos_en_m: [e, 2.5],
             vel_en_mps: None,
             cov4: None,
+            yaw_rad: None,
+        }
+    }
+
+    fn est_moving(t_ns: u64, e: f64) -> Estimate {
+        Estimate {
+            vel_en_mps: Some([0.25, -0.5]),
+            yaw_rad: Some(1.5),
+            ..est(t_ns, e)
         }
     }
 
@@ -128,7 +165,7 @@ mod tests {
                 key: "uwb".into(),
                 metrics,
                 track: vec![
-                    est(5_000_000, 0.7),
+                    est_moving(5_000_000, 0.7),
                     est(8_000_000, 0.9),
                     est(20_000_000, 3.0),
                 ],
@@ -139,14 +176,22 @@ mod tests {
         let csv = to_csv(&rep, &data);
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines[0], HEADER);
+        // The truth moves 1 m east in 10 ms (its velocity: the slope over
+        // its span) heading north.
         assert_eq!(
             lines[1],
-            "uwb,5000000,0.700000,2.500000,0.500000,2.000000,0.200000,0.500000,1"
+            "uwb,5000000,0.700000,2.500000,0.500000,2.000000,0.200000,0.500000,1,\
+             0.250000,-0.500000,100.000000,0.000000,1.500000,1.570796"
         );
-        assert!(lines[2].ends_with(",0"), "{}", lines[2]);
+        // Neither velocity nor heading: those columns are empty.
+        assert!(
+            lines[2].ends_with(",0,,,100.000000,0.000000,,1.570796"),
+            "{}",
+            lines[2]
+        );
         assert!(lines[2].starts_with("uwb,8000000,0.900000,2.500000,0.800000,"));
         // No truth after the last sample: the truth and error columns are empty.
-        assert_eq!(lines[3], "uwb,20000000,3.000000,2.500000,,,,,0");
+        assert_eq!(lines[3], "uwb,20000000,3.000000,2.500000,,,,,0,,,,,,");
         assert_eq!(lines.len(), 4);
     }
 

@@ -347,13 +347,19 @@ fn tracks_rmse(csv: &str, solution: &str) -> (f64, usize) {
     assert_eq!(
         lines.next(),
         Some(
-            "solution,t_ns,east_m,north_m,truth_east_m,truth_north_m,err_east_m,err_north_m,in_segment"
+            "solution,t_ns,east_m,north_m,truth_east_m,truth_north_m,err_east_m,err_north_m,in_segment,\
+             vel_east_mps,vel_north_mps,truth_vel_east_mps,truth_vel_north_mps,yaw_rad,truth_yaw_rad"
         )
     );
     let (mut sum, mut n) = (0.0, 0usize);
     for l in lines {
         let f: Vec<&str> = l.split(',').collect();
-        assert_eq!(f.len(), 9, "{l}");
+        assert_eq!(f.len(), 15, "{l}");
+        // The filters carry a velocity and a heading, the fix and the INS
+        // track none.
+        let plain = f[0] == "uwb" || f[0] == "ins";
+        assert_eq!(f[9].is_empty(), plain, "{l}");
+        assert_eq!(f[13].is_empty(), plain, "{l}");
         if f[0] != solution || f[8] != "1" || f[6].is_empty() {
             continue;
         }
