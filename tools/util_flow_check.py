@@ -20,6 +20,11 @@ reads taken 0.3 m or more above the floor:
 - `lag+20ms`: the per-read RMS error with the truth taken 20 ms later,
   against `rms` at no lag (the flow is not late).
 
+Then, pooled over the flights, the slope per band of optical rate (the
+true horizontal body speed over the range, rad/s, both averaged over 10
+reads): whether the scale is a property of the sensor's rate rather than
+of the flight.
+
 Usage: python3 tools/util_flow_check.py ../shared/data/util
 """
 import csv
@@ -92,7 +97,15 @@ def check(path, lag=0.0):
     )
     e = np.concatenate([ex, ey])
     s = np.concatenate([sigma[m], sigma[m]])
+
+    def mean10(x):
+        return x[:n].reshape(-1, 10).mean(1)
+
+    v10 = np.stack([mean10(vx[m]), mean10(vy[m])], 1)
+    t10 = np.stack([mean10(true_b[m, 0]), mean10(true_b[m, 1])], 1)
+    rate10 = np.hypot(t10[:, 0], t10[:, 1]) / mean10(rng[m])
     return {
+        "by_rate": (v10, t10, rate10),
         "slope": slope,
         "rsd": rsd(e),
         "rsd10": rsd(e10),
@@ -105,16 +118,30 @@ def check(path, lag=0.0):
 def main():
     root = Path(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/util")
     print(f"{'flight':18} {'slope':>6} {'rsd':>6} {'rsd10':>6} {'sigma':>6} {'nees':>5} {'rms':>6} {'lag+20ms':>8}")
+    pooled = []
     with open(root / "flights.csv") as f:
         for row in csv.DictReader(f):
             c = check(root / row["file"])
             if c is None:
                 continue
             late = check(root / row["file"], 0.02)
+            pooled.append(c["by_rate"])
             print(
                 f"{row['file']:18} {c['slope']:6.3f} {c['rsd']:6.3f} {c['rsd10']:6.3f} "
                 f"{c['sigma']:6.3f} {c['nees']:5.2f} {c['rms']:6.3f} {late['rms']:8.3f}"
             )
+    if not pooled:
+        return
+    v = np.concatenate([p[0] for p in pooled])
+    t = np.concatenate([p[1] for p in pooled])
+    rate = np.concatenate([p[2] for p in pooled])
+    print(f"\n{'optical rate, rad/s':20} {'slope':>6} {'reads/10':>8}")
+    for lo, hi in [(0.0, 0.2), (0.2, 0.4), (0.4, 0.6), (0.6, 0.8), (0.8, 1.0), (1.0, 1.3), (1.3, 3.0)]:
+        k = (rate >= lo) & (rate < hi)
+        if k.sum() < 20:
+            continue
+        slope = np.sum(v[k] * t[k]) / np.sum(t[k] ** 2)
+        print(f"{lo:4.1f}-{hi:<15.1f} {slope:6.3f} {k.sum():8d}")
 
 
 if __name__ == "__main__":
