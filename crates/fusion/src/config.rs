@@ -155,6 +155,12 @@ impl FusionConfig {
     pub fn ins_engine_config(&self) -> InsEngineConfig {
         let mut ins = self.ins.clone();
         ins.ins.mechanisation = self.vehicle_settings().mechanisation();
+        ins.free_handover = (self.vehicle == insuwb_nav::vehicle::VehicleKind::Multirotor
+            && self.multirotor.free_above_signal_ratio > 0.0)
+            .then_some(crate::ins_engine::FreeHandover {
+                ratio: self.multirotor.free_above_signal_ratio,
+                window_s: self.multirotor.signal_window_s,
+            });
         ins
     }
 }

@@ -401,6 +401,8 @@ pub struct PaperEstimator {
     vib: VibrationMeter,
     /// What the INS integrates ([`PaperEstimator::with_vehicle`]).
     mech: insuwb_nav::vehicle::Mechanisation,
+    /// The vehicle's own (`mech` while the INS has not handed over).
+    vehicle_mech: insuwb_nav::vehicle::Mechanisation,
     /// The ground robot's lateral-velocity constraint and the time since
     /// its last update, s.
     ground: Option<(crate::vehicle::GroundConfig, f64)>,
@@ -437,6 +439,7 @@ impl PaperEstimator {
             vib_cfg: VibrationConfig::default(),
             vib: VibrationMeter::default(),
             mech: insuwb_nav::vehicle::Mechanisation::Free,
+            vehicle_mech: insuwb_nav::vehicle::Mechanisation::Free,
             ground: None,
             constraint_errors: 0,
             scales: VelocityScales::default(),
@@ -552,6 +555,7 @@ impl PaperEstimator {
     #[must_use]
     pub fn with_vehicle(mut self, vehicle: &crate::vehicle::VehicleSettings<'_>) -> Self {
         self.mech = vehicle.mechanisation();
+        self.vehicle_mech = self.mech;
         self.ground = (vehicle.kind == insuwb_nav::vehicle::VehicleKind::Ground)
             .then(|| (vehicle.ground.clone(), 0.0));
         self
@@ -717,6 +721,12 @@ impl Estimator for PaperEstimator {
             return;
         }
         self.last_quat = nav.quat;
+        // The INS's hand-over to the free model, while it lasts.
+        self.mech = if nav.header.flags & NavState::FLAG_FREE != 0 {
+            insuwb_nav::vehicle::Mechanisation::Free
+        } else {
+            self.vehicle_mech
+        };
         let q = self.vib.push(&self.vib_cfg, dt_s, nav) + gap_velocity_noise(dt_s, nav);
         self.filter.set_extra_velocity_noise(q);
         let a = insuwb_nav::vehicle::model_accel_nav(

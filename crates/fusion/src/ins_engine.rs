@@ -15,6 +15,7 @@ use std::collections::VecDeque;
 use insuwb_msg::{Header, ImuSample, InsCorrection, NavState, LAYOUT_VERSION};
 use insuwb_nav::align::level_from_accel;
 use insuwb_nav::ins::{Ins, InsConfig, InsState, NavOutput};
+use insuwb_nav::vehicle::{HorizontalSignal, Mechanisation};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -109,6 +110,34 @@ pub struct InsEngineConfig {
     pub planar: bool,
     /// Samples kept for re-propagation after a late correction.
     pub history_len: usize,
+    /// The multirotor's hand-over to the free model at run time; set from
+    /// the fusion settings' `[fusion.multirotor]`, not from this table.
+    #[serde(skip)]
+    pub free_handover: Option<FreeHandover>,
+}
+
+/// When a multirotor INS hands over to the free model
+/// (`[fusion.multirotor] free_above_signal_ratio`): after `window_s` of
+/// integration, if the accelerometer's horizontal channels carried more
+/// than `ratio` times their vibration in slow variation
+/// ([`insuwb_nav::vehicle::HorizontalSignal`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FreeHandover {
+    /// The ratio above which every axis is integrated.
+    pub ratio: f64,
+    /// Seconds of integration it is judged over.
+    pub window_s: f64,
+}
+
+/// Where the hand-over stands.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Handover {
+    /// Not configured, or judged: the configured model stays.
+    Kept,
+    /// Judging.
+    Judging(HorizontalSignal),
+    /// Handed over: every axis integrated.
+    Free,
 }
 
 /// Why the INS engine could not be built.
@@ -177,6 +206,7 @@ pub struct InsEngine {
     counters: InsCounters,
     out_seq: u64,
     reinit_flag: bool,
+    handover: Handover,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -246,7 +276,58 @@ impl InsEngine {
             counters: InsCounters::default(),
             out_seq: 0,
             reinit_flag: false,
+            handover: Handover::Kept,
         })
+    }
+
+    /// Whether the INS handed over from the multirotor model to the free
+    /// one ([`FreeHandover`]); its states then carry [`NavState::FLAG_FREE`].
+    #[must_use]
+    pub fn handed_over(&self) -> bool {
+        self.handover == Handover::Free
+    }
+
+    /// The hand-over's state for an INS that starts now with the
+    /// configured mechanisation.
+    fn fresh_handover(&self) -> Handover {
+        match (self.cfg.free_handover, self.cfg.ins.mechanisation) {
+            (Some(h), Mechanisation::ThrustDrag { .. }) if h.ratio > 0.0 => {
+                Handover::Judging(HorizontalSignal::default())
+            }
+            _ => Handover::Kept,
+        }
+    }
+
+    /// Folds an integrated sample into the hand-over's judgement; hands
+    /// over (the INS and its history) once judged above the ratio.
+    fn judge_handover(&mut self, s: &ImuSample) {
+        let Handover::Judging(mut sig) = self.handover else {
+            return;
+        };
+        let Some(h) = self.cfg.free_handover else {
+            self.handover = Handover::Kept;
+            return;
+        };
+        sig.push(s.header.meas_time_ns, s.accel_mps2);
+        if sig.span_s() < h.window_s {
+            self.handover = Handover::Judging(sig);
+            return;
+        }
+        if !sig.ratio().is_some_and(|r| r > h.ratio) {
+            self.handover = Handover::Kept;
+            return;
+        }
+        let Some(ins) = self.ins.as_mut() else {
+            return;
+        };
+        if ins.set_mechanisation(Mechanisation::Free).is_err() {
+            self.handover = Handover::Kept;
+            return;
+        }
+        for e in &mut self.ring {
+            let _ = e.ins_after.set_mechanisation(Mechanisation::Free);
+        }
+        self.handover = Handover::Free;
     }
 
     /// Counters so far.
@@ -317,6 +398,7 @@ impl InsEngine {
         };
         if let Ok(ins) = Ins::new(self.cfg.ins.clone(), st) {
             self.ins = Some(ins);
+            self.handover = self.fresh_handover();
             self.ring.clear();
             self.correction_id = self.correction_id.max(correction_id);
             self.reinit_flag = true;
@@ -367,6 +449,7 @@ impl InsEngine {
             Self::constrain_planar(ins, self.cfg.init.pos_m[2]);
         }
         self.counters.integrated += 1;
+        self.judge_handover(s);
         let nav = self.make_nav(s, &out);
         let ins_after = self.ins.clone()?;
         if self.ring.len() == self.cfg.history_len {
@@ -394,6 +477,9 @@ impl InsEngine {
         }
         if out.gap_clamped {
             flags |= NavState::FLAG_GAP;
+        }
+        if self.handover == Handover::Free {
+            flags |= NavState::FLAG_FREE;
         }
         let nav_seq = self.out_seq;
         self.out_seq += 1;
@@ -499,6 +585,7 @@ impl InsEngine {
         match Ins::new(self.cfg.ins.clone(), st) {
             Ok(ins) => {
                 self.ins = Some(ins);
+                self.handover = self.fresh_handover();
                 true
             }
             Err(_) => false,
@@ -648,6 +735,62 @@ mod tests {
             ..init
         });
         assert_eq!(nav.gyro_bias_rps, [0.0; 3]);
+    }
+
+    /// A multirotor INS judged over 3 s: channels that follow a slow
+    /// motion hand over to the free model (every later state flagged, the
+    /// INS integrating every axis); channels of vibration do not.
+    #[test]
+    fn quiet_channels_that_follow_the_motion_hand_over_to_the_free_model() {
+        let run = |follows: bool| {
+            let mut cfg = InsEngineConfig {
+                init: InsInit {
+                    align_window_s: 0.0,
+                    ..InsInit::default()
+                },
+                free_handover: Some(FreeHandover {
+                    ratio: 1.4,
+                    window_s: 3.0,
+                }),
+                ..InsEngineConfig::default()
+            };
+            cfg.ins.mechanisation = Mechanisation::ThrustDrag { drag_per_s: 0.3 };
+            let mut e = InsEngine::new(cfg).unwrap();
+            let mut flags = Vec::new();
+            for k in 0..5000u64 {
+                let t = k as f64 * 1e-3;
+                let shake = if k % 2 == 0 { 1.0 } else { -1.0 };
+                let (ax, ay) = if follows {
+                    (
+                        0.8 * (2.0 * t).sin() + 0.1 * shake,
+                        0.6 * (1.3 * t).cos() - 0.1 * shake,
+                    )
+                } else {
+                    (0.05 * (2.0 * t).sin() + 1.5 * shake, -1.5 * shake)
+                };
+                let s = ImuSample {
+                    header: Header::new(k, k * 1_000_000),
+                    accel_mps2: [ax, ay, G],
+                    gyro_rps: [0.0; 3],
+                };
+                if let Some(n) = e.on_imu(&s) {
+                    flags.push((t, n.header.flags & NavState::FLAG_FREE != 0));
+                }
+            }
+            (e, flags)
+        };
+        let (e, flags) = run(true);
+        assert!(e.handed_over());
+        assert_eq!(
+            e.ins.as_ref().map(|i| i.config().mechanisation),
+            Some(Mechanisation::Free)
+        );
+        let first = flags.iter().find(|f| f.1).map(|f| f.0).unwrap();
+        assert!((2.9..3.1).contains(&first), "{first}");
+        assert!(flags.iter().skip_while(|f| !f.1).all(|f| f.1));
+        let (e, flags) = run(false);
+        assert!(!e.handed_over());
+        assert!(flags.iter().all(|f| !f.1));
     }
 
     #[test]

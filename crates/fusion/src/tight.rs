@@ -228,6 +228,10 @@ pub struct TightEstimator {
     aided_until_s: f64,
     /// Each calibrated pair's TDOA sigma scale ([`TightConfig::calibrated_noise`]).
     pair_scale: BTreeMap<(u32, u32), f64>,
+    /// The multirotor's model while the INS has handed over to the free
+    /// one ([`NavState::FLAG_FREE`]), to return to if a restarted INS
+    /// integrates the multirotor's again.
+    handed_over: Option<(Mechanisation, Option<Damping>, Option<DragMeter>)>,
 }
 
 impl TightEstimator {
@@ -259,6 +263,7 @@ impl TightEstimator {
             damping: None,
             aided_until_s: f64::NEG_INFINITY,
             pair_scale: BTreeMap::new(),
+            handed_over: None,
             acc_dt_s: 0.0,
             acc_f: [0.0; 3],
             acc_n: 0,
@@ -307,6 +312,28 @@ impl TightEstimator {
             }
         }
         self
+    }
+
+    /// Follows the INS's hand-over ([`NavState::FLAG_FREE`]): what is
+    /// accumulated is propagated with the model it was accumulated under;
+    /// handed over, the error dynamics are the free vehicle's and the drag
+    /// measurements stop; back (a restarted INS integrating the
+    /// multirotor's model again), the multirotor's return.
+    fn follow_handover(&mut self, free: bool) {
+        self.propagate();
+        if free {
+            self.handed_over = Some((self.mech, self.damping.take(), self.drag.take()));
+            self.mech = Mechanisation::Free;
+            let _ = self.eskf.set_multirotor(None);
+        } else if let Some((mech, damping, drag)) = self.handed_over.take() {
+            self.mech = mech;
+            self.damping = damping;
+            self.drag = drag;
+            if let Some(d) = damping {
+                self.set_damping(d.damping_per_s.max(d.drag_per_s));
+                self.update_damping();
+            }
+        }
     }
 
     /// Sets the multirotor error dynamics with velocity damping `k` (1/s)
@@ -559,6 +586,10 @@ impl Estimator for TightEstimator {
     fn predict(&mut self, dt_s: f64, nav: &NavState) {
         if !(dt_s > 0.0 && dt_s.is_finite()) {
             return;
+        }
+        let free = nav.header.flags & NavState::FLAG_FREE != 0;
+        if free != self.handed_over.is_some() {
+            self.follow_handover(free);
         }
         let a = model_accel_nav(
             self.mech,
@@ -820,6 +851,34 @@ mod tests {
             accel_nav_mps2: [0.0; 3],
             ..NavState::default()
         }
+    }
+
+    /// A state flagged by an INS that handed over to the free model turns
+    /// the multirotor's error dynamics off while the flag lasts.
+    #[test]
+    fn the_free_flag_of_the_ins_turns_the_multirotor_dynamics_off() {
+        let mr = crate::vehicle::MultirotorConfig::default();
+        let ground = GroundConfig::default();
+        let mut e = estimator([0.0; 3]).with_vehicle(&VehicleSettings {
+            kind: insuwb_nav::vehicle::VehicleKind::Multirotor,
+            multirotor: &mr,
+            ground: &ground,
+        });
+        e.predict(0.01, &level_nav(10_000_000));
+        assert!(e.eskf().multirotor().is_some());
+        let mut nav = level_nav(20_000_000);
+        nav.header.flags |= NavState::FLAG_FREE;
+        e.predict(0.01, &nav);
+        e.flush_predict();
+        assert!(e.eskf().multirotor().is_none());
+        nav.header.seq = 3;
+        nav.header.meas_time_ns = 30_000_000;
+        e.predict(0.01, &nav);
+        assert!(e.eskf().multirotor().is_none());
+        // A restarted INS integrating the multirotor's model again.
+        e.predict(0.01, &level_nav(40_000_000));
+        e.flush_predict();
+        assert!(e.eskf().multirotor().is_some());
     }
 
     /// A multirotor's model damps the velocity at `damping_per_s` over the

@@ -55,6 +55,15 @@ pub struct MultirotorConfig {
     pub drag_sigma_mps2: f64,
     /// Interval between drag measurements, s. Default 0.1.
     pub drag_period_s: f64,
+    /// Hand over to the free model when the accelerometer's horizontal
+    /// channels carry more than this many times their vibration in slow
+    /// variation over the first `signal_window_s` of integration
+    /// ([`insuwb_nav::vehicle::HorizontalSignal`]): a vehicle whose IMU
+    /// measures its horizontal acceleration is better integrated on every
+    /// axis. 0 (default): never.
+    pub free_above_signal_ratio: f64,
+    /// Seconds of integration the hand-over is judged over. Default 10.
+    pub signal_window_s: f64,
 }
 
 impl Default for MultirotorConfig {
@@ -68,6 +77,8 @@ impl Default for MultirotorConfig {
             drag_lowpass_s: 0.1,
             drag_sigma_mps2: 0.5,
             drag_period_s: 0.1,
+            free_above_signal_ratio: 0.0,
+            signal_window_s: 10.0,
         }
     }
 }
@@ -206,6 +217,20 @@ impl VehicleSettings<'_> {
             0.001,
             10.0,
             "in [0.001, 10] s",
+        )?;
+        check(
+            "multirotor.free_above_signal_ratio",
+            m.free_above_signal_ratio,
+            0.0,
+            100.0,
+            "0 (never) or in (0, 100]",
+        )?;
+        check(
+            "multirotor.signal_window_s",
+            m.signal_window_s,
+            0.5,
+            600.0,
+            "in [0.5, 600] s",
         )?;
         let g = self.ground;
         check(

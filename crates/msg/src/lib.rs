@@ -267,6 +267,10 @@ impl NavState {
     /// IMU samples were missing before this state (a dropout or a restarted
     /// IMU driver): the INS coasted over the gap and its error grew.
     pub const FLAG_GAP: u32 = 4;
+    /// A multirotor INS handed over to the free model at run time (its
+    /// accelerometer's horizontal channels follow the motion): every axis
+    /// is integrated, and the filters model it so.
+    pub const FLAG_FREE: u32 = 8;
 }
 
 /// Correction from fusion to INS (topic [`topics::CORRECTION`]).

@@ -334,6 +334,24 @@ impl Ins {
         &self.cfg
     }
 
+    /// Integrates from the next sample on with `mechanisation` (a vehicle
+    /// model chosen at run time, [`crate::vehicle::HorizontalSignal`]).
+    ///
+    /// # Errors
+    /// A drag coefficient out of range; the INS is then unchanged.
+    pub fn set_mechanisation(
+        &mut self,
+        mechanisation: Mechanisation,
+    ) -> Result<(), InsConfigError> {
+        let cfg = InsConfig {
+            mechanisation,
+            ..self.cfg.clone()
+        };
+        cfg.validate()?;
+        self.cfg = cfg;
+        Ok(())
+    }
+
     /// The current state.
     #[must_use]
     pub fn state(&self) -> &InsState {

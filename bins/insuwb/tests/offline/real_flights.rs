@@ -255,7 +255,23 @@ fn every_shared_flight_holds_todays_figures() {
         return;
     };
     let v = run_batch(&dir.join(MANIFEST));
-    let fails = failures_against(&v, &TODAY);
+    let mut fails = failures_against(&v, &TODAY);
+    // The two Crazyflie Bolt flights, whose accelerometers follow the
+    // motion, hand over to the free model (`free_above_signal_ratio`,
+    // config/util.toml): 0.64x and 0.76x today, 0.74x and 0.81x without.
+    for (name, bound) in [("cfBolt-log00", 0.70), ("test-log00", 0.79)] {
+        let f = v["flights"]
+            .as_array()
+            .and_then(|a| a.iter().find(|f| f["file"] == name));
+        let ratio = f.and_then(|f| {
+            Some(f["iakf_tdoa"]["rmse_horizontal"].as_f64()? / f[REFERENCE].as_f64()?)
+        });
+        if !ratio.is_some_and(|r| r <= bound) {
+            fails.push(format!(
+                "{name}: iakf_tdoa {ratio:?}x {REFERENCE}, bound {bound}x"
+            ));
+        }
+    }
     assert!(
         fails.is_empty(),
         "{} bound(s) not met over the shared UTIL flights:\n{}",
