@@ -72,8 +72,103 @@ pub struct GroupReport {
     pub samples: Vec<ResourceSample>,
 }
 
+/// Most processes one look records (the launcher and its stages).
+pub const MAX_LOOKED: usize = 16;
+
+/// Longest process name a look keeps, bytes (longer ones are cut).
+const LOOKED_NAME_LEN: usize = 24;
+
+/// A process's name as a look keeps it: inline, no heap.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct LookedName {
+    len: u8,
+    bytes: [u8; LOOKED_NAME_LEN],
+}
+
+impl LookedName {
+    fn new(name: &str) -> Self {
+        let mut end = name.len().min(LOOKED_NAME_LEN);
+        while !name.is_char_boundary(end) {
+            end -= 1;
+        }
+        let mut bytes = [0; LOOKED_NAME_LEN];
+        bytes[..end].copy_from_slice(&name.as_bytes()[..end]);
+        Self {
+            len: end as u8,
+            bytes,
+        }
+    }
+
+    fn as_str(&self) -> &str {
+        std::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or("?")
+    }
+}
+
+/// The processes of one look: a table of fixed size, so that a look
+/// allocates nothing and the looks kept for the report, reserved and
+/// touched when the run starts, do not grow the launcher as they fill.
+/// Serialised as a map from name to resources.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LookedProcesses {
+    entries: [Option<(LookedName, ProcessResources)>; MAX_LOOKED],
+}
+
+impl LookedProcesses {
+    /// Records `r` under `name` (replacing an entry of that name); false
+    /// when the table is full.
+    pub fn insert(&mut self, name: &str, r: ProcessResources) -> bool {
+        let key = LookedName::new(name);
+        let slot = self
+            .entries
+            .iter()
+            .position(|e| e.is_some_and(|(n, _)| n == key))
+            .or_else(|| self.entries.iter().position(Option::is_none));
+        match slot.and_then(|i| self.entries.get_mut(i)) {
+            Some(e) => {
+                *e = Some((key, r));
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The resources recorded under `name`.
+    #[must_use]
+    pub fn get(&self, name: &str) -> Option<&ProcessResources> {
+        self.iter().find(|(n, _)| *n == name).map(|(_, r)| r)
+    }
+
+    /// Each process's name and resources.
+    pub fn iter(&self) -> impl Iterator<Item = (&str, &ProcessResources)> {
+        self.entries.iter().flatten().map(|(n, r)| (n.as_str(), r))
+    }
+
+    /// The processes recorded.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.entries.iter().flatten().count()
+    }
+
+    /// Forgets every process.
+    #[cfg(test)]
+    pub fn clear(&mut self) {
+        self.entries = [None; MAX_LOOKED];
+    }
+}
+
+impl serde::Serialize for LookedProcesses {
+    fn serialize<S: serde::Serializer>(&self, ser: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap as _;
+        let mut m = ser.serialize_map(Some(self.len()))?;
+        for (n, r) in self.iter() {
+            m.serialize_entry(n, r)?;
+        }
+        m.end()
+    }
+}
+
 /// One periodic look at a running group ([`RunOptions::sample_every`]).
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct ResourceSample {
     /// Seconds since the group started.
     pub elapsed_s: f64,
@@ -88,7 +183,7 @@ pub struct ResourceSample {
     pub group_files: usize,
     /// Each live process (the stages by name, from their last heartbeat's
     /// pid, and `launcher`, this process).
-    pub processes: std::collections::BTreeMap<String, ProcessResources>,
+    pub processes: LookedProcesses,
 }
 
 /// The sampler of [`RunOptions::sample_every`].
@@ -102,6 +197,20 @@ struct Sampler {
     prefix: String,
     iox_root: PathBuf,
     samples: Vec<ResourceSample>,
+}
+
+/// The looks a run keeps, reserved and touched now (the run's length of
+/// looks and two, or a day of one a minute without a length): filling
+/// them later does not grow the launcher's memory.
+fn reserved_looks(duration: Option<Duration>, every: Duration) -> Vec<ResourceSample> {
+    let n = match duration {
+        Some(d) if !every.is_zero() => (d.as_secs_f64() / every.as_secs_f64()).ceil() as usize + 2,
+        _ => 1440,
+    }
+    .min(100_000);
+    let mut looks = vec![ResourceSample::default(); n];
+    looks.clear();
+    looks
 }
 
 impl Sampler {
@@ -118,13 +227,13 @@ impl Sampler {
         let (se, n) = mon.accuracy_sums();
         let (se0, n0) = std::mem::replace(&mut self.accuracy, (se, n));
         let rmse = (n > n0).then(|| ((se - se0) / (n - n0) as f64).sqrt());
-        let mut processes = std::collections::BTreeMap::new();
+        let mut processes = LookedProcesses::default();
         if let Some(r) = resources::of_process(std::process::id()) {
-            processes.insert("launcher".to_owned(), r);
+            processes.insert("launcher", r);
         }
         for (name, h) in &mon.health {
             if let Some(r) = resources::of_process(h.pid) {
-                processes.insert(name.clone(), r);
+                processes.insert(name, r);
             }
         }
         let s = ResourceSample {
@@ -143,8 +252,8 @@ impl Sampler {
                 .map_or_else(|| "-".to_owned(), |r| format!("{r:.3}")),
             s.restarts,
             s.group_files,
-            s.processes.values().map(|p| p.rss_anon_kib).sum::<u64>(),
-            s.processes.values().map(|p| p.fds).sum::<u64>(),
+            s.processes.iter().map(|(_, p)| p.rss_anon_kib).sum::<u64>(),
+            s.processes.iter().map(|(_, p)| p.fds).sum::<u64>(),
             s.processes.len()
         );
         self.samples.push(s);
@@ -282,8 +391,7 @@ pub fn run_group_with(
             accuracy: (0.0, 0),
             prefix: cfg.group.prefix.clone(),
             iox_root: cfg.iox_root(),
-            // One look a minute for a day.
-            samples: Vec::with_capacity(1440),
+            samples: reserved_looks(opts.duration, every),
         }),
     };
 
@@ -490,4 +598,50 @@ fn summarise(mon: &mut Monitor, restarts: u32, elapsed: f64) -> (GroupReport, u6
             .collect(),
     };
     (report, gap_start_ns)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    fn res(pid: u32) -> ProcessResources {
+        ProcessResources {
+            pid,
+            rss_kib: 2000,
+            rss_anon_kib: 1000,
+            fds: 7,
+        }
+    }
+
+    /// A look's table holds each name once, refuses a seventeenth process,
+    /// and serialises as a map; the reserved looks are empty, with room
+    /// for the run.
+    #[test]
+    fn a_look_records_its_processes_in_place() {
+        let mut t = LookedProcesses::default();
+        assert!(t.insert("launcher", res(1)));
+        assert!(t.insert("fusion", res(2)));
+        assert!(t.insert("fusion", res(3)));
+        assert_eq!(t.len(), 2);
+        assert_eq!(t.get("fusion").map(|r| r.pid), Some(3));
+        assert_eq!(t.get("imu"), None);
+        let json = serde_json::to_value(t).unwrap();
+        assert_eq!(json["launcher"]["pid"], 1);
+        assert_eq!(json.as_object().map(|o| o.len()), Some(2));
+        for i in 2..MAX_LOOKED {
+            assert!(t.insert(&format!("stage{i}"), res(10)));
+        }
+        assert!(!t.insert("one-too-many", res(11)));
+        // A long name is cut at a character boundary.
+        let mut u = LookedProcesses::default();
+        assert!(u.insert("ééééééééééééééééééééé", res(12)));
+        assert_eq!(u.iter().next().map(|(n, _)| n.len()), Some(24));
+        u.clear();
+        assert_eq!(u.len(), 0);
+        let looks = reserved_looks(Some(Duration::from_secs(3600)), Duration::from_secs(60));
+        assert!(looks.is_empty() && looks.capacity() >= 62);
+        assert!(reserved_looks(None, Duration::from_secs(60)).capacity() >= 1440);
+    }
 }

@@ -83,8 +83,10 @@ fn growth(
         return (BTreeMap::new(), 0, 0, 0.0);
     };
     let mut out = BTreeMap::new();
-    let names: std::collections::BTreeSet<&String> =
-        after.iter().flat_map(|s| s.processes.keys()).collect();
+    let names: std::collections::BTreeSet<&str> = after
+        .iter()
+        .flat_map(|s| s.processes.iter().map(|(n, _)| n))
+        .collect();
     for name in names {
         // A stage restarting at a look: its first and last looks alive.
         let (Some(w), Some(l)) = (
@@ -97,7 +99,7 @@ fn growth(
         let (rss_max, fds_max) =
             seen.fold((0, 0), |(r, f), p| (p.rss_anon_kib.max(r), p.fds.max(f)));
         out.insert(
-            name.clone(),
+            name.to_owned(),
             Growth {
                 rss_anon_warm_kib: w.rss_anon_kib,
                 rss_anon_last_kib: l.rss_anon_kib,
@@ -155,6 +157,7 @@ mod tests {
     #![allow(clippy::unwrap_used)]
 
     use super::*;
+    use crate::group_run::LookedProcesses;
     use crate::resources::ProcessResources;
 
     fn look(t: f64, rss: u64, fds: u64, files: usize, rate: f64) -> ResourceSample {
@@ -170,7 +173,11 @@ mod tests {
             rmse_horizontal: None,
             restarts: 0,
             group_files: files,
-            processes: [("fusion".to_owned(), p)].into_iter().collect(),
+            processes: {
+                let mut t = LookedProcesses::default();
+                assert!(t.insert("fusion", p));
+                t
+            },
         }
     }
 
