@@ -329,10 +329,7 @@ impl TightEstimator {
             self.mech = mech;
             self.damping = damping;
             self.drag = drag;
-            if let Some(d) = damping {
-                self.set_damping(d.damping_per_s.max(d.drag_per_s));
-                self.update_damping();
-            }
+            self.update_damping();
         }
     }
 
