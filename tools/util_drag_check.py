@@ -15,7 +15,10 @@ specific force (the same means):
            against the true acceleration: RMS error, m/s^2;
   +drag    the same with linear drag DRAG /s (default 0.4) in body x/y;
   slow     the +drag error's 1 s mean: what an INS with the true attitude
-           would integrate wrongly over a second.
+           would integrate wrongly over a second;
+  -const   the same less its mean over the flight (a constant is the
+           motion capture's body frame against the IMU's, or a thrust axis
+           off the IMU's z: a filter takes it up as a tilt).
 
 Truth is used throughout: an analysis of the data and the model, not an
 estimator. It shows that the thrust-and-drag model with the physical drag
@@ -82,21 +85,22 @@ def flight(path, drag):
         return float(np.sqrt(np.mean(np.sum(e[air, :2] ** 2, 1))))
 
     slow = smooth((pred_drag - a_true)[:, :2], 100)
-    return coef, rms(pred_thrust - a_true), rms(pred_drag - a_true), rms(slow), rms(a_true)
+    varying = slow - slow[air].mean(0)
+    return coef, rms(pred_thrust - a_true), rms(pred_drag - a_true), rms(slow), rms(varying), rms(a_true)
 
 
 def main():
     data, rows = manifest(sys.argv, __doc__)
     drag = float(sys.argv[2]) if len(sys.argv) > 2 else 0.4
-    print(f"flight            drag x (offset)  drag y (offset)   |a_h|  thrust  +drag {drag:g}  slow")
+    print(f"flight            drag x (offset)  drag y (offset)   |a_h|  thrust  +drag {drag:g}  slow  -const")
     ks = []
     for row in rows:
-        coef, e_t, e_d, e_s, a_h = flight(data / row["file"], drag)
+        coef, e_t, e_d, e_s, e_v, a_h = flight(data / row["file"], drag)
         (kx, bx), (ky, by) = coef
         ks += [kx, ky]
         print(
             f"{row['file'][-16:]:16}  {kx:5.2f} ({bx:+5.2f})   {ky:5.2f} ({by:+5.2f})"
-            f"    {a_h:5.2f}  {e_t:5.2f}  {e_d:5.2f}     {e_s:5.2f}"
+            f"    {a_h:5.2f}  {e_t:5.2f}  {e_d:5.2f}     {e_s:5.2f}  {e_v:5.2f}"
         )
     print(f"median drag coefficient over both axes and all flights: {np.median(ks):.2f} /s")
 
