@@ -23,15 +23,12 @@ grid, per file:
 Truth scores the run and nothing else. numpy required.
 """
 import sys
+from pathlib import Path
 
 import numpy as np
 
-G = 9.81
-
-
-def smooth(y, n):
-    k = np.ones(n) / n
-    return np.stack([np.convolve(y[:, i], k, "same") for i in range(y.shape[1])], 1)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from util_drag_check import G, smooth  # noqa: E402
 
 
 def report(path):
