@@ -122,6 +122,14 @@ pub struct EskfConfig {
     /// 0.65-0.72 at 20 ms, 0.5 at 0.2 s, 0.2 at 0.5 s on all four logs, whose
     /// integral time scale `2 * integral(rho)` is about 0.5 s. 0 disables.
     pub tdoa_corr_time_s: f64,
+    /// Stationary sigma of each anchor's part of the TDOA error, a
+    /// first-order Gauss-Markov state per anchor (eight at a time), m: a
+    /// difference reads `β_b - β_a` on top of the geometry (the anchor's
+    /// packets' receive-time error enters every difference it is in).
+    /// Default 0: no such states, each difference's error its own.
+    pub tdoa_anchor_sigma_m: f64,
+    /// Correlation time of those states, s. Default 0.2.
+    pub tdoa_anchor_corr_time_s: f64,
     /// Constant factor on the gain's TDOA `R` (on top of the rate-adaptive
     /// one), for correlation between pairs sharing an anchor. Default 1.
     pub tdoa_r_inflation: f64,
@@ -226,6 +234,8 @@ impl Default for EskfConfig {
             range_sigma_adapt_time_s: 0.0,
             sigma_adapt_min_m: 0.01,
             tdoa_corr_time_s: 0.25,
+            tdoa_anchor_sigma_m: 0.0,
+            tdoa_anchor_corr_time_s: 0.2,
             tdoa_r_inflation: 1.0,
             min_interval_per_pair_s: 0.0,
             limit_mode: LimitMode::ScaleInnovation,
@@ -344,6 +354,18 @@ impl EskfConfig {
         )?;
         check("sigma_adapt_min_m", self.sigma_adapt_min_m, "> 0", pos)?;
         check("tdoa_corr_time_s", self.tdoa_corr_time_s, ">= 0", non_neg)?;
+        check(
+            "tdoa_anchor_sigma_m",
+            self.tdoa_anchor_sigma_m,
+            ">= 0",
+            non_neg,
+        )?;
+        check(
+            "tdoa_anchor_corr_time_s",
+            self.tdoa_anchor_corr_time_s,
+            "> 0",
+            pos,
+        )?;
         check("tdoa_r_inflation", self.tdoa_r_inflation, ">= 1", |v| {
             v >= 1.0
         })?;

@@ -4,6 +4,7 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
+use crate::anchor_error::{AnchorErrors, ErrorVector};
 use crate::config::{EskfConfig, EskfConfigError};
 use crate::math::{checked_rotation, finite, skew, InputFault};
 use insuwb_filter::LimitMode;
@@ -309,7 +310,7 @@ fn pair_key(a: &[f64; 3], b: &[f64; 3]) -> [u64; 6] {
 /// `δv̇ = a_vθ δθ + a_vb δb_a + a_vv δv` (see [`transition_matrix`] and
 /// [`Eskf::set_multirotor`]).
 #[derive(Debug, Clone, Copy)]
-struct VelRows {
+pub(crate) struct VelRows {
     /// `-[f x]`, plus the drag's attitude term for a multirotor.
     a_vtheta: Matrix3<f64>,
     /// `C`, or `C diag(0, 0, 1)` for a multirotor (only the thrust axis's
@@ -322,7 +323,7 @@ struct VelRows {
 /// Applies the continuous error dynamics `F` to `x` (15 x C), using its
 /// sparsity: rows δp <- δv; δv <- a_vθ δθ + a_vb δb_a (+ a_vv δv);
 /// δθ <- C δb_g.
-fn apply_f<const C: usize>(
+pub(crate) fn apply_f<const C: usize>(
     rows: &VelRows,
     rot: &Matrix3<f64>,
     x: &SMatrix<f64, N_STATES, C>,
@@ -549,6 +550,8 @@ pub struct Eskf {
     /// Factor on the TDOA sigma of the updates that follow
     /// ([`Eskf::set_tdoa_sigma_scale`]).
     tdoa_sigma_scale: f64,
+    /// The anchors' TDOA error states ([`EskfConfig::tdoa_anchor_sigma_m`]).
+    anchors: AnchorErrors,
 }
 
 /// The multirotor model's parameters in the error dynamics
@@ -721,7 +724,6 @@ impl Eskf {
         config.validate()?;
         let p0 = Self::initial_covariance(&config);
         Ok(Self {
-            config,
             x: StateVector::zeros(),
             p: p0,
             p0,
@@ -736,6 +738,8 @@ impl Eskf {
             q_vel_extra: 0.0,
             multirotor: None,
             tdoa_sigma_scale: 1.0,
+            anchors: AnchorErrors::new(config.tdoa_anchor_sigma_m, config.tdoa_anchor_corr_time_s),
+            config,
         })
     }
 
@@ -846,6 +850,7 @@ impl Eskf {
         let fp = apply_f(&rows, &rot, &self.p);
         let fpft = apply_f(&rows, &rot, &fp.transpose());
         self.p += (fp + fp.transpose()) * dt_s + fpft * (dt_s * dt_s);
+        self.anchors.predict(dt_s, |m| apply_f(&rows, &rot, m));
         let q = process_noise(&self.config, dt_s);
         // The scale applies to the accelerometer's noise and bias walk: the
         // position innovations it is read from measure the velocity drift.
@@ -946,6 +951,7 @@ impl Eskf {
         }
         let v = innovation - h.dot(&self.x);
         let c = self.p * h;
+        let cb = self.anchors.c_anchor(h, &ErrorVector::zeros());
         let hph = h.dot(&c).max(0.0);
         let s = hph + r;
         let nis = v * v / s;
@@ -965,7 +971,7 @@ impl Eskf {
             LimitMode::ScaleInnovation => (lambda * v, r),
             LimitMode::InflateR => (v, r / (lambda * lambda)),
         };
-        self.scalar_update(&c, hph, r_gain, v_used);
+        self.scalar_update(&c, &cb, hph, r_gain, v_used);
         Ok(PseudoUpdateReport { nis, applied: true })
     }
 
@@ -1041,8 +1047,14 @@ impl Eskf {
     ) -> Result<TdoaUpdateReport, TdoaUpdateError> {
         finite("diff_m", &[diff_m])?;
         let model = tdoa_model(p_ins_m, quat, lever_arm_body_m, anchor_a_m, anchor_b_m)?;
+        let t = self.time_s;
+        let hb = AnchorErrors::row(
+            self.anchors.slot(&anchor_b_m, t),
+            self.anchors.slot(&anchor_a_m, t),
+        );
         Ok(self.update_uwb(
             &model,
+            &hb,
             diff_m,
             pair_key(&anchor_a_m, &anchor_b_m),
             UwbNoise::Tdoa,
@@ -1070,6 +1082,7 @@ impl Eskf {
         let model = range_model(p_ins_m, quat, lever_arm_body_m, anchor_m)?;
         Ok(self.update_uwb(
             &model,
+            &ErrorVector::zeros(),
             range_m,
             pair_key(&anchor_m, &anchor_m),
             UwbNoise::Range,
@@ -1153,14 +1166,16 @@ impl Eskf {
     fn update_uwb(
         &mut self,
         model: &TdoaModel,
+        hb: &ErrorVector,
         z: f64,
         key: [u64; 6],
         kind: UwbNoise,
     ) -> TdoaUpdateReport {
         let h = model.h;
-        let v = z - model.predicted_m - h.dot(&self.x);
-        let c = self.p * h;
-        let hph = h.dot(&c).max(0.0);
+        let v = z - model.predicted_m - h.dot(&self.x) - hb.dot(&self.anchors.b);
+        let c = self.p * h + self.anchors.pxb * hb;
+        let cb = self.anchors.c_anchor(&h, hb);
+        let hph = (h.dot(&c) + hb.dot(&cb)).max(0.0);
         let scale = match kind {
             UwbNoise::Tdoa => self.tdoa_sigma_scale,
             UwbNoise::Range => 1.0,
@@ -1235,7 +1250,7 @@ impl Eskf {
                 );
             }
         }
-        self.scalar_update(&c, hph, r_gain, v_used);
+        self.scalar_update(&c, &cb, hph, r_gain, v_used);
 
         self.touch_pair(slot, key);
         if lambda < 1.0 {
@@ -1300,6 +1315,19 @@ impl Eskf {
         let rejected = nis.sqrt() > self.config.hard_gate_sigma;
         if !rejected {
             let k = pht * s_inv;
+            if self.anchors.enabled() {
+                // P_bx H^T and H P_xb; Joseph form on the bias blocks.
+                let pbht = self.anchors.pxb.transpose() * h.transpose();
+                let hpxb = h * self.anchors.pxb;
+                let kb = pbht * s_inv;
+                self.anchors.b += kb * v;
+                let pxb =
+                    self.anchors.pxb - k * hpxb - pht * kb.transpose() + k * s * kb.transpose();
+                let pbb =
+                    self.anchors.pbb - kb * hpxb - pbht * kb.transpose() + kb * s * kb.transpose();
+                self.anchors.pxb = pxb;
+                self.anchors.pbb = (pbb + pbb.transpose()) * 0.5;
+            }
             self.x += k * v;
             let i_kh = Covariance::identity() - k * h;
             self.p = i_kh * self.p * i_kh.transpose() + k * cov * k.transpose();
@@ -1344,6 +1372,11 @@ impl Eskf {
                     .fixed_view_mut::<N_STATES, 3>(0, IDX_ATT)
                     .copy_from(&cols);
                 symmetrize(&mut self.p);
+                let brows = g * self.anchors.pxb.fixed_rows::<3>(IDX_ATT);
+                self.anchors
+                    .pxb
+                    .fixed_rows_mut::<3>(IDX_ATT)
+                    .copy_from(&brows);
             }
         }
         self.x = StateVector::zeros();
@@ -1400,6 +1433,7 @@ impl Eskf {
         self.nis_last = None;
         self.needs_reset = false;
         self.pairs = [PairSlot::default(); PAIR_SLOTS];
+        self.anchors.clear();
         self.stats.resets += 1;
     }
 
@@ -1414,6 +1448,13 @@ impl Eskf {
     #[must_use]
     pub fn covariance(&self) -> &Covariance {
         &self.p
+    }
+
+    /// The anchors' TDOA error states ([`EskfConfig::tdoa_anchor_sigma_m`]),
+    /// slot by slot: the anchor's position, the estimate of its error and
+    /// that estimate's sigma, m. Empty when the states are off.
+    pub fn anchor_errors(&self) -> impl Iterator<Item = ([f64; 3], f64, f64)> + '_ {
+        self.anchors.states()
     }
 
     /// Covariance of `[pos e, n, u, vel e, n, u]` (as in
@@ -1543,12 +1584,16 @@ impl Eskf {
     /// [`EskfConfig::yaw_min_excitation_mps2`]) the gain's yaw and yaw-rate
     /// bias entries are zero (a consider update: the Joseph form keeps `P`
     /// consistent for any gain).
-    fn scalar_update(&mut self, c: &StateVector, hph: f64, r: f64, v: f64) {
+    fn scalar_update(&mut self, c: &StateVector, cb: &ErrorVector, hph: f64, r: f64, v: f64) {
         let s = hph + r;
         let mut k = c / s;
         if self.yaw_frozen() {
             k[IDX_ATT + 2] = 0.0;
             k[IDX_GYRO_BIAS + 2] = 0.0;
+        }
+        if self.anchors.enabled() {
+            let kb = cb / s;
+            self.anchors.update(&k, &kb, c, cb, s, v);
         }
         self.x += k * v;
         let kc = k * c.transpose();

@@ -25,6 +25,7 @@
 //! nalgebra matrices).
 #![warn(missing_docs)]
 
+mod anchor_error;
 mod config;
 mod eskf;
 mod math;

@@ -61,6 +61,11 @@ pub struct TightConfig {
     /// makes noisy counts less. Default true; without a calibration every
     /// pair has the configured sigma.
     pub calibrated_noise: bool,
+    /// Add the velocity noise of the vibration the IMU measures
+    /// (`[fusion.vibration]`) to this filter's, as every loose filter does.
+    /// Default true. Off, the tight filter's velocity noise is its model's
+    /// alone (the multirotor's `model_noise_mps2_per_rthz`).
+    pub vibration_noise: bool,
 }
 
 impl Default for TightConfig {
@@ -70,6 +75,7 @@ impl Default for TightConfig {
             specific_force_tau_s: 0.0,
             predict_period_s: 0.0,
             calibrated_noise: true,
+            vibration_noise: true,
         }
     }
 }
@@ -595,7 +601,9 @@ impl Estimator for TightEstimator {
             nav.accel_nav_mps2,
             self.gravity_mps2,
         );
-        let q = self.vib.push(&self.vib_cfg, dt_s, nav) + gap_velocity_noise(dt_s, nav);
+        let vib = self.vib.push(&self.vib_cfg, dt_s, nav);
+        let vib = if self.cfg.vibration_noise { vib } else { 0.0 };
+        let q = vib + gap_velocity_noise(dt_s, nav);
         self.eskf.set_extra_velocity_noise(q);
         let raw = [a[0], a[1], a[2] + self.gravity_mps2];
         let tau = self.cfg.specific_force_tau_s;

@@ -1,10 +1,12 @@
 //! The integration tests of insuwb-eskf, linked into one binary: each
-//! module is one topic (`damping`, `linearisation`, `monitor`, `scenario`), documented at its
-//! top; `common` holds their shared helpers.
+//! module is one topic (`anchor_error`, `damping`, `linearisation`,
+//! `monitor`, `scenario`), documented at its top; `common` holds their
+//! shared helpers.
 
 // Test helpers outside `#[test]` functions may unwrap and panic too.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod anchor_error;
 mod common;
 mod damping;
 mod linearisation;

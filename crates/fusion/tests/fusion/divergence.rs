@@ -68,12 +68,19 @@ fn secs(t_ns: u64) -> f64 {
 }
 
 /// The preset with the free vehicle model and the tight filter's learnt
-/// process-noise scale, as the preset was before its multirotor model.
+/// process-noise scale, as the preset was before its multirotor model:
+/// each TDOA difference's error its own (no anchor states), the vibration
+/// noise added to the tight filter's too.
 fn free_vehicle(f: &mut FusionConfig) {
     f.vehicle = insuwb_nav::vehicle::VehicleKind::Free;
     f.eskf.q_adapt_time_s = 0.2;
     f.eskf.q_adapt_decay_factor = 100.0;
     f.eskf.q_scale_max = 1000.0;
+    f.eskf.tdoa_anchor_sigma_m = 0.0;
+    f.eskf.tdoa_sigma_m = 0.15;
+    f.eskf.tdoa_corr_time_s = 0.25;
+    f.eskf.kappa = 1.5;
+    f.tight.vibration_noise = true;
 }
 
 /// One run: its output and the horizontal error of each fused state inside
