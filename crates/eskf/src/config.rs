@@ -122,6 +122,8 @@ pub struct EskfConfig {
     /// 0.65-0.72 at 20 ms, 0.5 at 0.2 s, 0.2 at 0.5 s on all four logs, whose
     /// integral time scale `2 * integral(rho)` is about 0.5 s. 0 disables.
     pub tdoa_corr_time_s: f64,
+    /// The same for two-way ranges, per anchor, s. Default 0.25.
+    pub range_corr_time_s: f64,
     /// Stationary sigma of each anchor's part of the TDOA error, a
     /// first-order Gauss-Markov state per anchor (eight at a time), m: a
     /// difference reads `β_b - β_a` on top of the geometry (the anchor's
@@ -234,6 +236,7 @@ impl Default for EskfConfig {
             range_sigma_adapt_time_s: 0.0,
             sigma_adapt_min_m: 0.01,
             tdoa_corr_time_s: 0.25,
+            range_corr_time_s: 0.25,
             tdoa_anchor_sigma_m: 0.0,
             tdoa_anchor_corr_time_s: 0.2,
             tdoa_r_inflation: 1.0,
@@ -354,6 +357,7 @@ impl EskfConfig {
         )?;
         check("sigma_adapt_min_m", self.sigma_adapt_min_m, "> 0", pos)?;
         check("tdoa_corr_time_s", self.tdoa_corr_time_s, ">= 0", non_neg)?;
+        check("range_corr_time_s", self.range_corr_time_s, ">= 0", non_neg)?;
         check(
             "tdoa_anchor_sigma_m",
             self.tdoa_anchor_sigma_m,

@@ -1065,7 +1065,8 @@ impl Eskf {
     /// at the INS state `(p_ins_m, quat)` ([`range_model`]): the same
     /// robust weighting, gates, correlation inflation (per anchor) and
     /// process-noise adaptation as [`Eskf::update_tdoa`], with
-    /// [`EskfConfig::range_sigma_m`] as the measurement's sigma.
+    /// [`EskfConfig::range_sigma_m`] as the measurement's sigma and
+    /// [`EskfConfig::range_corr_time_s`] as its correlation time.
     ///
     /// # Errors
     /// [`TdoaUpdateError`] on a non-finite input, a non-unit quaternion or an
@@ -1223,8 +1224,12 @@ impl Eskf {
         } else {
             1.0
         };
-        let corr = if self.config.tdoa_corr_time_s > 0.0 {
-            (2.0 * self.config.tdoa_corr_time_s / dt_pair.max(MIN_PAIR_DT_S)).max(1.0)
+        let corr_time = match kind {
+            UwbNoise::Tdoa => self.config.tdoa_corr_time_s,
+            UwbNoise::Range => self.config.range_corr_time_s,
+        };
+        let corr = if corr_time > 0.0 {
+            (2.0 * corr_time / dt_pair.max(MIN_PAIR_DT_S)).max(1.0)
         } else {
             1.0
         };
