@@ -7,7 +7,9 @@
 //! integrates the nominal state itself), fuses every TDOA difference with a
 //! robust, IAKF-style per-measurement weight (erratum 13, with the IAKF's
 //! [`insuwb_filter::LimitMode`]), decorrelates the UWB errors' time
-//! correlation by a rate-adaptive `R` inflation and returns closed-loop
+//! correlation by a rate-adaptive `R` inflation, optionally carries each
+//! anchor's share of the TDOA error as a Gauss-Markov state beside the 15
+//! ([`EskfConfig::tdoa_anchor_sigma_m`]) and returns closed-loop
 //! corrections in the conventions of [`insuwb_msg::InsCorrection`]. Its
 //! consistency is watched from outside, by the NIS monitor every filter
 //! shares ([`insuwb_filter::DivergenceMonitor`], which the fusion engine
