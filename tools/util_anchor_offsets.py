@@ -25,22 +25,14 @@ import sys
 
 import numpy as np
 
-from util_tdoa_bound import manifest, prepare, solve
+from util_tdoa_bound import fix_epochs, manifest, prepare, solve
 
 
 def offsets(f):
     """The fix's mean error and each anchor's median signed error."""
-    tt, a, b, pa, pb, z, ok, pos, ant = (
-        f[k] for k in ("tt", "a", "b", "pa", "pb", "z", "ok", "pos", "ant"))
+    a, b, pa, pb, z, ok, pos = (f[k] for k in ("a", "b", "pa", "pb", "z", "ok", "pos"))
     errs = []
-    for tk in np.arange(tt[0] + 0.1, tt[-1], 0.1):
-        last = {}
-        for i in np.where((tt > tk - 0.1) & (tt <= tk) & ok)[0]:
-            last[(a[i], b[i])] = i
-        idx = np.array(list(last.values()))
-        if len(idx) < 4 or pos[idx[-1], 2] <= 0.3:
-            continue
-        truth = ant[idx[-1]]
+    for idx, truth in fix_epochs(f):
         x = solve(truth, pa[idx], pb[idx], z[idx])
         if np.all(np.abs(x - truth) < 3.0):
             errs.append(x - truth)

@@ -222,14 +222,11 @@ def in_air(f):
     return f["ok"] & (f["pos"][:, 2] > 0.3)
 
 
-def flight(f, grid=None):
-    tt, a, b, pa, pb, h, ok = (f[k] for k in ("tt", "a", "b", "pa", "pb", "h", "ok"))
-    z, slow, const, pos, ant = (f[k] for k in ("z", "slow", "const", "pos", "ant"))
-    sq = {"meas": [], "slow": [], "slow-const": []}
-    if grid is not None:
-        sq.update({"meas-cv": [], "slow-cv": []})
-    skipped = 0
-    epochs = []
+def fix_epochs(f):
+    """Each 0.1 s epoch of the flight segment with at least 4 pairs: the
+    indices of each pair's last inlier difference in it, and the truth's
+    antenna position at its last."""
+    tt, a, b, ok, pos, ant = (f[k] for k in ("tt", "a", "b", "ok", "pos", "ant"))
     for tk in np.arange(tt[0] + 0.1, tt[-1], 0.1):
         last = {}
         for i in np.where((tt > tk - 0.1) & (tt <= tk) & ok)[0]:
@@ -237,7 +234,18 @@ def flight(f, grid=None):
         idx = np.array(list(last.values()))
         if len(idx) < 4 or pos[idx[-1], 2] <= 0.3:
             continue
-        truth = ant[idx[-1]]
+        yield idx, ant[idx[-1]]
+
+
+def flight(f, grid=None):
+    a, b, pa, pb, h = (f[k] for k in ("a", "b", "pa", "pb", "h"))
+    z, slow, const = (f[k] for k in ("z", "slow", "const"))
+    sq = {"meas": [], "slow": [], "slow-const": []}
+    if grid is not None:
+        sq.update({"meas-cv": [], "slow-cv": []})
+    skipped = 0
+    epochs = []
+    for idx, truth in fix_epochs(f):
         zs = [
             ("meas", z[idx]),
             ("slow", h[idx] + slow[idx]),
