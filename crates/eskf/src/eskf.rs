@@ -1,6 +1,7 @@
 //! The 15-state error-state Kalman filter: covariance propagation on the
-//! INS's nominal states, sequential robust TDOA updates, an optional 3D
-//! position update and the closed-loop correction.
+//! INS's nominal states, sequential robust TDOA updates (with the anchors'
+//! error states of [`crate::anchor_error`] beside the 15 when configured),
+//! an optional 3D position update and the closed-loop correction.
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
