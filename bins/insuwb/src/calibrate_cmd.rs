@@ -289,6 +289,38 @@ fn constellation(manifest: &Manifest, flights: &[Flight]) -> Result<BTreeMap<u32
     Ok(first.anchors.clone())
 }
 
+/// An anchor whose offset over a flight is beyond this is named, m: on the
+/// shared UTIL flights the largest per flight is 0.06-0.23 m, but 0.37-0.46
+/// m on four (docs/REAL_FLIGHTS.md, "Site calibration").
+const ANCHOR_OFFSET_WARN_M: f64 = 0.3;
+
+/// Each flight's anchor offsets ([`insuwb_uwb::survey::anchor_offsets`]),
+/// by flight label; an anchor beyond [`ANCHOR_OFFSET_WARN_M`] is warned of.
+fn survey(manifest: &Manifest, flights: &[Flight]) -> Vec<(String, BTreeMap<u32, f64>)> {
+    let mut out = Vec::new();
+    for (i, f) in flights.iter().enumerate() {
+        if f.samples.is_empty() {
+            continue;
+        }
+        let name = f.loaded.data.name.clone();
+        match insuwb_uwb::survey::anchor_offsets(&f.samples) {
+            Ok(o) => {
+                for (id, v) in o.iter().filter(|(_, v)| v.abs() > ANCHOR_OFFSET_WARN_M) {
+                    tracing::warn!(
+                        "{}: anchor {id} reads {v:+.2} m against the others over the flight \
+                         (its survey, its antenna delay or the tag's frame): a calibration \
+                         learns it as this site's bias",
+                        manifest.flight_label(i)
+                    );
+                }
+                out.push((name, o));
+            }
+            Err(e) => tracing::warn!("{}: no anchor offsets: {e}", manifest.flight_label(i)),
+        }
+    }
+    out
+}
+
 /// Learns from the samples of every flight but `skip`.
 fn learn(
     anchors: &BTreeMap<u32, [f64; 3]>,
@@ -369,6 +401,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         flights.iter().map(|f| f.samples.len()).sum::<usize>(),
         t0.elapsed().as_secs_f64()
     );
+    let offsets = survey(&manifest, &flights);
     if a.cross_validate {
         return cross_validate(a, &manifest, &flights, &anchors, jobs);
     }
@@ -399,6 +432,14 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
             "pairs": c.pairs().len(),
             "cells": cells,
             "noise_median_m": batch::median(&noise),
+            "anchor_offsets_m": offsets
+                .iter()
+                .map(|(name, o)| {
+                    let by_id: serde_json::Map<String, serde_json::Value> =
+                        o.iter().map(|(id, v)| (id.to_string(), (*v).into())).collect();
+                    serde_json::json!({ "flight": name, "offsets": by_id })
+                })
+                .collect::<Vec<_>>(),
         }))
     })
 }

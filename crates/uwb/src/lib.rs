@@ -12,6 +12,8 @@
 //! - [`velocity`]: sliding-window regression velocity and its covariance.
 //! - [`calibration`]: a site calibration of the per-pair TDOA biases,
 //!   learnt from flights with ground truth, applied by the fix builder.
+//! - [`survey`]: each anchor's offset over a flight's residuals, the check
+//!   of an anchor survey against a flight with ground truth.
 //!
 //! Library code: no clock, no global state; the only I/O is reading and
 //! writing calibration files ([`calibration::SiteCalibration::load`], `save`).
@@ -21,6 +23,7 @@ pub mod calibration;
 pub mod fix;
 pub mod range;
 pub mod solve;
+pub mod survey;
 pub mod velocity;
 
 pub use fix::{FixBuilder, FixConfig, FixMode, FixStats};

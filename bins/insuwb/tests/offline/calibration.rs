@@ -201,3 +201,65 @@ fn a_calibration_is_refused_for_other_anchors() {
     );
     let _ = std::fs::remove_dir_all(&tmp);
 }
+
+/// `insuwb calibrate --out` names the anchors a flight reads off over the
+/// whole flight (`insuwb_uwb::survey`): on the shared flights the four that
+/// stay above the radio alone (docs/REAL_FLIGHTS.md), and no other flight
+/// comes near.
+#[test]
+fn the_anchors_a_flight_reads_off_are_named() {
+    let Some(dir) = data_dir() else { return };
+    let tmp = std::env::temp_dir().join(format!("insuwb-survey-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp).unwrap();
+    let site = tmp.join("site.toml");
+    let out = insuwb(&[
+        "calibrate",
+        "--flights",
+        dir.join(MANIFEST).to_str().unwrap(),
+        "--out",
+        site.to_str().unwrap(),
+        "--json",
+    ]);
+    let _ = std::fs::remove_dir_all(&tmp);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let flights = v["anchor_offsets_m"].as_array().unwrap();
+    assert_eq!(flights.len(), FLIGHTS);
+    let mut off = Vec::new();
+    for f in flights {
+        let name = f["flight"].as_str().unwrap();
+        let name = Path::new(name).file_name().unwrap().to_str().unwrap();
+        let offsets = f["offsets"].as_object().unwrap();
+        assert_eq!(offsets.len(), 8, "{name}");
+        let sum: f64 = offsets.values().map(|o| o.as_f64().unwrap()).sum();
+        assert!(sum.abs() < 1e-9, "{name}: offsets sum to {sum}");
+        let worst = offsets
+            .values()
+            .map(|o| o.as_f64().unwrap().abs())
+            .fold(0.0, f64::max);
+        if worst > 0.3 {
+            off.push(name.to_owned());
+        } else {
+            assert!(worst < 0.25, "{name}: an anchor {worst:.2} m off");
+        }
+        if name == "flight-53626b57" {
+            let a1 = offsets["1"].as_f64().unwrap();
+            assert!((0.35..0.6).contains(&a1), "flight-53626b57 anchor 1: {a1}");
+        }
+    }
+    off.sort();
+    assert_eq!(
+        off,
+        [
+            "flight-1229e2e7",
+            "flight-4f5069f6",
+            "flight-53626b57",
+            "flight-daf31394"
+        ]
+    );
+    assert!(
+        stderr.contains("flight-53626b57") && stderr.contains("anchor 1 reads +0.45 m"),
+        "{stderr}"
+    );
+}
