@@ -298,7 +298,8 @@ pub enum AnchorCheckError {
     },
 }
 
-fn median_of(v: &mut [f64]) -> Option<f64> {
+/// The median of `v` (sorted in place); `None` when empty.
+pub(crate) fn median_of(v: &mut [f64]) -> Option<f64> {
     if v.is_empty() {
         return None;
     }

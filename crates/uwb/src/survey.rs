@@ -19,7 +19,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector};
 
-use crate::calibration::Sample;
+use crate::calibration::{median_of, Sample};
 
 /// Fewest samples of a pair for its median to count.
 pub const MIN_PAIR_SAMPLES: usize = 20;
@@ -63,7 +63,7 @@ pub fn anchor_offsets(samples: &[Sample]) -> Result<BTreeMap<u32, f64>, AnchorOf
         .filter_map(|(k, mut v)| {
             #[allow(clippy::cast_precision_loss)]
             let n = v.len() as f64;
-            median(&mut v).map(|m| (k, m, n))
+            median_of(&mut v).map(|m| (k, m, n))
         })
         .collect();
     if medians.is_empty() {
@@ -135,19 +135,6 @@ fn check_connected(
         }
     }
     Ok(())
-}
-
-fn median(v: &mut [f64]) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
 }
 
 #[cfg(test)]
