@@ -150,9 +150,23 @@ impl AnchorErrors {
         h
     }
 
-    /// `P_bx h + P_bb h_b`, the anchors' part of `P h`.
-    pub(crate) fn c_anchor(&self, h: &StateVector, hb: &ErrorVector) -> ErrorVector {
-        self.pxb.transpose() * h + self.pbb * hb
+    /// A measurement's terms from the anchors, for a row `(h, h_b)`: `P_xb
+    /// h_b` (added to the core's `P_xx h`), `P_bx h + P_bb h_b` (the
+    /// anchors' part of `P h`) and `h_b . b` (what the estimates add to the
+    /// prediction); zeros while the states are off.
+    pub(crate) fn terms(
+        &self,
+        h: &StateVector,
+        hb: &ErrorVector,
+    ) -> (StateVector, ErrorVector, f64) {
+        if !self.enabled() {
+            return (StateVector::zeros(), ErrorVector::zeros(), 0.0);
+        }
+        (
+            self.pxb * hb,
+            self.pxb.transpose() * h + self.pbb * hb,
+            hb.dot(&self.b),
+        )
     }
 
     /// The scalar update's part on the anchors, given the core's gain `kx`,
@@ -172,13 +186,7 @@ impl AnchorErrors {
         self.pxb += kx * kb.transpose() * s - kx * cb.transpose() - cx * kb.transpose();
         let kcb = kb * cb.transpose();
         self.pbb += kb * kb.transpose() * s - kcb - kcb.transpose();
-        for i in 0..ANCHOR_SLOTS {
-            for j in (i + 1)..ANCHOR_SLOTS {
-                let m = 0.5 * (self.pbb[(i, j)] + self.pbb[(j, i)]);
-                self.pbb[(i, j)] = m;
-                self.pbb[(j, i)] = m;
-            }
-        }
+        self.pbb = (self.pbb + self.pbb.transpose()) * 0.5;
     }
 
     /// Each used slot's anchor position, error estimate and sigma.

@@ -952,7 +952,7 @@ impl Eskf {
         }
         let v = innovation - h.dot(&self.x);
         let c = self.p * h;
-        let cb = self.anchors.c_anchor(h, &ErrorVector::zeros());
+        let (_, cb, _) = self.anchors.terms(h, &ErrorVector::zeros());
         let hph = h.dot(&c).max(0.0);
         let s = hph + r;
         let nis = v * v / s;
@@ -1174,9 +1174,9 @@ impl Eskf {
         kind: UwbNoise,
     ) -> TdoaUpdateReport {
         let h = model.h;
-        let v = z - model.predicted_m - h.dot(&self.x) - hb.dot(&self.anchors.b);
-        let c = self.p * h + self.anchors.pxb * hb;
-        let cb = self.anchors.c_anchor(&h, hb);
+        let (c_anchor, cb, hb_b) = self.anchors.terms(&h, hb);
+        let v = z - model.predicted_m - h.dot(&self.x) - hb_b;
+        let c = self.p * h + c_anchor;
         let hph = (h.dot(&c) + hb.dot(&cb)).max(0.0);
         let scale = match kind {
             UwbNoise::Tdoa => self.tdoa_sigma_scale,
