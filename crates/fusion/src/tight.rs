@@ -601,8 +601,12 @@ impl Estimator for TightEstimator {
             nav.accel_nav_mps2,
             self.gravity_mps2,
         );
-        let vib = self.vib.push(&self.vib_cfg, dt_s, nav);
-        let vib = if self.cfg.vibration_noise { vib } else { 0.0 };
+        // The meter's state serves only this noise: off, it is not run.
+        let vib = if self.cfg.vibration_noise {
+            self.vib.push(&self.vib_cfg, dt_s, nav)
+        } else {
+            0.0
+        };
         let q = vib + gap_velocity_noise(dt_s, nav);
         self.eskf.set_extra_velocity_noise(q);
         let raw = [a[0], a[1], a[2] + self.gravity_mps2];

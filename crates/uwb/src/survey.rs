@@ -110,7 +110,7 @@ fn check_connected(
     index: impl Fn(u32) -> usize,
 ) -> Result<(), AnchorOffsetsError> {
     let mut parent: Vec<usize> = (0..ids.len()).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
+    fn root(parent: &[usize], mut i: usize) -> usize {
         while let Some(&p) = parent.get(i) {
             if p == i {
                 break;
@@ -120,14 +120,14 @@ fn check_connected(
         i
     }
     for ((a, b), _, _) in pairs {
-        let (ra, rb) = (root(&mut parent, index(*a)), root(&mut parent, index(*b)));
+        let (ra, rb) = (root(&parent, index(*a)), root(&parent, index(*b)));
         if let Some(p) = parent.get_mut(ra) {
             *p = rb;
         }
     }
-    let first = root(&mut parent, 0);
+    let first = root(&parent, 0);
     for (i, id) in ids.iter().enumerate() {
-        if root(&mut parent, i) != first {
+        if root(&parent, i) != first {
             return Err(AnchorOffsetsError::NotConnected(
                 ids.first().copied().unwrap_or(0),
                 *id,
