@@ -12,10 +12,29 @@
 //! none do not (`tools/util_anchor_corr.py`). Two-way ranges do not use
 //! these states.
 //!
+//! # Without a lasting part
+//!
+//! With `tdoa_anchor_highpass_s` = `T` above 0, each anchor's part is the
+//! Gauss-Markov state `x` less its own running mean `m` over `T` (`ṁ = (x -
+//! m) / T`): `β = x - m` has no power at zero frequency, so it explains an
+//! anchor's shared error over fractions of a second and leaves what lasts
+//! (a pair's bias along its geometry, the site calibration's business) to
+//! be weighted as every other difference error. A plain Gauss-Markov state
+//! also carries the lasting part, and so weights the differences over the
+//! long run by the anchors' structure; on flights whose anchors read off
+//! by tenths of a metre for the whole flight that moves the filter's mean
+//! position away from the fixes' (docs/REAL_FLIGHTS.md). Per anchor the
+//! pair `(x, m)` moves by the exact transition of `ẋ = -x / τ`, `ṁ = (x -
+//! m) / T` over each step; its stationary covariance `S` (`var x = σ²`,
+//! `cov(x, m) = var m = σ² τ / (τ + T)`, so `var β = σ² T / (τ + T)`) is a
+//! new anchor's prior, and the process noise `S - M S Mᵀ` keeps it
+//! stationary. With `T` = 0, `m` stays zero and `β = x`.
+//!
 //! The augmented covariance is kept in blocks (the 15 x 15 core, the
 //! 15 x K cross-covariance with the anchors' errors, their K x K block), so
 //! the core's structured propagation stays as it is and the anchors cost a
-//! 15 x K product per step. Anchors are told apart by their positions
+//! 15 x K product per step; the anchors' transition is applied pair by
+//! pair, never as a K x K product. Anchors are told apart by their positions
 //! (bit-exact); `ANCHOR_SLOTS` of them hold a state at a time, and an
 //! anchor heard when all are taken replaces the one heard least recently
 //! (its state starts again from the prior).
@@ -26,13 +45,16 @@ use crate::eskf::{StateVector, N_STATES};
 
 /// Number of anchors that hold a state at a time.
 pub const ANCHOR_SLOTS: usize = 8;
+/// Number of error states: per anchor slot `x` (index `i`), then its mean
+/// `m` (index `i + ANCHOR_SLOTS`).
+pub(crate) const ERROR_STATES: usize = 2 * ANCHOR_SLOTS;
 
 /// The anchors' errors.
-pub(crate) type ErrorVector = SVector<f64, ANCHOR_SLOTS>;
+pub(crate) type ErrorVector = SVector<f64, ERROR_STATES>;
 /// Cross-covariance of the 15 error states with the anchors' errors.
-pub(crate) type CrossCov = SMatrix<f64, N_STATES, ANCHOR_SLOTS>;
+pub(crate) type CrossCov = SMatrix<f64, N_STATES, ERROR_STATES>;
 /// Covariance of the anchors' errors.
-pub(crate) type ErrorCov = SMatrix<f64, ANCHOR_SLOTS, ANCHOR_SLOTS>;
+pub(crate) type ErrorCov = SMatrix<f64, ERROR_STATES, ERROR_STATES>;
 
 /// The anchors' error states and their covariance blocks.
 #[derive(Debug, Clone, PartialEq)]
@@ -41,6 +63,8 @@ pub(crate) struct AnchorErrors {
     sigma_m: f64,
     /// Correlation time, s.
     tau_s: f64,
+    /// Time constant of the running mean removed, s (0: none).
+    hp_s: f64,
     /// Bit patterns of each slot's anchor position; `None`: free.
     keys: [Option<[u64; 3]>; ANCHOR_SLOTS],
     /// When each slot's anchor was last measured (filter time, s).
@@ -54,11 +78,13 @@ pub(crate) struct AnchorErrors {
 }
 
 impl AnchorErrors {
-    /// No anchor seen yet; `sigma_m` 0 turns the states off.
-    pub(crate) fn new(sigma_m: f64, tau_s: f64) -> Self {
+    /// No anchor seen yet; `sigma_m` 0 turns the states off, `hp_s` 0
+    /// keeps the lasting part.
+    pub(crate) fn new(sigma_m: f64, tau_s: f64, hp_s: f64) -> Self {
         Self {
             sigma_m,
             tau_s,
+            hp_s,
             keys: [None; ANCHOR_SLOTS],
             last_used_s: [f64::NEG_INFINITY; ANCHOR_SLOTS],
             b: ErrorVector::zeros(),
@@ -70,6 +96,17 @@ impl AnchorErrors {
     /// Whether the states are in use.
     pub(crate) fn enabled(&self) -> bool {
         self.sigma_m > 0.0
+    }
+
+    /// The stationary `(var x, cov(x, m) = var m)` of a slot's pair.
+    fn stationary(&self) -> (f64, f64) {
+        let v = self.sigma_m * self.sigma_m;
+        let c = if self.hp_s > 0.0 {
+            v * self.tau_s / (self.tau_s + self.hp_s)
+        } else {
+            0.0
+        };
+        (v, c)
     }
 
     /// The slot of an anchor measured at `now_s`. An anchor not seen
@@ -96,11 +133,18 @@ impl AnchorErrors {
                             ta.total_cmp(&tb)
                         })
                 })?;
-                self.pxb.column_mut(i).fill(0.0);
-                self.pbb.column_mut(i).fill(0.0);
-                self.pbb.row_mut(i).fill(0.0);
-                self.pbb[(i, i)] = self.sigma_m * self.sigma_m;
-                self.b[i] = 0.0;
+                let j = i + ANCHOR_SLOTS;
+                for k in [i, j] {
+                    self.pxb.column_mut(k).fill(0.0);
+                    self.pbb.column_mut(k).fill(0.0);
+                    self.pbb.row_mut(k).fill(0.0);
+                    self.b[k] = 0.0;
+                }
+                let (v, c) = self.stationary();
+                self.pbb[(i, i)] = v;
+                self.pbb[(i, j)] = c;
+                self.pbb[(j, i)] = c;
+                self.pbb[(j, j)] = c;
                 if let Some(k) = self.keys.get_mut(i) {
                     *k = Some(key);
                 }
@@ -113,9 +157,10 @@ impl AnchorErrors {
         Some(i)
     }
 
-    /// Propagates over `dt_s`: `P_xb <- Φ P_xb φ`, `P_bb <- φ P_bb φ + (1 -
-    /// φ^2) sigma^2` on the used slots, `b <- φ b`, with `φ = exp(-dt /
-    /// tau)` and `Φ P_xb = P_xb + dt F P_xb` (`f_times` applies `F`).
+    /// Propagates over `dt_s`: `P_xb <- Φ P_xb Mᵀ`, `P_bb <- M P_bb Mᵀ + Q`
+    /// on the used slots, `b <- M b`, with `M` each slot's transition of
+    /// `(x, m)` (`x` decays by `φ = exp(-dt / tau)`; module doc) and `Φ P_xb
+    /// = P_xb + dt F P_xb` (`f_times` applies `F`).
     pub(crate) fn predict(&mut self, dt_s: f64, f_times: impl Fn(&CrossCov) -> CrossCov) {
         if !self.enabled() {
             return;
@@ -125,27 +170,70 @@ impl AnchorErrors {
         } else {
             1.0
         };
+        // m's transition: itself by phi2, from x by c21 (the response of
+        // the running mean to a unit x decaying with tau).
+        let (phi2, c21) = if self.hp_s > 0.0 && self.tau_s > 0.0 {
+            let p2 = (-dt_s / self.hp_s).exp();
+            let r = 1.0 - self.hp_s / self.tau_s;
+            let c21 = if r.abs() > 1e-9 {
+                (phi - p2) / r
+            } else {
+                dt_s / self.hp_s * phi
+            };
+            (p2, c21)
+        } else {
+            (0.0, 0.0)
+        };
         let fp = f_times(&self.pxb);
-        self.pxb = (self.pxb + fp * dt_s) * phi;
-        self.pbb *= phi * phi;
-        let q = (1.0 - phi * phi) * self.sigma_m * self.sigma_m;
+        self.pxb += fp * dt_s;
+        let n = ANCHOR_SLOTS;
+        for i in 0..n {
+            let j = i + n;
+            // m <- c21 x + phi2 m, then x <- phi x: on P_xb's columns,
+            // P_bb's rows and columns, and the estimates.
+            let ci = self.pxb.column(i).clone_owned();
+            let cj = self.pxb.column(j).clone_owned();
+            self.pxb.set_column(j, &(ci * c21 + cj * phi2));
+            self.pxb.set_column(i, &(ci * phi));
+            let ri = self.pbb.row(i).clone_owned();
+            let rj = self.pbb.row(j).clone_owned();
+            self.pbb.set_row(j, &(ri * c21 + rj * phi2));
+            self.pbb.set_row(i, &(ri * phi));
+            let ci = self.pbb.column(i).clone_owned();
+            let cj = self.pbb.column(j).clone_owned();
+            self.pbb.set_column(j, &(ci * c21 + cj * phi2));
+            self.pbb.set_column(i, &(ci * phi));
+            let (bi, bj) = (self.b[i], self.b[j]);
+            self.b[j] = c21 * bi + phi2 * bj;
+            self.b[i] = phi * bi;
+        }
+        // Q = S - M S M^T: a slot's pair at its stationary S stays there.
+        let (v, c) = self.stationary();
+        let q11 = v - phi * phi * v;
+        let q21 = c - phi * (c21 * v + phi2 * c);
+        let q22 = c - (c21 * c21 * v + 2.0 * c21 * phi2 * c + phi2 * phi2 * c);
         for (i, k) in self.keys.iter().enumerate() {
             if k.is_some() {
-                self.pbb[(i, i)] += q;
+                let j = i + n;
+                self.pbb[(i, i)] += q11;
+                self.pbb[(i, j)] += q21;
+                self.pbb[(j, i)] += q21;
+                self.pbb[(j, j)] += q22;
             }
         }
-        self.b *= phi;
     }
 
-    /// The anchors' part of a difference's row: `+1` at `plus`, `-1` at
-    /// `minus`.
+    /// The anchors' part of a difference's row: `β = x - m` of `plus`
+    /// counted `+1`, of `minus` `-1`.
     pub(crate) fn row(plus: Option<usize>, minus: Option<usize>) -> ErrorVector {
         let mut h = ErrorVector::zeros();
         if let Some(i) = plus {
             h[i] += 1.0;
+            h[i + ANCHOR_SLOTS] -= 1.0;
         }
         if let Some(i) = minus {
             h[i] -= 1.0;
+            h[i + ANCHOR_SLOTS] += 1.0;
         }
         h
     }
@@ -192,11 +280,14 @@ impl AnchorErrors {
     /// Each used slot's anchor position, error estimate and sigma.
     pub(crate) fn states(&self) -> impl Iterator<Item = ([f64; 3], f64, f64)> + '_ {
         self.keys.iter().enumerate().filter_map(|(i, k)| {
+            let j = i + ANCHOR_SLOTS;
             k.map(|bits| {
                 (
                     bits.map(f64::from_bits),
-                    self.b[i],
-                    self.pbb[(i, i)].max(0.0).sqrt(),
+                    self.b[i] - self.b[j],
+                    (self.pbb[(i, i)] - 2.0 * self.pbb[(i, j)] + self.pbb[(j, j)])
+                        .max(0.0)
+                        .sqrt(),
                 )
             })
         })
@@ -204,6 +295,6 @@ impl AnchorErrors {
 
     /// Forgets every anchor (after a reset of the filter).
     pub(crate) fn clear(&mut self) {
-        *self = Self::new(self.sigma_m, self.tau_s);
+        *self = Self::new(self.sigma_m, self.tau_s, self.hp_s);
     }
 }

@@ -132,6 +132,13 @@ pub struct EskfConfig {
     pub tdoa_anchor_sigma_m: f64,
     /// Correlation time of those states, s. Default 0.2.
     pub tdoa_anchor_corr_time_s: f64,
+    /// Time over which each anchor's part averages out, s: the state is
+    /// the Gauss-Markov error less its own running mean over this time, so
+    /// it carries an anchor's shared error over fractions of a second and
+    /// nothing that lasts (a second state per anchor; see
+    /// `anchor_error`'s module doc). Default 0: the plain Gauss-Markov
+    /// state, lasting part included.
+    pub tdoa_anchor_highpass_s: f64,
     /// Constant factor on the gain's TDOA `R` (on top of the rate-adaptive
     /// one), for correlation between pairs sharing an anchor. Default 1.
     pub tdoa_r_inflation: f64,
@@ -239,6 +246,7 @@ impl Default for EskfConfig {
             range_corr_time_s: 0.25,
             tdoa_anchor_sigma_m: 0.0,
             tdoa_anchor_corr_time_s: 0.2,
+            tdoa_anchor_highpass_s: 0.0,
             tdoa_r_inflation: 1.0,
             min_interval_per_pair_s: 0.0,
             limit_mode: LimitMode::ScaleInnovation,
@@ -369,6 +377,12 @@ impl EskfConfig {
             self.tdoa_anchor_corr_time_s,
             "> 0",
             pos,
+        )?;
+        check(
+            "tdoa_anchor_highpass_s",
+            self.tdoa_anchor_highpass_s,
+            ">= 0",
+            non_neg,
         )?;
         check("tdoa_r_inflation", self.tdoa_r_inflation, ">= 1", |v| {
             v >= 1.0

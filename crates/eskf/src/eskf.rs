@@ -739,7 +739,11 @@ impl Eskf {
             q_vel_extra: 0.0,
             multirotor: None,
             tdoa_sigma_scale: 1.0,
-            anchors: AnchorErrors::new(config.tdoa_anchor_sigma_m, config.tdoa_anchor_corr_time_s),
+            anchors: AnchorErrors::new(
+                config.tdoa_anchor_sigma_m,
+                config.tdoa_anchor_corr_time_s,
+                config.tdoa_anchor_highpass_s,
+            ),
             config,
         })
     }
