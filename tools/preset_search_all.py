@@ -48,9 +48,8 @@ import random
 import statistics as st
 import subprocess
 import sys
-import tempfile
 
-from preset_search import INSUWB, PRESET, set_key
+from preset_search import INSUWB, PRESET, write_config
 
 # The binary (env INSUWB overrides, e.g. a copy while the tree rebuilds).
 INSUWB = os.environ.get("INSUWB", INSUWB)
@@ -86,13 +85,7 @@ def ratios(flights):
 
 def evaluate(manifest, flow, over):
     """Each figure's ratio per flight, or None when a command failed."""
-    text = open(PRESET).read()
-    for k, v in over.items():
-        section, key = k.rsplit(".", 1)
-        text = set_key(text, section, key, v)
-    with tempfile.NamedTemporaryFile("w", suffix=".toml", delete=False) as f:
-        f.write(text)
-        path = f.name
+    path = write_config(open(PRESET).read(), over)
     common = ["--config", path, "--json", "--filters", "iakf_tdoa"]
     try:
         unc = run(["eval", "--flights", manifest] + common)
