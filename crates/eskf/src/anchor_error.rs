@@ -112,7 +112,8 @@ impl AnchorErrors {
     /// The slot of an anchor measured at `now_s`. An anchor not seen
     /// before takes a free slot, else the least recently measured one's
     /// (never one measured at `now_s`: then `None`, no state this time),
-    /// with a zero error of the stationary variance, uncorrelated.
+    /// with a zero error at its stationary covariance, uncorrelated with
+    /// every other state.
     pub(crate) fn slot(&mut self, anchor_m: &[f64; 3], now_s: f64) -> Option<usize> {
         if !self.enabled() {
             return None;
