@@ -188,25 +188,23 @@ impl AnchorErrors {
         let fp = f_times(&self.pxb);
         self.pxb += fp * dt_s;
         let n = ANCHOR_SLOTS;
-        for i in 0..n {
-            let j = i + n;
-            // m <- c21 x + phi2 m, then x <- phi x: on P_xb's columns,
-            // P_bb's rows and columns, and the estimates.
-            let ci = self.pxb.column(i).clone_owned();
-            let cj = self.pxb.column(j).clone_owned();
-            self.pxb.set_column(j, &(ci * c21 + cj * phi2));
-            self.pxb.set_column(i, &(ci * phi));
-            let ri = self.pbb.row(i).clone_owned();
-            let rj = self.pbb.row(j).clone_owned();
-            self.pbb.set_row(j, &(ri * c21 + rj * phi2));
-            self.pbb.set_row(i, &(ri * phi));
-            let ci = self.pbb.column(i).clone_owned();
-            let cj = self.pbb.column(j).clone_owned();
-            self.pbb.set_column(j, &(ci * c21 + cj * phi2));
-            self.pbb.set_column(i, &(ci * phi));
-            let (bi, bj) = (self.b[i], self.b[j]);
-            self.b[j] = c21 * bi + phi2 * bj;
-            self.b[i] = phi * bi;
+        if self.hp_s > 0.0 {
+            // Each slot's (x, m) by M, as columns of P_xb, P_bb's rows
+            // (columns of its transpose) and columns, and the estimates.
+            let t = (phi, c21, phi2);
+            mix_columns(&mut self.pxb, t);
+            self.pbb.transpose_mut();
+            mix_columns(&mut self.pbb, t);
+            self.pbb.transpose_mut();
+            mix_columns(&mut self.pbb, t);
+            let mut b = self.b.transpose();
+            mix_columns(&mut b, t);
+            self.b = b.transpose();
+        } else {
+            // m stays zero: x decays alone.
+            self.pxb *= phi;
+            self.pbb *= phi * phi;
+            self.b *= phi;
         }
         // Q = S - M S M^T: a slot's pair at its stationary S stays there.
         let (v, c) = self.stationary();
@@ -297,5 +295,20 @@ impl AnchorErrors {
     /// Forgets every anchor (after a reset of the filter).
     pub(crate) fn clear(&mut self) {
         *self = Self::new(self.sigma_m, self.tau_s, self.hp_s);
+    }
+}
+
+/// Each slot's pair of columns `(x, m)` of `a` by the transition `(φ, c21,
+/// φ2)`: `m <- c21 x + φ2 m`, then `x <- φ x`.
+fn mix_columns<const R: usize>(
+    a: &mut SMatrix<f64, R, ERROR_STATES>,
+    (phi, c21, phi2): (f64, f64, f64),
+) {
+    for i in 0..ANCHOR_SLOTS {
+        let j = i + ANCHOR_SLOTS;
+        let ci = a.column(i).clone_owned();
+        let cj = a.column(j).clone_owned();
+        a.set_column(j, &(ci * c21 + cj * phi2));
+        a.set_column(i, &(ci * phi));
     }
 }
