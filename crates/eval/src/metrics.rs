@@ -16,6 +16,8 @@ pub struct Estimate {
     pub t_ns: u64,
     /// East, north position (m).
     pub pos_en_m: [f64; 2],
+    /// Up (m): the solution's height, on the truth's vertical datum.
+    pub up_m: f64,
     /// East, north velocity (m/s), when the solution has one.
     pub vel_en_mps: Option<[f64; 2]>,
     /// Covariance of `[pe, pn, ve, vn]`, when the solution has one (for NEES).

@@ -975,6 +975,7 @@ mod tests {
                         Estimate {
                             t_ns,
                             pos_en_m: [t + de, 0.5 * t + dn],
+                            up_m: 0.0,
                             vel_en_mps: None,
                             cov4: None,
                             yaw_rad: None,
@@ -1004,6 +1005,7 @@ mod tests {
             Estimate {
                 t_ns: 1_155_000_000,
                 pos_en_m: [0.155 + 0.3, 0.0775 - 0.4],
+                up_m: 0.0,
                 vel_en_mps: None,
                 cov4: None,
                 yaw_rad: None,
@@ -1012,6 +1014,7 @@ mod tests {
             Estimate {
                 t_ns: 5_000_000_000,
                 pos_en_m: [0.0, 0.0],
+                up_m: 0.0,
                 vel_en_mps: None,
                 cov4: None,
                 yaw_rad: None,
@@ -1020,6 +1023,7 @@ mod tests {
             Estimate {
                 t_ns: 1_500_000_000,
                 pos_en_m: [f64::NAN, 0.0],
+                up_m: 0.0,
                 vel_en_mps: None,
                 cov4: None,
                 yaw_rad: None,
@@ -1027,6 +1031,7 @@ mod tests {
             Estimate {
                 t_ns: 2_000_000_000,
                 pos_en_m: [1.0 - 0.6, 0.5 + 0.8],
+                up_m: 0.0,
                 vel_en_mps: None,
                 cov4: None,
                 yaw_rad: None,

@@ -269,6 +269,7 @@ fn fix_estimate(f: &UwbFix) -> Estimate {
     Estimate {
         t_ns: f.header.meas_time_ns,
         pos_en_m: [f.pos_m[0], f.pos_m[1]],
+        up_m: f.pos_m[2],
         vel_en_mps: None,
         cov4: None,
         yaw_rad: None,
@@ -297,6 +298,7 @@ fn sample_nav(nav: &[NavState], epochs: &[u64]) -> Vec<Estimate> {
             Some(Estimate {
                 t_ns: t,
                 pos_en_m: [p(0), p(1)],
+                up_m: p(2),
                 vel_en_mps: None,
                 cov4: None,
                 yaw_rad: None,
@@ -385,6 +387,7 @@ pub fn interpolate(track: &[Estimate], epochs: &[u64], max_gap_ns: u64) -> Vec<E
                 lerp(a.pos_en_m[0], b.pos_en_m[0]),
                 lerp(a.pos_en_m[1], b.pos_en_m[1]),
             ],
+            up_m: lerp(a.up_m, b.up_m),
             vel_en_mps,
             cov4,
             yaw_rad,
@@ -432,6 +435,7 @@ pub fn fused_estimate(f: &FusedState) -> Estimate {
     Estimate {
         t_ns: f.header.meas_time_ns,
         pos_en_m: [f.pos_m[0], f.pos_m[1]],
+        up_m: f.pos_m[2],
         vel_en_mps: Some([f.vel_mps[0], f.vel_mps[1]]),
         cov4: Some(cov4),
         yaw_rad: Some(f.yaw_rad),
@@ -472,6 +476,7 @@ mod tests {
         Estimate {
             t_ns,
             pos_en_m: [e, -e],
+            up_m: 0.0,
             vel_en_mps: Some([2.0 * e, 0.0]),
             cov4: Some([[cov; 4]; 4]),
             yaw_rad: None,
@@ -498,6 +503,7 @@ mod tests {
         let a = Estimate {
             t_ns: 0,
             pos_en_m: [0.0, 0.0],
+            up_m: 0.0,
             vel_en_mps: None,
             cov4: None,
             yaw_rad: None,

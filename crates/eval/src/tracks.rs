@@ -4,7 +4,8 @@
 //!
 //! Columns: `solution, t_ns, east_m, north_m, truth_east_m, truth_north_m,
 //! err_east_m, err_north_m, in_segment, vel_east_mps, vel_north_mps,
-//! truth_vel_east_mps, truth_vel_north_mps, yaw_rad, truth_yaw_rad`. Truth
+//! truth_vel_east_mps, truth_vel_north_mps, yaw_rad, truth_yaw_rad, up_m,
+//! truth_up_m`. Truth
 //! and error are empty where the truth does not cover the epoch; `in_segment`
 //! is 1 for the epochs the metrics count (the flight segment), else 0. A
 //! solution's velocity and heading are empty where it has none (the fix, the
@@ -33,7 +34,8 @@ pub enum TracksError {
 /// The CSV header line.
 pub const HEADER: &str =
     "solution,t_ns,east_m,north_m,truth_east_m,truth_north_m,err_east_m,err_north_m,in_segment,\
-vel_east_mps,vel_north_mps,truth_vel_east_mps,truth_vel_north_mps,yaw_rad,truth_yaw_rad";
+vel_east_mps,vel_north_mps,truth_vel_east_mps,truth_vel_north_mps,yaw_rad,truth_yaw_rad,up_m,\
+truth_up_m";
 
 /// The CSV text of every solution's track in `rep` against `data`'s truth.
 #[must_use]
@@ -82,6 +84,10 @@ pub fn to_csv(rep: &EvalReport, data: &Dataset) -> String {
             if let Some(y) = truth.yaw_at(e.t_ns) {
                 let _ = write!(out, "{y:.6}");
             }
+            let _ = write!(out, ",{:.6},", e.up_m);
+            if let Some((p, _)) = at {
+                let _ = write!(out, "{:.6}", p[2]);
+            }
             out.push('\n');
         }
     }
@@ -129,6 +135,7 @@ mod tests {
         Estimate {
             t_ns,
             pos_en_m: [e, 2.5],
+            up_m: 1.2,
             vel_en_mps: None,
             cov4: None,
             yaw_rad: None,
@@ -181,17 +188,20 @@ mod tests {
         assert_eq!(
             lines[1],
             "uwb,5000000,0.700000,2.500000,0.500000,2.000000,0.200000,0.500000,1,\
-             0.250000,-0.500000,100.000000,0.000000,1.500000,1.570796"
+             0.250000,-0.500000,100.000000,0.000000,1.500000,1.570796,1.200000,1.000000"
         );
         // Neither velocity nor heading: those columns are empty.
         assert!(
-            lines[2].ends_with(",0,,,100.000000,0.000000,,1.570796"),
+            lines[2].ends_with(",0,,,100.000000,0.000000,,1.570796,1.200000,1.000000"),
             "{}",
             lines[2]
         );
         assert!(lines[2].starts_with("uwb,8000000,0.900000,2.500000,0.800000,"));
         // No truth after the last sample: the truth and error columns are empty.
-        assert_eq!(lines[3], "uwb,20000000,3.000000,2.500000,,,,,0,,,,,,");
+        assert_eq!(
+            lines[3],
+            "uwb,20000000,3.000000,2.500000,,,,,0,,,,,,,1.200000,"
+        );
         assert_eq!(lines.len(), 4);
     }
 

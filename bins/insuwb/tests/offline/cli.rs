@@ -348,13 +348,14 @@ fn tracks_rmse(csv: &str, solution: &str) -> (f64, usize) {
         lines.next(),
         Some(
             "solution,t_ns,east_m,north_m,truth_east_m,truth_north_m,err_east_m,err_north_m,in_segment,\
-             vel_east_mps,vel_north_mps,truth_vel_east_mps,truth_vel_north_mps,yaw_rad,truth_yaw_rad"
+             vel_east_mps,vel_north_mps,truth_vel_east_mps,truth_vel_north_mps,yaw_rad,truth_yaw_rad,\
+             up_m,truth_up_m"
         )
     );
     let (mut sum, mut n) = (0.0, 0usize);
     for l in lines {
         let f: Vec<&str> = l.split(',').collect();
-        assert_eq!(f.len(), 15, "{l}");
+        assert_eq!(f.len(), 17, "{l}");
         // The filters carry a velocity and a heading, the fix and the INS
         // track none.
         let plain = f[0] == "uwb" || f[0] == "ins";
