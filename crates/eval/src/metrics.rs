@@ -339,6 +339,7 @@ mod tests {
         .map(|(t_ns, p)| Estimate {
             t_ns,
             pos_en_m: p,
+            up_m: 0.0,
             vel_en_mps: None,
             cov4: None,
             yaw_rad: None,
@@ -366,6 +367,7 @@ mod tests {
             .map(|&t_ns| Estimate {
                 t_ns,
                 pos_en_m: [0.0, 2.0],
+                up_m: 0.0,
                 vel_en_mps: None,
                 cov4: None,
                 yaw_rad: None,
@@ -388,6 +390,7 @@ mod tests {
         let est = [Estimate {
             t_ns: 100_000_000,
             pos_en_m: [0.1 + 0.5, 2.0],
+            up_m: 0.0,
             vel_en_mps: Some([1.0, 0.5]),
             cov4: Some(cov),
             yaw_rad: None,
@@ -405,6 +408,7 @@ mod tests {
         let est = [Estimate {
             t_ns: 0,
             pos_en_m: [f64::NAN, 0.0],
+            up_m: 0.0,
             vel_en_mps: None,
             cov4: None,
             yaw_rad: None,
