@@ -11,7 +11,9 @@ differenced over +-50 ms; one lag for both axes, b per axis). Printed per
 solution: the RMSE as evaluated, the lag (ms, > 0: behind the truth's
 stamps, < 0: ahead), the offset b (east, north, m) and the RMSE left after
 both are removed. With two solutions `uwb` and `iakf_tdoa`, also the tight
-filter's mean position minus the fix's at the same truth times.
+filter's mean position minus the fix's at the same truth times. Where the
+file carries heights (`up_m`, `truth_up_m`), each solution's mean height
+error and its SD about that mean are printed too.
 
 A diagnostic of the data and the filters, not an estimator: the truth is
 used throughout, and no figure found here belongs in a setting.
@@ -26,7 +28,8 @@ import numpy as np
 
 
 def load(path):
-    """Rows per solution in the segment: t_s -> (err_e, err_n, truth_e, truth_n)."""
+    """Rows per solution in the segment: t_ns -> (err_e, err_n, truth_e,
+    truth_n, err_up or NaN where the file has no heights)."""
     rows = {}
     with open(path, newline="") as f:
         for r in csv.DictReader(f):
@@ -37,8 +40,15 @@ def load(path):
                 float(r["err_north_m"]),
                 float(r["truth_east_m"]),
                 float(r["truth_north_m"]),
+                height_error(r),
             )
     return rows
+
+
+def height_error(r):
+    """The row's height minus the truth's, NaN where either is missing."""
+    up, truth = r.get("up_m") or "", r.get("truth_up_m") or ""
+    return float(up) - float(truth) if up and truth else float("nan")
 
 
 def fit(track):
@@ -70,9 +80,12 @@ def main():
         print(path)
         for s, track in sorted(rows.items()):
             r, lag, be, bn, left = fit(track)
+            up = np.array([v[4] for v in track.values()])
+            up = up[np.isfinite(up)]
+            height = f"  height {up.mean():+.3f} m, SD {up.std():.3f} m" if len(up) else ""
             print(
                 f"  {s:10s} rmse {r:.3f} m  lag {lag * 1e3:+5.0f} ms  "
-                f"offset ({be:+.3f}, {bn:+.3f}) m  left {left:.3f} m"
+                f"offset ({be:+.3f}, {bn:+.3f}) m  left {left:.3f} m{height}"
             )
         if "uwb" in rows and "iakf_tdoa" in rows:
             common = sorted(set(rows["uwb"]) & set(rows["iakf_tdoa"]))
