@@ -159,10 +159,14 @@ fn uwb_lost_for_10_s_coasts_degraded_with_growing_covariance_then_recovers() {
 #[test]
 fn imu_frozen_flags_outputs_stale_and_no_valid_pose_rests_on_a_stale_ins() {
     let _lock = lock();
-    let g = Group::new(
+    // The watchdog's timeout at 1.5 s (the robot default is 0.5 s): the
+    // freeze then lasts long enough for a dozen UWB fixes after the stale
+    // timeout, whatever else the machine is doing.
+    let g = Group::with_config(
         "imufrozen",
         "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 4",
-        "iakf",
+        "filter = \"iakf\"\n",
+        "[launch]\nheartbeat_timeout_ms = 1500\n",
     );
     // SIGSTOP: the IMU driver is alive but silent until the launcher's
     // heartbeat watchdog kills and restarts it.
@@ -196,7 +200,7 @@ fn imu_frozen_flags_outputs_stale_and_no_valid_pose_rests_on_a_stale_ins() {
         "valid outputs on an old INS state (seq, age ns): {bad:?}"
     );
     // Meanwhile each UWB fix gave a valid pose on the fix alone (10 Hz
-    // fixes over the freeze less the stale timeout).
+    // fixes over the freeze less the stale timeout: about 12).
     let uwb_only: Vec<&FusedState> = fused
         .iter()
         .filter(|s| flagged(s, FusedState::FLAG_UWB_ONLY))
