@@ -198,9 +198,10 @@ def main():
     for m, row in zip(decoded["/insuwb/body_vel"], vel_rows, strict=True):
         v, s = m.vel_mps, m.sigma_mps
         check(all(close(x, y) for x, y in zip([v.x, v.y, v.z, s.x, s.y, s.z], row[5:11]))
-              and m.source == int(row[11]) and m.sample.seq == int(row[1])
+              and m.source == int(row[11]) and m.range_mm == int(row[12])
+              and m.sample.seq == int(row[1])
               and stamp_ns(m.header.stamp) == int(row[3]) and m.header.frame_id == "base_link",
-              f"rosbags body_vel {v} {s} != log {row[5:12]}")
+              f"rosbags body_vel {v} {s} {m.range_mm} != log {row[5:13]}")
     print(f"rosbags: opened as a bag, {len(types)} types registered from the schemas, "
           f"decoded {len(decoded['/insuwb/odom'])} odometry, {len(decoded['/insuwb/imu'])} imu, "
           f"{len(decoded['/insuwb/uwb_fix'])} insuwb_msgs/msg/UwbFix, "

@@ -24,7 +24,7 @@ pub enum LogCmd {
         /// CSV instead of debug text: topic, seq, generation, meas_time_ns,
         /// pub_time_ns, then the sample's fields (diag: nis, fading, dim, then
         /// dim each of innovation, innovation variance, outlier weight, R in use;
-        /// body_vel: velocity x, y, z, sigma x, y, z, source).
+        /// body_vel: velocity x, y, z, sigma x, y, z, source, range mm).
         #[arg(long)]
         csv: bool,
     },
@@ -208,7 +208,13 @@ fn csv_line(rec: &Record) -> String {
             s.received,
             s.published
         ),
-        Record::BodyVel(s) => format!("{head},{},{},{}", f(&s.vel_mps), f(&s.sigma_mps), s.source),
+        Record::BodyVel(s) => format!(
+            "{head},{},{},{},{}",
+            f(&s.vel_mps),
+            f(&s.sigma_mps),
+            s.source,
+            s.range_mm
+        ),
     }
 }
 

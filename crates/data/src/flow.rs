@@ -1,6 +1,7 @@
 //! The optical-flow deck's measurement model: pixel flow, the range
 //! finder's distance and the body rates give the body-frame velocity
-//! ([`BodyVelocity`], source flow).
+//! ([`BodyVelocity`], source flow), which carries that distance
+//! (`range_mm`) for a filter's height.
 //!
 //! The model is the Crazyflie firmware's (bitcraze/crazyflie-firmware,
 //! `src/modules/src/kalman_core/mm_flow.c` and
@@ -178,6 +179,13 @@ impl FlowDeck {
     }
 }
 
+/// A range in whole millimetres, as the sensor reports it (`estTOF`'s
+/// `zrange` is an integer of mm); the flow's range bounds keep it far
+/// inside `u32`.
+fn range_mm(range_m: f64) -> u32 {
+    (range_m * 1000.0).round().clamp(0.0, f64::from(u32::MAX)) as u32
+}
+
 /// Flow records turned into velocities, and those refused by reason.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct FlowStats {
@@ -263,7 +271,7 @@ pub fn flow_velocities(
             vel_mps: [vx, vy, 0.0],
             sigma_mps: [sigma, sigma, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
-            reserved: 0,
+            range_mm: range_mm(r.range_m),
         });
         stats.velocities += 1;
     }
@@ -321,7 +329,7 @@ mod tests {
             },
             RangeRecord {
                 t_ns: 200 * ms,
-                range_m: 1.0,
+                range_m: 1.234,
             },
         ];
         let rec = |t: u64| FlowRecord {
@@ -357,6 +365,11 @@ mod tests {
         assert!((v[0].vel_mps[1] - 3.0 * 0.71674 / 350.0 / 0.01).abs() < 1e-12);
         assert_eq!(v[0].header.meas_time_ns, 35 * ms);
         assert_eq!(v[1].header.meas_time_ns, 45 * ms);
+        // Each carries the range that scaled it, in mm.
+        assert_eq!(
+            v.iter().map(|b| b.range_mm).collect::<Vec<_>>(),
+            [1000, 1000, 1234]
+        );
         assert!(v
             .iter()
             .all(|b| insuwb_msg::check::velocity_values(b).is_ok()));

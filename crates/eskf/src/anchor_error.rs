@@ -10,7 +10,7 @@
 //! sigma of `tdoa_anchor_sigma_m`. On the UTIL flights two differences with
 //! one anchor in common co-vary by a third of their variance and two with
 //! none do not (`tools/util_anchor_corr.py`). Two-way ranges do not use
-//! these states.
+//! the anchors' states (the radio's height below enters them too).
 //!
 //! # Without a lasting part
 //!
@@ -30,6 +30,18 @@
 //! new anchor's prior, and the process noise `S - M S Mᵀ` keeps it
 //! stationary. With `T` = 0, `m` stays zero and `β = x`.
 //!
+//! # The radio's height
+//!
+//! One more state in the block, off until [`AnchorErrors::enable_height`]
+//! (a filter that measures its height another way, a range finder, turns
+//! it on): the height at which the radio places the tag above the
+//! vehicle's, a first-order Gauss-Markov state, entering every difference
+//! along its vertical gradient. A range bias proportional to the sine of
+//! an anchor's elevation (an antenna's pattern, the anchors' survey) is a
+//! vertical shift of the radio's position, exactly, so with the height
+//! known the radio's own height error goes here instead of into the
+//! horizontal.
+//!
 //! The augmented covariance is kept in blocks (the 15 x 15 core, the
 //! 15 x K cross-covariance with the anchors' errors, their K x K block), so
 //! the core's structured propagation stays as it is and the anchors cost a
@@ -47,7 +59,11 @@ use crate::eskf::{StateVector, N_STATES};
 pub const ANCHOR_SLOTS: usize = 8;
 /// Number of error states: per anchor slot `x` (index `i`), then its mean
 /// `m` (index `i + ANCHOR_SLOTS`).
-pub(crate) const ERROR_STATES: usize = 2 * ANCHOR_SLOTS;
+pub(crate) const ERROR_STATES: usize = 2 * ANCHOR_SLOTS + 1;
+/// The anchors' states, `x` then `m`.
+const ANCHOR_STATES: usize = 2 * ANCHOR_SLOTS;
+/// Index of the radio's height error.
+pub(crate) const HEIGHT: usize = ANCHOR_STATES;
 
 /// The anchors' errors.
 pub(crate) type ErrorVector = SVector<f64, ERROR_STATES>;
@@ -65,6 +81,9 @@ pub(crate) struct AnchorErrors {
     tau_s: f64,
     /// Time constant of the running mean removed, s (0: none).
     hp_s: f64,
+    /// The radio's height state: stationary sigma (m) and correlation
+    /// time (s); sigma 0: off.
+    height: (f64, f64),
     /// Bit patterns of each slot's anchor position; `None`: free.
     keys: [Option<[u64; 3]>; ANCHOR_SLOTS],
     /// When each slot's anchor was last measured (filter time, s).
@@ -85,6 +104,7 @@ impl AnchorErrors {
             sigma_m,
             tau_s,
             hp_s,
+            height: (0.0, 0.0),
             keys: [None; ANCHOR_SLOTS],
             last_used_s: [f64::NEG_INFINITY; ANCHOR_SLOTS],
             b: ErrorVector::zeros(),
@@ -95,7 +115,33 @@ impl AnchorErrors {
 
     /// Whether the states are in use.
     pub(crate) fn enabled(&self) -> bool {
-        self.sigma_m > 0.0
+        self.sigma_m > 0.0 || self.height_on()
+    }
+
+    /// Whether the radio's height state is in use.
+    pub(crate) fn height_on(&self) -> bool {
+        self.height.0 > 0.0
+    }
+
+    /// Turns the radio's height state on, at zero with its stationary
+    /// sigma `sigma_m` and correlation time `corr_time_s`, uncorrelated
+    /// with every other state; nothing when it is on already.
+    pub(crate) fn enable_height(&mut self, sigma_m: f64, corr_time_s: f64) {
+        if self.height_on() {
+            return;
+        }
+        self.height = (sigma_m, corr_time_s);
+        self.pxb.column_mut(HEIGHT).fill(0.0);
+        self.pbb.column_mut(HEIGHT).fill(0.0);
+        self.pbb.row_mut(HEIGHT).fill(0.0);
+        self.b[HEIGHT] = 0.0;
+        self.pbb[(HEIGHT, HEIGHT)] = sigma_m * sigma_m;
+    }
+
+    /// The radio's height error and its sigma, m, while the state is on.
+    pub(crate) fn height_error(&self) -> Option<(f64, f64)> {
+        self.height_on()
+            .then(|| (self.b[HEIGHT], self.pbb[(HEIGHT, HEIGHT)].max(0.0).sqrt()))
     }
 
     /// The stationary `(var x, cov(x, m) = var m)` of a slot's pair.
@@ -115,7 +161,7 @@ impl AnchorErrors {
     /// with a zero error at its stationary covariance, uncorrelated with
     /// every other state.
     pub(crate) fn slot(&mut self, anchor_m: &[f64; 3], now_s: f64) -> Option<usize> {
-        if !self.enabled() {
+        if self.sigma_m <= 0.0 {
             return None;
         }
         let key = anchor_m.map(f64::to_bits);
@@ -202,9 +248,23 @@ impl AnchorErrors {
             self.b = b.transpose();
         } else {
             // m stays zero: x decays alone.
-            self.pxb *= phi;
-            self.pbb *= phi * phi;
-            self.b *= phi;
+            self.pxb
+                .fixed_columns_mut::<ANCHOR_STATES>(0)
+                .scale_mut(phi);
+            self.pbb
+                .fixed_columns_mut::<ANCHOR_STATES>(0)
+                .scale_mut(phi);
+            self.pbb.fixed_rows_mut::<ANCHOR_STATES>(0).scale_mut(phi);
+            self.b.fixed_rows_mut::<ANCHOR_STATES>(0).scale_mut(phi);
+        }
+        let (hs, ht) = self.height;
+        if hs > 0.0 {
+            let ph = if ht > 0.0 { (-dt_s / ht).exp() } else { 1.0 };
+            self.pxb.column_mut(HEIGHT).scale_mut(ph);
+            self.pbb.column_mut(HEIGHT).scale_mut(ph);
+            self.pbb.row_mut(HEIGHT).scale_mut(ph);
+            self.b[HEIGHT] *= ph;
+            self.pbb[(HEIGHT, HEIGHT)] += hs * hs * (1.0 - ph * ph);
         }
         // Q = S - M S M^T: a slot's pair at its stationary S stays there.
         let (v, c) = self.stationary();
@@ -295,6 +355,7 @@ impl AnchorErrors {
     /// Forgets every anchor (after a reset of the filter).
     pub(crate) fn clear(&mut self) {
         *self = Self::new(self.sigma_m, self.tau_s, self.hp_s);
+        // The radio's height state, too: the next height turns it on again.
     }
 }
 

@@ -5,7 +5,7 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
-use crate::anchor_error::{AnchorErrors, ErrorVector};
+use crate::anchor_error::{self, AnchorErrors, ErrorVector};
 use crate::config::{EskfConfig, EskfConfigError};
 use crate::math::{checked_rotation, finite, skew, InputFault};
 use insuwb_filter::LimitMode;
@@ -903,6 +903,29 @@ impl Eskf {
         Ok(())
     }
 
+    /// Turns on the radio's height state (`crate::anchor_error`, "The
+    /// radio's height"): the height at which the UWB places the tag above
+    /// the vehicle's, a Gauss-Markov state of stationary sigma `sigma_m`
+    /// and correlation time `corr_time_s`, starting at zero; for a filter
+    /// that measures its height another way (a range finder), so that the
+    /// radio's height error is not read as the vehicle's. Nothing when it
+    /// is on already; `false`, the filter unchanged, for values that are
+    /// not finite and positive. A reset ([`Eskf::reset`]) turns it off.
+    pub fn enable_radio_height(&mut self, sigma_m: f64, corr_time_s: f64) -> bool {
+        if !(sigma_m.is_finite() && sigma_m > 0.0 && corr_time_s.is_finite() && corr_time_s > 0.0) {
+            return false;
+        }
+        self.anchors.enable_height(sigma_m, corr_time_s);
+        true
+    }
+
+    /// The radio's height error and its sigma, m, while that state is on
+    /// ([`Eskf::enable_radio_height`]).
+    #[must_use]
+    pub fn radio_height_error(&self) -> Option<(f64, f64)> {
+        self.anchors.height_error()
+    }
+
     /// Switches the error dynamics to the multirotor model of
     /// `insuwb_nav::vehicle` (thrust along body z, linear drag
     /// `drag_per_s` in body x/y), as the INS integrates it: the velocity
@@ -1053,10 +1076,14 @@ impl Eskf {
         finite("diff_m", &[diff_m])?;
         let model = tdoa_model(p_ins_m, quat, lever_arm_body_m, anchor_a_m, anchor_b_m)?;
         let t = self.time_s;
-        let hb = AnchorErrors::row(
+        let mut hb = AnchorErrors::row(
             self.anchors.slot(&anchor_b_m, t),
             self.anchors.slot(&anchor_a_m, t),
         );
+        if self.anchors.height_on() {
+            // The radio places the tag at its height plus this state.
+            hb[anchor_error::HEIGHT] = -model.h[IDX_POS + 2];
+        }
         Ok(self.update_uwb(
             &model,
             &hb,
@@ -1086,9 +1113,13 @@ impl Eskf {
     ) -> Result<TdoaUpdateReport, TdoaUpdateError> {
         finite("range_m", &[range_m])?;
         let model = range_model(p_ins_m, quat, lever_arm_body_m, anchor_m)?;
+        let mut hb = ErrorVector::zeros();
+        if self.anchors.height_on() {
+            hb[anchor_error::HEIGHT] = -model.h[IDX_POS + 2];
+        }
         Ok(self.update_uwb(
             &model,
-            &ErrorVector::zeros(),
+            &hb,
             range_m,
             pair_key(&anchor_m, &anchor_m),
             UwbNoise::Range,

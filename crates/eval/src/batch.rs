@@ -886,6 +886,7 @@ mod tests {
             range_east: [-rmse, rmse],
             range_north: [-rmse, rmse],
             max_dist: 2.0 * rmse,
+            rmse_up: 0.0,
             nees_mean: nees,
             nis_mean: None,
             epochs: 10,

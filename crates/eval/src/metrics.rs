@@ -64,6 +64,8 @@ pub struct Metrics {
     pub range_north: [f64; 2],
     /// Largest horizontal distance error.
     pub max_dist: f64,
+    /// RMS of the height error (up), over the same epochs.
+    pub rmse_up: f64,
     /// Mean NEES over `[pe, pn, ve, vn]`, where the solution has a covariance.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub nees_mean: Option<f64>,
@@ -217,7 +219,7 @@ pub fn compute(
     nis: &[f64],
 ) -> Result<Metrics, MetricsError> {
     let mut n = 0usize;
-    let (mut se, mut sn) = (0.0, 0.0);
+    let (mut se, mut sn, mut su) = (0.0, 0.0, 0.0);
     let mut re = [f64::INFINITY, f64::NEG_INFINITY];
     let mut rn = [f64::INFINITY, f64::NEG_INFINITY];
     let mut max_dist: f64 = 0.0;
@@ -228,7 +230,7 @@ pub fn compute(
                 continue;
             }
         }
-        if !e.pos_en_m.iter().all(|v| v.is_finite()) {
+        if !(e.pos_en_m.iter().all(|v| v.is_finite()) && e.up_m.is_finite()) {
             return Err(MetricsError::NonFinite { t_ns: e.t_ns });
         }
         let Some((tp, tv)) = truth.at(e.t_ns) else {
@@ -236,9 +238,11 @@ pub fn compute(
         };
         let ex = e.pos_en_m[0] - tp[0];
         let ey = e.pos_en_m[1] - tp[1];
+        let eu = e.up_m - tp[2];
         n += 1;
         se += ex * ex;
         sn += ey * ey;
+        su += eu * eu;
         re = [re[0].min(ex), re[1].max(ex)];
         rn = [rn[0].min(ey), rn[1].max(ey)];
         max_dist = max_dist.max(ex.hypot(ey));
@@ -268,6 +272,7 @@ pub fn compute(
         range_east: re,
         range_north: rn,
         max_dist,
+        rmse_up: (su / nf).sqrt(),
         nees_mean: (nees_n > 0).then(|| nees_sum / nees_n as f64),
         nis_mean: (!nis_f.is_empty()).then(|| nis_f.iter().sum::<f64>() / nis_f.len() as f64),
         epochs: n,
@@ -303,6 +308,7 @@ pub fn mean_of(runs: &[Metrics]) -> Option<Metrics> {
         range_east: [avg(&|m| m.range_east[0]), avg(&|m| m.range_east[1])],
         range_north: [avg(&|m| m.range_north[0]), avg(&|m| m.range_north[1])],
         max_dist: avg(&|m| m.max_dist),
+        rmse_up: avg(&|m| m.rmse_up),
         nees_mean: avg_opt(&|m| m.nees_mean),
         nis_mean: avg_opt(&|m| m.nis_mean),
         epochs: runs.iter().map(|m| m.epochs).sum(),

@@ -952,6 +952,7 @@ mod tests {
             range_east: [0.0; 2],
             range_north: [0.0; 2],
             max_dist: 0.0,
+            rmse_up: 0.0,
             nees_mean: None,
             nis_mean: None,
             epochs: 0,

@@ -507,6 +507,9 @@ pub struct BodyVelocityJson {
     pub vel_mps: [Option<f64>; 3],
     /// Standard deviation of each axis, m/s (0: not measured).
     pub sigma_mps: [f64; 3],
+    /// The range finder's distance along body z that scaled a flow
+    /// velocity, m; `null` without one.
+    pub range_m: Option<f64>,
 }
 
 /// The JSON schema of [`BodyVelocityJson`].
@@ -519,7 +522,8 @@ pub const BODY_VEL_SCHEMA: &str = r#"{
     "frame_id": {"type": "string", "description": "the body frame"},
     "source": {"type": "string", "enum": ["odometry", "flow"]},
     "vel_mps": {"type": "array", "items": {"type": ["number", "null"]}, "description": "x, y, z in m/s; null: not measured"},
-    "sigma_mps": {"type": "array", "items": {"type": "number"}, "description": "standard deviation of x, y, z in m/s; 0: not measured"}
+    "sigma_mps": {"type": "array", "items": {"type": "number"}, "description": "standard deviation of x, y, z in m/s; 0: not measured"},
+    "range_m": {"type": ["number", "null"], "description": "the range finder's distance along body z that scaled a flow velocity, m; null: none"}
   }
 }"#;
 
@@ -553,6 +557,7 @@ pub fn body_velocity_json(
         source: velocity_source_name(v.source),
         vel_mps: [axis(0), axis(1), axis(2)],
         sigma_mps: v.sigma_mps,
+        range_m: (v.range_mm > 0).then(|| f64::from(v.range_mm) * 1e-3),
     })
 }
 
@@ -1106,9 +1111,10 @@ mod tests {
             vel_mps: [0.75, -0.125, 9.0],
             sigma_mps: [0.05, 0.1, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
-            reserved: 0,
+            range_mm: 1234,
         };
         let j = body_velocity_json(&v, "base_link", &ClockOffset::ZERO).unwrap();
+        assert_eq!(j.range_m, Some(1.234));
         assert_eq!((j.timestamp.sec, j.timestamp.nsec), (2, 250_000_000));
         assert_eq!(j.frame_id, "base_link");
         assert_eq!(j.source, "flow");
@@ -1119,10 +1125,11 @@ mod tests {
         assert_schema_covers(BODY_VEL_SCHEMA, &json);
         v.source = BodyVelocity::SOURCE_ODOMETRY;
         v.sigma_mps = [0.02, 0.0, 0.0];
+        v.range_mm = 0;
         let j = body_velocity_json(&v, "base_link", &ClockOffset::ZERO).unwrap();
         assert_eq!(
-            (j.source, j.vel_mps),
-            ("odometry", [Some(0.75), None, None])
+            (j.source, j.vel_mps, j.range_m),
+            ("odometry", [Some(0.75), None, None], None)
         );
         // The gates' value check: refused with its reason.
         v.vel_mps[0] = f64::NAN;

@@ -42,6 +42,44 @@ pub struct AidingConfig {
     pub flow: ScaleConfig,
     /// Wheel odometry's scale factor estimate.
     pub odometry: ScaleConfig,
+    /// The range finder's height, where a flow velocity carries its range
+    /// (`BodyVelocity::range_mm`).
+    pub height: HeightConfig,
+}
+
+/// The height a flow deck's range finder gives (`[fusion.aiding.height]`):
+/// `(range + range_offset_m) · R33` above the floor at ENU z = 0, with
+/// `R33` the filter's `cos` of its tilt, as one update per flow velocity
+/// of the tight filter. With the first one the tight filter also turns on
+/// a state for the height at which the UWB places the tag above the
+/// vehicle's (`insuwb_eskf::Eskf::enable_radio_height`): the radio's
+/// height error is then not the vehicle's, and the radio's horizontal is
+/// weighted as it would be alone.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HeightConfig {
+    /// Standard deviation of one height, m; 0 (default): no height
+    /// updates.
+    pub sigma_m: f64,
+    /// Added to the range before it is turned into a height, m: the range
+    /// finder's distance below the IMU along body z, and its reading's
+    /// offset. Default 0.
+    pub range_offset_m: f64,
+    /// Stationary sigma of the radio's height state, m. Default 0.3.
+    pub radio_sigma_m: f64,
+    /// Its correlation time, s. Default 30.
+    pub radio_corr_time_s: f64,
+}
+
+impl Default for HeightConfig {
+    fn default() -> Self {
+        Self {
+            sigma_m: 0.0,
+            range_offset_m: 0.0,
+            radio_sigma_m: 0.3,
+            radio_corr_time_s: 30.0,
+        }
+    }
 }
 
 impl Default for AidingConfig {
@@ -50,6 +88,7 @@ impl Default for AidingConfig {
             wait_s: 0.25,
             flow: ScaleConfig::default(),
             odometry: ScaleConfig::default(),
+            height: HeightConfig::default(),
         }
     }
 }
@@ -92,7 +131,7 @@ pub enum AidingConfigError {
     /// A value is out of its range.
     #[error("aiding.{source_name}.{key} must be {range}, got {value}")]
     Value {
-        /// `flow` or `odometry`.
+        /// `flow`, `odometry` or `height`.
         source_name: &'static str,
         /// The key.
         key: &'static str,
@@ -111,6 +150,47 @@ impl AidingConfig {
     pub fn validate(&self) -> Result<(), AidingConfigError> {
         if !(self.wait_s.is_finite() && (0.0..=5.0).contains(&self.wait_s)) {
             return Err(AidingConfigError::Wait(self.wait_s));
+        }
+        let check = |source_name, key, value: f64, ok: bool, range| {
+            if value.is_finite() && ok {
+                Ok(())
+            } else {
+                Err(AidingConfigError::Value {
+                    source_name,
+                    key,
+                    range,
+                    value,
+                })
+            }
+        };
+        let h = &self.height;
+        for (key, value, ok, range) in [
+            (
+                "sigma_m",
+                h.sigma_m,
+                (0.0..=10.0).contains(&h.sigma_m),
+                "within [0, 10]",
+            ),
+            (
+                "range_offset_m",
+                h.range_offset_m,
+                (-1.0..=1.0).contains(&h.range_offset_m),
+                "within [-1, 1]",
+            ),
+            (
+                "radio_sigma_m",
+                h.radio_sigma_m,
+                h.radio_sigma_m > 0.0 && h.radio_sigma_m <= 10.0,
+                "within (0, 10]",
+            ),
+            (
+                "radio_corr_time_s",
+                h.radio_corr_time_s,
+                h.radio_corr_time_s > 0.0 && h.radio_corr_time_s <= 3600.0,
+                "within (0, 3600]",
+            ),
+        ] {
+            check("height", key, value, ok, range)?;
         }
         for (source_name, c) in [("flow", &self.flow), ("odometry", &self.odometry)] {
             for (key, value, ok, range) in [
@@ -145,14 +225,7 @@ impl AidingConfig {
                     "within (0, 100]",
                 ),
             ] {
-                if !(value.is_finite() && ok) {
-                    return Err(AidingConfigError::Value {
-                        source_name,
-                        key,
-                        range,
-                        value,
-                    });
-                }
+                check(source_name, key, value, ok, range)?;
             }
         }
         Ok(())
@@ -507,5 +580,19 @@ mod tests {
         let e = c.validate().unwrap_err().to_string();
         assert!(e.contains("aiding.odometry.sigma_factor"), "{e}");
         assert!(AidingConfig::default().validate().is_ok());
+        for (key, set) in [
+            (
+                "sigma_m",
+                (|h: &mut HeightConfig| h.sigma_m = -0.01) as fn(&mut HeightConfig),
+            ),
+            ("range_offset_m", |h| h.range_offset_m = f64::NAN),
+            ("radio_sigma_m", |h| h.radio_sigma_m = 0.0),
+            ("radio_corr_time_s", |h| h.radio_corr_time_s = f64::INFINITY),
+        ] {
+            let mut c = AidingConfig::default();
+            set(&mut c.height);
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(&format!("aiding.height.{key}")), "{e}");
+        }
     }
 }

@@ -1409,7 +1409,7 @@ mod tests {
             vel_mps: [0.5, 0.0, 0.0],
             sigma_mps: [0.01, 0.0, 0.0],
             source: BodyVelocity::SOURCE_ODOMETRY,
-            reserved: 0,
+            range_mm: 0,
         };
         e.on_measurement(Measurement::Velocity(v), &mut out);
         // The INS goes on (far enough past the velocity for it to be used

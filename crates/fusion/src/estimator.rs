@@ -1201,7 +1201,7 @@ mod tests {
             vel_mps,
             sigma_mps,
             source: BodyVelocity::SOURCE_ODOMETRY,
-            reserved: 0,
+            range_mm: 0,
         }
     }
 

@@ -582,7 +582,7 @@ mod tests {
             vel_mps: [vx, 0.0, 0.0],
             sigma_mps: [0.1, 0.1, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
-            reserved: 0,
+            range_mm: 0,
         }
     }
 

@@ -13,12 +13,12 @@
 
 use std::collections::BTreeMap;
 
-use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
+use crate::aiding::{scale_corrected, AidingConfig, HeightConfig, VelocityScales};
 use crate::vehicle::{DragMeasurement, DragMeter, GroundConfig, VehicleSettings};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_eskf::{
     Covariance, Eskf, EskfConfig, EskfConfigError, MultirotorDynamics, StateVector, TdoaOutcome,
-    TdoaUpdateReport, IDX_ATT, IDX_VEL, N_STATES,
+    TdoaUpdateReport, IDX_ATT, IDX_POS, IDX_VEL, N_STATES,
 };
 use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
 use insuwb_nav::vehicle::{model_accel_nav, Mechanisation};
@@ -225,6 +225,11 @@ pub struct TightEstimator {
     /// Velocity components (odometry, flow) applied and gated out.
     velocity_applied: u64,
     velocity_rejected: u64,
+    /// The range finder's height ([`HeightConfig`]) and its updates
+    /// applied and gated out.
+    height: HeightConfig,
+    height_applied: u64,
+    height_rejected: u64,
     predict_errors: u64,
     update_errors: u64,
     /// The multirotor's velocity damping (`None`: a free vehicle).
@@ -282,6 +287,9 @@ impl TightEstimator {
             scale_baseline_m: 2.0,
             velocity_applied: 0,
             velocity_rejected: 0,
+            height: HeightConfig::default(),
+            height_applied: 0,
+            height_rejected: 0,
             predict_errors: 0,
             update_errors: 0,
         })
@@ -395,7 +403,70 @@ impl TightEstimator {
     pub fn with_aiding(mut self, aiding: &AidingConfig, scale_baseline_m: f64) -> Self {
         self.scales = VelocityScales::new(aiding);
         self.scale_baseline_m = scale_baseline_m;
+        self.height = aiding.height.clone();
         self
+    }
+
+    /// The range finder's heights applied and gated out.
+    #[must_use]
+    pub fn height_counts(&self) -> (u64, u64) {
+        (self.height_applied, self.height_rejected)
+    }
+
+    /// The radio's height error and its sigma, m, once a range finder's
+    /// height has turned that state on ([`HeightConfig`]).
+    #[must_use]
+    pub fn radio_height_error(&self) -> Option<(f64, f64)> {
+        self.eskf.radio_height_error()
+    }
+
+    /// The range finder's height of `m` as one update: `z = (range +
+    /// range_offset_m) R33` against the INS height, `H = -1` on the
+    /// position's z (the tilt's part of `R33` is second order at level
+    /// flight and left out), weighted and gated as every
+    /// pseudo-measurement; the first one turns the radio's height state on.
+    fn update_height(
+        &mut self,
+        ins: &InsAt,
+        att: &UnitQuaternion<f64>,
+        m: &BodyVelocity,
+        info: &mut UpdateInfo,
+    ) {
+        let c = &self.height;
+        if c.sigma_m <= 0.0 || m.range_mm == 0 {
+            return;
+        }
+        if !self
+            .eskf
+            .enable_radio_height(c.radio_sigma_m, c.radio_corr_time_s)
+        {
+            self.update_errors += 1;
+            return;
+        }
+        let r33 = (att * Vector3::z()).z;
+        let z = (f64::from(m.range_mm) * 1e-3 + c.range_offset_m) * r33;
+        let mut h = StateVector::zeros();
+        h[IDX_POS + 2] = -1.0;
+        let innovation = z - ins.pos_m[2];
+        let r = c.sigma_m * c.sigma_m;
+        let k = info.dim as usize;
+        match self.eskf.update_pseudo(&h, innovation, r) {
+            Ok(rep) if rep.applied => {
+                if let (Some(inn), Some(rd)) = (info.innovation.get_mut(k), info.r_diag.get_mut(k))
+                {
+                    *inn = innovation;
+                    *rd = r;
+                }
+                self.height_applied += 1;
+                info.nis += rep.nis;
+                info.dim += 1;
+            }
+            Ok(_) => {
+                self.height_rejected += 1;
+                info.outlier = true;
+            }
+            Err(_) => self.update_errors += 1,
+        }
     }
 
     /// Body-velocity components (odometry, flow) applied and gated out.
@@ -774,6 +845,7 @@ impl Estimator for TightEstimator {
         if measured == 0 {
             return None;
         }
+        self.update_height(ins, &att, m, &mut info);
         info.rejected = info.dim == 0;
         info.divergence = self.eskf.needs_reset();
         Some(info)
@@ -924,7 +996,7 @@ mod tests {
             vel_mps: [0.0; 3],
             sigma_mps: [0.3, 0.3, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
-            reserved: 0,
+            range_mm: 0,
         };
         assert!(e.update_velocity(&ins_at([0.0; 3]), &flow).is_some());
         step(&mut e, &mut t_ns);
@@ -933,6 +1005,56 @@ mod tests {
             step(&mut e, &mut t_ns);
         }
         assert_eq!(damping(&e), Some((1.5, 0.5)), "a second later: the damping");
+    }
+
+    /// A flow velocity's range is a height update once height aiding is
+    /// on: `(range + offset) R33` against the INS height, its innovation and
+    /// variance as configured, and the first one turns the radio's height
+    /// state on; a range of 0 or height aiding off leaves the height alone.
+    #[test]
+    fn a_flow_range_updates_the_height() {
+        let aiding = AidingConfig {
+            height: HeightConfig {
+                sigma_m: 0.03,
+                range_offset_m: 0.05,
+                ..HeightConfig::default()
+            },
+            ..AidingConfig::default()
+        };
+        // Tilted 0.2 rad about body x: R33 = cos 0.2.
+        let tilt = 0.2_f64;
+        let quat = [(tilt / 2.0).cos(), (tilt / 2.0).sin(), 0.0, 0.0];
+        let ins = InsAt {
+            quat,
+            ..ins_at([0.0, 0.0, 1.0])
+        };
+        let flow = |range_mm: u32| BodyVelocity {
+            header: Header::new(0, 0),
+            vel_mps: [0.0; 3],
+            sigma_mps: [0.3, 0.3, 0.0],
+            source: BodyVelocity::SOURCE_FLOW,
+            range_mm,
+        };
+        let mut e = estimator([0.0; 3]).with_aiding(&aiding, 2.0);
+        assert!(e.radio_height_error().is_none());
+        let info = e.update_velocity(&ins, &flow(1200)).unwrap();
+        assert_eq!(info.dim, 3, "two velocity axes and the height");
+        let want = (1.2 + 0.05) * tilt.cos() - 1.0;
+        assert!((info.innovation[2] - want).abs() < 1e-12, "{info:?}");
+        assert!((info.r_diag[2] - 0.03 * 0.03).abs() < 1e-15);
+        assert_eq!(e.height_counts(), (1, 0));
+        let (b, sigma) = e.radio_height_error().unwrap();
+        assert_eq!(b, 0.0);
+        assert!(
+            (sigma - aiding.height.radio_sigma_m).abs() < 1e-9,
+            "{sigma}"
+        );
+        // No range, or height aiding off: the velocity alone.
+        assert_eq!(e.update_velocity(&ins, &flow(0)).unwrap().dim, 2);
+        let mut off = estimator([0.0; 3]).with_aiding(&AidingConfig::default(), 2.0);
+        assert_eq!(off.update_velocity(&ins, &flow(1200)).unwrap().dim, 2);
+        assert_eq!(off.height_counts(), (0, 0));
+        assert!(off.radio_height_error().is_none());
     }
 
     fn ins_at(pos_m: [f64; 3]) -> InsAt {

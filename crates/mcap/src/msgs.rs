@@ -272,6 +272,9 @@ pub struct BodyVelocity {
     pub sigma_mps: Vector3,
     /// What measured it: 1 wheel odometry, 2 optical flow.
     pub source: u32,
+    /// The range finder's distance along body z that scaled a flow
+    /// velocity, mm; 0: none.
+    pub range_mm: u32,
 }
 
 /// `insuwb_msgs/SampleHeader`.
@@ -389,7 +392,7 @@ pub static BODY_VELOCITY: MsgDef = MsgDef {
     package: PACKAGE,
     name: "BodyVelocity",
     text: "std_msgs/Header header\nSampleHeader sample\ngeometry_msgs/Vector3 vel_mps\n\
-           geometry_msgs/Vector3 sigma_mps\nuint32 source\n",
+           geometry_msgs/Vector3 sigma_mps\nuint32 source\nuint32 range_mm\n",
     uses: &[&ros::HEADER, &SAMPLE_HEADER, &ros::VECTOR3],
 };
 
@@ -621,6 +624,7 @@ impl BodyVelocity {
             vel_mps: vector3(&s.vel_mps),
             sigma_mps: vector3(&s.sigma_mps),
             source: s.source,
+            range_mm: s.range_mm,
         }
     }
 }

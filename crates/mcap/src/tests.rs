@@ -82,7 +82,7 @@ fn one_of_each(t_ns: u64) -> Vec<Record> {
             vel_mps: [0.5, -0.25, 0.0],
             sigma_mps: [0.05, 0.05, 0.0],
             source: m::BodyVelocity::SOURCE_FLOW,
-            reserved: 0,
+            range_mm: 0,
         }),
     ]
 }

@@ -952,7 +952,7 @@ mod tests {
             vel_mps: v,
             sigma_mps: sigma,
             source: BodyVelocity::SOURCE_FLOW,
-            reserved: 0,
+            range_mm: 0,
         }
     }
 

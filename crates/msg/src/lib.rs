@@ -187,8 +187,12 @@ pub struct BodyVelocity {
     /// What measured it: [`BodyVelocity::SOURCE_ODOMETRY`] or
     /// [`BodyVelocity::SOURCE_FLOW`].
     pub source: u32,
-    /// Reserved, zero.
-    pub reserved: u32,
+    /// The range finder's distance to the ground along body z that scaled
+    /// a flow velocity, mm (the time-of-flight sensor's own unit, so never
+    /// negative or NaN); 0: none (odometry, or flow without it). A filter
+    /// can take it as a height measurement (`[fusion.aiding.flow]
+    /// height_sigma_m`).
+    pub range_mm: u32,
 }
 
 impl BodyVelocity {

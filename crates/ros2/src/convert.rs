@@ -626,7 +626,7 @@ fn velocity_in(
             vel_mps: [linear.x, linear.y, linear.z],
             sigma_mps,
             source: BodyVelocity::SOURCE_ODOMETRY,
-            reserved: 0,
+            range_mm: 0,
         },
         time,
     }

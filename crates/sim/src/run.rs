@@ -396,7 +396,7 @@ fn simulate_velocity(
                 vel_mps: vel,
                 sigma_mps: s.sigma,
                 source: s.source,
-                reserved: 0,
+                range_mm: 0,
             });
         }
         // Merge with what is there (both sorted by time; validation keeps

@@ -231,17 +231,21 @@ fn body_velocities_export_to_mcap_that_foreign_readers_decode() {
             gyro_rps: [0.0, 0.0, 0.1],
         }))
         .unwrap();
-        let (source, sigma_mps) = if k % 2 == 0 {
-            (BodyVelocity::SOURCE_ODOMETRY, [0.02, 0.0, 0.0])
+        let (source, sigma_mps, range_mm) = if k % 2 == 0 {
+            (BodyVelocity::SOURCE_ODOMETRY, [0.02, 0.0, 0.0], 0)
         } else {
-            (BodyVelocity::SOURCE_FLOW, [0.05, 0.05, 0.0])
+            (
+                BodyVelocity::SOURCE_FLOW,
+                [0.05, 0.05, 0.0],
+                1500 + k as u32,
+            )
         };
         w.append(&Record::BodyVel(BodyVelocity {
             header: Header::new(k, t + 5_000_000),
             vel_mps: [0.5 + 0.01 * k as f64, -0.25, 0.0],
             sigma_mps,
             source,
-            reserved: 0,
+            range_mm,
         }))
         .unwrap();
     }

@@ -9,16 +9,9 @@
 use insuwb_eskf::{process_noise, tdoa_model, transition_matrix, Eskf, EskfConfig, N_STATES};
 use nalgebra::{DMatrix, DVector};
 
-use crate::common::Rng;
+use crate::common::{Rng, ANCHORS4, HOVER_FORCE, LEVEL};
 
-const LEVEL: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
-const HOVER_FORCE: [f64; 3] = [0.0, 0.0, 9.81];
-const ANCHORS: [[f64; 3]; 4] = [
-    [-4.0, -4.0, 0.2],
-    [4.0, -4.0, 3.0],
-    [4.0, 4.0, 0.2],
-    [-4.0, 4.0, 3.0],
-];
+const ANCHORS: [[f64; 3]; 4] = ANCHORS4;
 
 /// A configuration whose TDOA update is the plain Kalman update: no robust
 /// weighting, no correlation inflation, no yaw hold.

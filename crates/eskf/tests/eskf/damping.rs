@@ -5,8 +5,7 @@
 
 use insuwb_eskf::{Eskf, EskfConfig, MultirotorDynamics, IDX_VEL};
 
-const LEVEL: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
-const HOVER_FORCE: [f64; 3] = [0.0, 0.0, 9.81];
+use crate::common::{HOVER_FORCE, LEVEL};
 
 fn filter(damping: f64, ins_drag: f64) -> Eskf {
     let mut f = Eskf::new(EskfConfig::default()).unwrap();

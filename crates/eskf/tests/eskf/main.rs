@@ -1,6 +1,6 @@
 //! The integration tests of insuwb-eskf, linked into one binary: each
 //! module is one topic (`anchor_error`, `damping`, `linearisation`,
-//! `monitor`, `scenario`), documented at its top; `common` holds their
+//! `monitor`, `radio_height`, `scenario`), documented at its top; `common` holds their
 //! shared helpers.
 
 // Test helpers outside `#[test]` functions may unwrap and panic too.
@@ -11,4 +11,5 @@ mod common;
 mod damping;
 mod linearisation;
 mod monitor;
+mod radio_height;
 mod scenario;

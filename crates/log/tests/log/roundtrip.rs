@@ -157,7 +157,7 @@ fn a_body_velocity_is_its_fields_after_the_tag() {
         vel_mps: [0.5, -0.25, 0.0],
         sigma_mps: [0.1, 0.1, 0.0],
         source: BodyVelocity::SOURCE_ODOMETRY,
-        reserved: 0,
+        range_mm: 0,
     };
     let mut enc = RecordEncoder::new();
     let frame = enc.encode(&Record::BodyVel(v)).unwrap().to_vec();

@@ -242,7 +242,7 @@ fn arb_record() -> impl Strategy<Value = Record> {
                     vel_mps: take(f),
                     sigma_mps: take(f),
                     source: u32_(0),
-                    reserved: u32_(1),
+                    range_mm: u32_(1),
                 }),
             }
         })

@@ -11,6 +11,17 @@ use rand_xoshiro::Xoshiro256StarStar;
 pub const G_MPS2: f64 = 9.81;
 /// UTIL's antenna lever arm (body, m).
 pub const LEVER_M: [f64; 3] = [-0.01245, 0.00127, 0.0908];
+/// Level attitude, `[w, x, y, z]`.
+pub const LEVEL: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
+/// The specific force at hover, ENU, m/s^2.
+pub const HOVER_FORCE: [f64; 3] = [0.0, 0.0, G_MPS2];
+/// Four anchors at the corners of an 8 m square, alternately low and high.
+pub const ANCHORS4: [[f64; 3]; 4] = [
+    [-4.0, -4.0, 0.2],
+    [4.0, -4.0, 3.0],
+    [4.0, 4.0, 0.2],
+    [-4.0, 4.0, 3.0],
+];
 
 /// Seeded random numbers: `rand_xoshiro`'s xoshiro256**, `rand`'s uniform
 /// and `rand_distr`'s standard normal laws.

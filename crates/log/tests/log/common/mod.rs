@@ -184,7 +184,7 @@ pub fn one_of_each(seq: u64) -> Vec<Record> {
             vel_mps: [0.75, -0.125, 0.0],
             sigma_mps: [0.05, 0.0625, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
-            reserved: 0,
+            range_mm: 0,
         }),
         Record::Range(UwbRange {
             header: h,
