@@ -54,7 +54,9 @@ pub struct AidingConfig {
 /// a state for the height at which the UWB places the tag above the
 /// vehicle's (`insuwb_eskf::Eskf::enable_radio_height`): the radio's
 /// height error is then not the vehicle's, and the radio's horizontal is
-/// weighted as it would be alone.
+/// weighted as it would be alone. The loose filters' vertical loop steers
+/// to the last such height instead of the fix's while it is at most 0.5 s
+/// old.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct HeightConfig {

@@ -3,7 +3,7 @@
 //! with UWB fixes, and the tightly coupled 15-state error-state filter fed
 //! with each TDOA measurement.
 
-use crate::aiding::{scale_corrected, AidingConfig, VelocityScales};
+use crate::aiding::{scale_corrected, AidingConfig, HeightConfig, VelocityScales};
 use crate::vibration::{VibrationConfig, VibrationMeter};
 use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
 
@@ -416,7 +416,15 @@ pub struct PaperEstimator {
     velocity_applied: u64,
     velocity_rejected: u64,
     velocity_errors: u64,
+    /// The range finder's height ([`HeightConfig`]) and the last one,
+    /// `(t_ns, z)`: the vertical loop's target instead of the fix's height
+    /// while it is recent.
+    height: HeightConfig,
+    range_height: Option<(u64, f64)>,
 }
+
+/// How long a range finder's height stays the vertical loop's target, ns.
+const RANGE_HEIGHT_MAX_AGE_NS: u64 = 500_000_000;
 
 impl PaperEstimator {
     /// Wraps a built filter; `p0` is used on reset.
@@ -434,6 +442,8 @@ impl PaperEstimator {
             gravity_mps2: insuwb_nav::ins::STANDARD_GRAVITY_MPS2,
             vertical: None,
             last_fix_t_ns: None,
+            height: HeightConfig::default(),
+            range_height: None,
             scratch: filter.clone_boxed(),
             last_update_vel: false,
             vib_cfg: VibrationConfig::default(),
@@ -497,7 +507,12 @@ impl PaperEstimator {
         let dt_s = prev
             .map_or(0.1, |p| t.saturating_sub(p) as f64 * 1e-9)
             .clamp(0.01, 1.0);
-        let dz = ins.pos_m[2] - fix.pos_m[2];
+        // The range finder's height while it is recent, else the fix's.
+        let target = match self.range_height {
+            Some((tr, z)) if t.abs_diff(tr) <= RANGE_HEIGHT_MAX_AGE_NS => z,
+            _ => fix.pos_m[2],
+        };
+        let dz = ins.pos_m[2] - target;
         Some((2.0 * w * dt_s * dz, w * w * dt_s * dz))
     }
 
@@ -572,6 +587,7 @@ impl PaperEstimator {
     #[must_use]
     pub fn with_aiding(mut self, aiding: &AidingConfig) -> Self {
         self.scales = VelocityScales::new(aiding);
+        self.height = aiding.height.clone();
         self
     }
 
@@ -839,6 +855,12 @@ impl Estimator for PaperEstimator {
         let att = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             q[0], q[1], q[2], q[3],
         ));
+        if self.height.sigma_m > 0.0 && m.range_mm > 0 {
+            // The range along body z, turned into the INS's height.
+            let r33 = (att * nalgebra::Vector3::z()).z;
+            let z = (f64::from(m.range_mm) * 1e-3 + self.height.range_offset_m) * r33;
+            self.range_height = Some((m.header.meas_time_ns, z));
+        }
         let scale = self.scales.on_sample(m, &att)?;
         let [ve, vn, vu] = ins.vel_mps;
         let (kappa, gate) = (self.cfg.velocity_kappa, self.cfg.velocity_gate_sigma);
@@ -1193,6 +1215,61 @@ mod tests {
         let mut off = paper_with(LooseConfig::default());
         off.update_fix(&ins_at([0.0, 0.0, 1.5]), &fix(0, [0.0, 0.0, 1.0], 0));
         assert_eq!(off.take_correction().d_pos_m[2], 0.0);
+    }
+
+    /// With the range finder's height on, the vertical loop steers to the
+    /// last range height while it is at most 0.5 s old, else to the fix's.
+    #[test]
+    fn the_vertical_loop_steers_to_a_recent_range_height() {
+        let aiding = AidingConfig {
+            height: HeightConfig {
+                sigma_m: 0.03,
+                range_offset_m: 0.05,
+                ..HeightConfig::default()
+            },
+            ..AidingConfig::default()
+        };
+        let mut e = paper_with(LooseConfig {
+            vertical_bandwidth_rps: 1.0,
+            ..LooseConfig::default()
+        })
+        .with_aiding(&aiding);
+        let flow = BodyVelocity {
+            header: Header::new(0, 1_000_000_000),
+            vel_mps: [0.0; 3],
+            sigma_mps: [0.3, 0.3, 0.0],
+            source: BodyVelocity::SOURCE_FLOW,
+            range_mm: 1200,
+        };
+        let _ = e.update_velocity(&ins_at([0.0, 0.0, 1.5]), &flow);
+        // First fix (T 0.1 s), 0.1 s after the range: the INS 0.25 m above
+        // the range's 1.25 m (the fix's 1.0 m is not the target).
+        e.update_fix(
+            &ins_at([0.0, 0.0, 1.5]),
+            &fix(1_100_000_000, [0.0, 0.0, 1.0], 0),
+        );
+        let d = e.take_correction();
+        assert!((d.d_pos_m[2] - 0.05).abs() < 1e-12, "{d:?}");
+        assert!((d.d_vel_mps[2] - 0.025).abs() < 1e-12, "{d:?}");
+        // 0.7 s after the range: the fix's height again (T 0.6 s).
+        e.update_fix(
+            &ins_at([0.0, 0.0, 1.2]),
+            &fix(1_700_000_000, [0.0, 0.0, 1.0], 0),
+        );
+        let d = e.take_correction();
+        assert!((d.d_pos_m[2] - 0.24).abs() < 1e-12, "{d:?}");
+        // Height aiding off: the range is not a target.
+        let mut off = paper_with(LooseConfig {
+            vertical_bandwidth_rps: 1.0,
+            ..LooseConfig::default()
+        })
+        .with_aiding(&AidingConfig::default());
+        let _ = off.update_velocity(&ins_at([0.0, 0.0, 1.5]), &flow);
+        off.update_fix(
+            &ins_at([0.0, 0.0, 1.5]),
+            &fix(1_100_000_000, [0.0, 0.0, 1.0], 0),
+        );
+        assert!((off.take_correction().d_pos_m[2] - 0.1).abs() < 1e-12);
     }
 
     fn odometry(t_ns: u64, vel_mps: [f64; 3], sigma_mps: [f64; 3]) -> BodyVelocity {
