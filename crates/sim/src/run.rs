@@ -333,6 +333,8 @@ struct VelocitySensor<'a> {
     /// Which axes report the true velocity (the others report zero plus
     /// their noise: the odometry's lateral axis).
     measures: [bool; 3],
+    /// The range finder's noise, m; 0: no range.
+    range_sigma_m: f64,
 }
 
 /// The odometry and flow samples of the run, merged by time.
@@ -352,6 +354,7 @@ fn simulate_velocity(
             scale: [o.scale, 1.0, 1.0],
             sigma: [o.sigma_mps, o.lateral_sigma_mps, 0.0],
             measures: [true, false, false],
+            range_sigma_m: 0.0,
         });
     }
     if let Some(f) = &sc.flow {
@@ -364,6 +367,7 @@ fn simulate_velocity(
             scale: [f.scale, f.scale, 1.0],
             sigma: [f.sigma_mps, f.sigma_mps, 0.0],
             measures: [true, true, false],
+            range_sigma_m: f.range_sigma_m,
         });
     }
     let mut out: Vec<BodyVelocity> = Vec::new();
@@ -391,12 +395,21 @@ fn simulate_velocity(
                 };
                 vel[a] = truth + rng.normal(s.sigma[a]);
             }
+            // The range to the floor at z = 0 along body z (no tilt), in
+            // whole mm as the sensor reports it; drawn after the velocity,
+            // so a range leaves the velocities' noise as it was.
+            let range_mm = if s.range_sigma_m > 0.0 {
+                let r = kin.pos_m[2] + rng.normal(s.range_sigma_m);
+                (r * 1000.0).round().clamp(0.0, f64::from(u32::MAX)) as u32
+            } else {
+                0
+            };
             samples.push(BodyVelocity {
                 header: Header::new(0, t_ns),
                 vel_mps: vel,
                 sigma_mps: s.sigma,
                 source: s.source,
-                range_mm: 0,
+                range_mm,
             });
         }
         // Merge with what is there (both sorted by time; validation keeps

@@ -471,7 +471,10 @@ impl Default for OdometryConfig {
 }
 
 /// Optical flow with a range finder (`[sim.flow]`): the body-frame x and y
-/// velocity, `scale * v + noise` on each, the vertical axis not measured.
+/// velocity, `scale * v + noise` on each, the vertical axis not measured,
+/// and, with `range_sigma_m` above 0, the range finder's distance to the
+/// floor (the height: the simulated body does not tilt) plus its noise in
+/// each sample's `range_mm`.
 /// Samples are taken at `offset_s + k / rate_hz` for times before
 /// `duration_s` and outside the dropouts.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -485,6 +488,9 @@ pub struct FlowConfig {
     pub scale: f64,
     /// White noise of each axis, m/s; > 0 (default 0.05).
     pub sigma_mps: f64,
+    /// White noise of the range, m; 0 (default): the samples carry no
+    /// range.
+    pub range_sigma_m: f64,
     /// Intervals without flow (default none).
     pub dropouts: Vec<Dropout>,
 }
@@ -496,6 +502,7 @@ impl Default for FlowConfig {
             offset_s: 0.0,
             scale: 1.0,
             sigma_mps: 0.05,
+            range_sigma_m: 0.0,
             dropouts: Vec::new(),
         }
     }
@@ -819,6 +826,7 @@ impl Scenario {
                 f.sigma_mps,
                 &f.dropouts,
             )?;
+            non_negative(&format!("{P}.flow.range_sigma_m"), f.range_sigma_m)?;
         }
         if let (Some(o), Some(f)) = (&self.odometry, &self.flow) {
             // Both sorted: walk them together for a common time.

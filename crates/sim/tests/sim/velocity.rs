@@ -1,6 +1,7 @@
 //! The wheel odometry and optical flow of a scenario (`[sim.odometry]`,
 //! `[sim.flow]`) against hand-computed answers: body-frame velocities of
-//! the path with the configured scale and noise, at the configured times,
+//! the path with the configured scale and noise (and the flow's range, the
+//! height plus its noise), at the configured times,
 //! bit-identical for a seed, and nothing else of the run changed by them.
 
 use insuwb_msg::BodyVelocity;
@@ -109,15 +110,19 @@ fn odometry_reads_the_forward_speed_scaled_and_a_noisy_lateral_zero() {
 #[test]
 fn flow_reads_the_body_frame_velocity_in_the_turn() {
     let mut sc = circle();
+    // Flown at 1.2 m: the range finder reads the height.
+    sc.height_m = 1.2;
     sc.flow = Some(FlowConfig {
         rate_hz: 25.0,
         offset_s: 0.0,
         scale: 0.8,
         sigma_mps: 1e-12,
+        range_sigma_m: 0.02,
         dropouts: Vec::new(),
     });
     let out = simulate(&sc, 1).unwrap();
     assert_eq!(out.velocity.len(), 500);
+    let mut range_err = Vec::new();
     for m in &out.velocity {
         assert_eq!(m.source, BodyVelocity::SOURCE_FLOW);
         assert_eq!(m.sigma_mps, [1e-12, 1e-12, 0.0]);
@@ -136,7 +141,16 @@ fn flow_reads_the_body_frame_velocity_in_the_turn() {
         assert!((m.vel_mps[1] - 0.8 * body[1]).abs() < 1e-9);
         // The path's tangent is the body x axis.
         assert!((m.vel_mps[0] - 0.4).abs() < 1e-6 && m.vel_mps[1].abs() < 1e-6);
+        // The range (mm): the height plus the range finder's noise.
+        range_err.push(f64::from(m.range_mm) * 1e-3 - g.pos_m[2]);
     }
+    let n = range_err.len() as f64;
+    let mean = range_err.iter().sum::<f64>() / n;
+    let sd = (range_err.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / n).sqrt();
+    assert!(
+        mean.abs() < 0.005 && (0.015..0.025).contains(&sd),
+        "{mean} {sd}"
+    );
 }
 
 #[test]
