@@ -179,13 +179,6 @@ impl FlowDeck {
     }
 }
 
-/// A range in whole millimetres, as the sensor reports it (`estTOF`'s
-/// `zrange` is an integer of mm); the flow's range bounds keep it far
-/// inside `u32`.
-fn range_mm(range_m: f64) -> u32 {
-    (range_m * 1000.0).round().clamp(0.0, f64::from(u32::MAX)) as u32
-}
-
 /// Flow records turned into velocities, and those refused by reason.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct FlowStats {
@@ -271,7 +264,8 @@ pub fn flow_velocities(
             vel_mps: [vx, vy, 0.0],
             sigma_mps: [sigma, sigma, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
-            range_mm: range_mm(r.range_m),
+            // Whole mm, as the sensor reports it (`estTOF`'s `zrange`).
+            range_mm: BodyVelocity::range_mm_from_m(r.range_m),
         });
         stats.velocities += 1;
     }

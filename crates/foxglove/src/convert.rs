@@ -557,7 +557,7 @@ pub fn body_velocity_json(
         source: velocity_source_name(v.source),
         vel_mps: [axis(0), axis(1), axis(2)],
         sigma_mps: v.sigma_mps,
-        range_m: (v.range_mm > 0).then(|| f64::from(v.range_mm) * 1e-3),
+        range_m: v.range_m(),
     })
 }
 

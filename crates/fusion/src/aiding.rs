@@ -73,6 +73,17 @@ pub struct HeightConfig {
     pub radio_corr_time_s: f64,
 }
 
+impl HeightConfig {
+    /// The height (ENU z of the IMU) that `m`'s range gives at attitude
+    /// `att`: `(range + range_offset_m) R33`; `None` while height updates
+    /// are off or `m` carries no range.
+    #[must_use]
+    pub fn height_m(&self, m: &BodyVelocity, att: &UnitQuaternion<f64>) -> Option<f64> {
+        let range = m.range_m().filter(|_| self.sigma_m > 0.0)?;
+        Some((range + self.range_offset_m) * (att * Vector3::z()).z)
+    }
+}
+
 impl Default for HeightConfig {
     fn default() -> Self {
         Self {

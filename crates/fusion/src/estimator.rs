@@ -855,10 +855,7 @@ impl Estimator for PaperEstimator {
         let att = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             q[0], q[1], q[2], q[3],
         ));
-        if self.height.sigma_m > 0.0 && m.range_mm > 0 {
-            // The range along body z, turned into the INS's height.
-            let r33 = (att * nalgebra::Vector3::z()).z;
-            let z = (f64::from(m.range_mm) * 1e-3 + self.height.range_offset_m) * r33;
+        if let Some(z) = self.height.height_m(m, &att) {
             self.range_height = Some((m.header.meas_time_ns, z));
         }
         let scale = self.scales.on_sample(m, &att)?;

@@ -433,9 +433,9 @@ impl TightEstimator {
         info: &mut UpdateInfo,
     ) {
         let c = &self.height;
-        if c.sigma_m <= 0.0 || m.range_mm == 0 {
+        let Some(z) = c.height_m(m, att) else {
             return;
-        }
+        };
         if !self
             .eskf
             .enable_radio_height(c.radio_sigma_m, c.radio_corr_time_s)
@@ -443,8 +443,6 @@ impl TightEstimator {
             self.update_errors += 1;
             return;
         }
-        let r33 = (att * Vector3::z()).z;
-        let z = (f64::from(m.range_mm) * 1e-3 + c.range_offset_m) * r33;
         let mut h = StateVector::zeros();
         h[IDX_POS + 2] = -1.0;
         let innovation = z - ins.pos_m[2];

@@ -200,6 +200,20 @@ impl BodyVelocity {
     pub const SOURCE_ODOMETRY: u32 = 1;
     /// Optical flow with a range finder.
     pub const SOURCE_FLOW: u32 = 2;
+
+    /// A range in the whole millimetres `range_mm` holds (negative or NaN:
+    /// 0, none).
+    #[must_use]
+    pub fn range_mm_from_m(range_m: f64) -> u32 {
+        // `as` saturates and maps NaN to 0.
+        (range_m * 1000.0).round().max(0.0) as u32
+    }
+
+    /// The range the sample carries, m (`None`: none).
+    #[must_use]
+    pub fn range_m(&self) -> Option<f64> {
+        (self.range_mm > 0).then(|| f64::from(self.range_mm) * 1e-3)
+    }
 }
 
 /// A UWB position (and velocity) fix from multilateration (topic [`topics::UWB_FIX`]).
@@ -799,6 +813,22 @@ mod name_tests {
 mod layout_tests {
     use super::*;
     use core::mem::{align_of, offset_of, size_of};
+
+    /// A body velocity's range in whole mm: rounded, nothing below zero,
+    /// and read back as metres only where there is one.
+    #[test]
+    fn a_body_velocitys_range_is_whole_millimetres() {
+        assert_eq!(BodyVelocity::range_mm_from_m(1.2344), 1234);
+        assert_eq!(BodyVelocity::range_mm_from_m(1.2346), 1235);
+        for none in [-0.1, f64::NAN, f64::NEG_INFINITY] {
+            assert_eq!(BodyVelocity::range_mm_from_m(none), 0, "{none}");
+        }
+        assert_eq!(BodyVelocity::range_mm_from_m(1e12), u32::MAX);
+        let mut v = BodyVelocity::default();
+        assert_eq!(v.range_m(), None);
+        v.range_mm = 1500;
+        assert_eq!(v.range_m(), Some(1.5));
+    }
 
     #[test]
     fn header_layout_is_pinned() {

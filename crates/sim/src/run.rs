@@ -399,8 +399,7 @@ fn simulate_velocity(
             // whole mm as the sensor reports it; drawn after the velocity,
             // so a range leaves the velocities' noise as it was.
             let range_mm = if s.range_sigma_m > 0.0 {
-                let r = kin.pos_m[2] + rng.normal(s.range_sigma_m);
-                (r * 1000.0).round().clamp(0.0, f64::from(u32::MAX)) as u32
+                BodyVelocity::range_mm_from_m(kin.pos_m[2] + rng.normal(s.range_sigma_m))
             } else {
                 0
             };
