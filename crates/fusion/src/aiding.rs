@@ -73,6 +73,20 @@ pub struct HeightConfig {
     pub radio_corr_time_s: f64,
 }
 
+/// Test settings: the range finder's height on, sigma 0.03 m, the range
+/// 0.05 m longer.
+#[cfg(test)]
+pub(crate) fn height_aiding() -> AidingConfig {
+    AidingConfig {
+        height: HeightConfig {
+            sigma_m: 0.03,
+            range_offset_m: 0.05,
+            ..HeightConfig::default()
+        },
+        ..AidingConfig::default()
+    }
+}
+
 impl HeightConfig {
     /// The height (ENU z of the IMU) that `m`'s range gives at attitude
     /// `att`: `(range + range_offset_m) R33`; `None` while height updates

@@ -1218,14 +1218,7 @@ mod tests {
     /// last range height while it is at most 0.5 s old, else to the fix's.
     #[test]
     fn the_vertical_loop_steers_to_a_recent_range_height() {
-        let aiding = AidingConfig {
-            height: HeightConfig {
-                sigma_m: 0.03,
-                range_offset_m: 0.05,
-                ..HeightConfig::default()
-            },
-            ..AidingConfig::default()
-        };
+        let aiding = crate::aiding::height_aiding();
         let mut e = paper_with(LooseConfig {
             vertical_bandwidth_rps: 1.0,
             ..LooseConfig::default()

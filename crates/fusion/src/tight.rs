@@ -1011,14 +1011,7 @@ mod tests {
     /// state on; a range of 0 or height aiding off leaves the height alone.
     #[test]
     fn a_flow_range_updates_the_height() {
-        let aiding = AidingConfig {
-            height: HeightConfig {
-                sigma_m: 0.03,
-                range_offset_m: 0.05,
-                ..HeightConfig::default()
-            },
-            ..AidingConfig::default()
-        };
+        let aiding = crate::aiding::height_aiding();
         // Tilted 0.2 rad about body x: R33 = cos 0.2.
         let tilt = 0.2_f64;
         let quat = [(tilt / 2.0).cos(), (tilt / 2.0).sin(), 0.0, 0.0];
