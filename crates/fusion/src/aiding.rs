@@ -57,7 +57,7 @@ pub struct AidingConfig {
 /// weighted as it would be alone. The loose filters' vertical loop steers
 /// to the last such height instead of the fix's while it is at most 0.5 s
 /// old.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct HeightConfig {
     /// Standard deviation of one height, m; 0 (default): no height

@@ -587,7 +587,7 @@ impl PaperEstimator {
     #[must_use]
     pub fn with_aiding(mut self, aiding: &AidingConfig) -> Self {
         self.scales = VelocityScales::new(aiding);
-        self.height = aiding.height.clone();
+        self.height = aiding.height;
         self
     }
 

@@ -403,7 +403,7 @@ impl TightEstimator {
     pub fn with_aiding(mut self, aiding: &AidingConfig, scale_baseline_m: f64) -> Self {
         self.scales = VelocityScales::new(aiding);
         self.scale_baseline_m = scale_baseline_m;
-        self.height = aiding.height.clone();
+        self.height = aiding.height;
         self
     }
 
