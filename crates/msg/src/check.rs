@@ -4,7 +4,8 @@
 //! A sample from a source (simulation, replay, a device) passes a gate
 //! before it is published or used: [`ImuGate`] for the IMU stream,
 //! [`TdoaGate`] for the UWB TDOA stream, [`RangeGate`] for UWB two-way
-//! ranges, [`VelocityGate`] for body-frame velocities (odometry, flow). A gate refuses a sample whose
+//! ranges, [`VelocityGate`] for body-frame velocities (odometry, flow),
+//! [`HeightGate`] for heights (a range finder). A gate refuses a sample whose
 //! values cannot be a measurement ([`imu_values`], [`tdoa_values`]) or whose
 //! time does not follow the stream's, counts every refusal by reason
 //! ([`ImuRefusals`], [`TdoaRefusals`]) and says why ([`ImuRefusal`],
@@ -60,13 +61,17 @@
 //!   [`MAX_BODY_SPEED_MPS`]; an unknown source; a time before the previous
 //!   accepted measurement's, or equal to it.
 //!
+//! - Height: a NaN or infinite range; a range at or below 0 or at or above
+//!   [`MAX_HEIGHT_RANGE_M`]; an unknown source; a time before the previous
+//!   accepted measurement's, or equal to it.
+//!
 //! The value refusals (`Invalid`) are what a driver's heartbeat counts in
 //! `Health::dropped_invalid`, the time refusals in `Health::dropped_time`.
 //! A refused sample changes nothing in its gate but the counts. A new
 //! sample type gets its value check, its gate, its refusal enum and its
 //! counts the same way.
 
-use crate::{BodyVelocity, ImuSample, UwbRange, UwbTdoa};
+use crate::{BodyVelocity, Height, ImuSample, UwbRange, UwbTdoa};
 use serde::{Deserialize, Serialize};
 
 /// Largest plausible accelerometer magnitude per axis, m/s^2 (excluded).
@@ -75,6 +80,9 @@ pub const MAX_ACCEL_MPS2: f64 = 400.0;
 pub const MAX_RATE_RPS: f64 = 70.0;
 /// Largest plausible body-frame speed per axis, m/s (excluded).
 pub const MAX_BODY_SPEED_MPS: f64 = 50.0;
+/// Longest plausible range finder distance, m (excluded): downward lidars
+/// reach tens of metres, the flow deck's VL53L1x 4 m.
+pub const MAX_HEIGHT_RANGE_M: f64 = 100.0;
 /// Longest plausible UWB range, m (excluded): the radios reach a few
 /// hundred metres line of sight.
 pub const MAX_RANGE_M: f64 = 1000.0;
@@ -524,6 +532,94 @@ impl VelocityRefusals {
     }
 }
 
+/// Why a height measurement's values cannot be a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum InvalidHeight {
+    /// The range is NaN or infinite.
+    #[error("height range_m is not finite ({0})")]
+    NonFinite(f64),
+    /// The range is at or below 0 or at or above [`MAX_HEIGHT_RANGE_M`].
+    #[error("height range_m is {value} m, outside (0, {limit}) m")]
+    OutOfRange {
+        /// The range, m.
+        value: f64,
+        /// The limit, m.
+        limit: f64,
+    },
+    /// The source is none of `Height::SOURCE_*`.
+    #[error("height source {0} is unknown")]
+    Source(u32),
+}
+
+/// Why a [`HeightGate`] refused a height measurement.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum HeightRefusal {
+    /// Its values cannot be a measurement.
+    #[error(transparent)]
+    Invalid(#[from] InvalidHeight),
+    /// Its time is before the previous accepted measurement's.
+    #[error("height time {time_ns} ns is before the previous measurement's {last_ns} ns")]
+    TimeBackwards {
+        /// Time of the refused measurement, ns.
+        time_ns: u64,
+        /// Time of the previous accepted measurement, ns.
+        last_ns: u64,
+    },
+    /// Its time equals the previous accepted measurement's.
+    #[error("height time {time_ns} ns repeats the previous measurement's")]
+    TimeRepeated {
+        /// The time of both, ns.
+        time_ns: u64,
+    },
+}
+
+/// Height measurements refused, by reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct HeightRefusals {
+    /// A NaN or infinite range ([`InvalidHeight::NonFinite`]).
+    pub non_finite: u64,
+    /// A range out of range ([`InvalidHeight::OutOfRange`]).
+    pub out_of_range: u64,
+    /// An unknown source ([`InvalidHeight::Source`]).
+    pub source: u64,
+    /// A time before the previous measurement's ([`HeightRefusal::TimeBackwards`]).
+    pub time_backwards: u64,
+    /// The previous measurement's time again ([`HeightRefusal::TimeRepeated`]).
+    pub time_repeated: u64,
+}
+
+impl HeightRefusals {
+    /// Counts `r` under its reason.
+    pub fn count(&mut self, r: &HeightRefusal) {
+        let n = match r {
+            HeightRefusal::Invalid(InvalidHeight::NonFinite(_)) => &mut self.non_finite,
+            HeightRefusal::Invalid(InvalidHeight::OutOfRange { .. }) => &mut self.out_of_range,
+            HeightRefusal::Invalid(InvalidHeight::Source(_)) => &mut self.source,
+            HeightRefusal::TimeBackwards { .. } => &mut self.time_backwards,
+            HeightRefusal::TimeRepeated { .. } => &mut self.time_repeated,
+        };
+        *n += 1;
+    }
+
+    /// Refused for their values (`Health::dropped_invalid`).
+    #[must_use]
+    pub fn invalid(&self) -> u64 {
+        self.non_finite + self.out_of_range + self.source
+    }
+
+    /// Refused for their time (`Health::dropped_time`).
+    #[must_use]
+    pub fn time(&self) -> u64 {
+        self.time_backwards + self.time_repeated
+    }
+
+    /// Refused in all.
+    #[must_use]
+    pub fn total(&self) -> u64 {
+        self.invalid() + self.time()
+    }
+}
+
 /// Samples refused, by sample type and reason (what `insuwb eval` reports).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Refusals {
@@ -537,6 +633,9 @@ pub struct Refusals {
     /// UWB two-way ranges.
     #[serde(default)]
     pub range: RangeRefusals,
+    /// Heights (a range finder).
+    #[serde(default)]
+    pub height: HeightRefusals,
 }
 
 /// Checks a range measurement's values: finite, `0 <= range_m <`
@@ -602,6 +701,27 @@ pub fn velocity_values(m: &BodyVelocity) -> Result<(), InvalidVelocity> {
         BodyVelocity::SOURCE_ODOMETRY | BodyVelocity::SOURCE_FLOW
     ) {
         return Err(InvalidVelocity::Source(m.source));
+    }
+    Ok(())
+}
+
+/// Checks a height measurement's values: a finite range in `(0,`
+/// [`MAX_HEIGHT_RANGE_M`]`)`, a known source.
+///
+/// # Errors
+/// The first failed check, in that order.
+pub fn height_values(m: &Height) -> Result<(), InvalidHeight> {
+    if !m.range_m.is_finite() {
+        return Err(InvalidHeight::NonFinite(m.range_m));
+    }
+    if m.range_m <= 0.0 || m.range_m >= MAX_HEIGHT_RANGE_M {
+        return Err(InvalidHeight::OutOfRange {
+            value: m.range_m,
+            limit: MAX_HEIGHT_RANGE_M,
+        });
+    }
+    if m.source != Height::SOURCE_RANGE_FINDER {
+        return Err(InvalidHeight::Source(m.source));
     }
     Ok(())
 }
@@ -941,6 +1061,51 @@ impl VelocityGate {
     }
 }
 
+/// The gate of a height stream: values ([`height_values`]), then a time
+/// strictly after the previous accepted measurement's.
+#[derive(Debug, Clone, Default)]
+pub struct HeightGate {
+    last_ns: Option<u64>,
+    refusals: HeightRefusals,
+}
+
+impl HeightGate {
+    /// A gate that has seen nothing.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Checks `m`; an accepted measurement's time becomes the one the next
+    /// must follow.
+    ///
+    /// # Errors
+    /// Why `m` is refused (also counted in [`HeightGate::refusals`]).
+    pub fn check(&mut self, m: &Height) -> Result<(), HeightRefusal> {
+        let r = self.verdict(m);
+        match &r {
+            Ok(()) => self.last_ns = Some(m.header.meas_time_ns),
+            Err(e) => self.refusals.count(e),
+        }
+        r
+    }
+
+    fn verdict(&self, m: &Height) -> Result<(), HeightRefusal> {
+        height_values(m)?;
+        let time_ns = m.header.meas_time_ns;
+        strictly_after(self.last_ns, time_ns).map_err(|last| match last {
+            Some(last_ns) => HeightRefusal::TimeBackwards { time_ns, last_ns },
+            None => HeightRefusal::TimeRepeated { time_ns },
+        })
+    }
+
+    /// The measurements refused so far, by reason.
+    #[must_use]
+    pub fn refusals(&self) -> &HeightRefusals {
+        &self.refusals
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1029,6 +1194,45 @@ mod tests {
         );
         assert_eq!((r.time_backwards, r.time_repeated), (1, 1));
         assert_eq!((r.invalid(), r.time(), r.total()), (5, 2, 7));
+    }
+
+    #[test]
+    fn height_gate_refuses_each_bad_value_and_time_with_its_counter() {
+        let h = |t_ns, range_m| Height {
+            header: Header::new(0, t_ns),
+            range_m,
+            source: Height::SOURCE_RANGE_FINDER,
+        };
+        let mut g = HeightGate::new();
+        assert_eq!(g.check(&h(10, 1.2)), Ok(()));
+        let cases = [
+            (h(20, f64::NAN), "non-finite"),
+            (h(20, f64::INFINITY), "non-finite"),
+            (h(20, -0.3), "negative"),
+            (h(20, 0.0), "zero"),
+            (h(20, MAX_HEIGHT_RANGE_M), "too long"),
+            (
+                Height {
+                    source: 9,
+                    ..h(20, 1.0)
+                },
+                "source",
+            ),
+            (h(5, 1.0), "backwards"),
+            (h(10, 1.0), "repeated"),
+        ];
+        for (c, why) in &cases {
+            assert!(g.check(c).is_err(), "{why}: {c:?}");
+        }
+        assert_eq!(g.check(&h(20, 1.25)), Ok(()));
+        let r = g.refusals();
+        assert_eq!((r.non_finite, r.out_of_range, r.source), (2, 3, 1));
+        assert_eq!((r.time_backwards, r.time_repeated), (1, 1));
+        assert_eq!((r.invalid(), r.time(), r.total()), (6, 2, 8));
+        assert_eq!(
+            g.check(&h(30, -1.0)).map_err(|e| e.to_string()),
+            Err("height range_m is -1 m, outside (0, 100) m".to_string())
+        );
     }
 
     fn imu(t_ns: u64) -> ImuSample {

@@ -216,6 +216,28 @@ impl BodyVelocity {
     }
 }
 
+/// A height measurement (topic [`topics::HEIGHT`]): a range finder's
+/// distance to the floor along the body's z axis (the Crazyflie flow
+/// deck's VL53L1x, a downward lidar or sonar), from which a filter takes
+/// the height above a flat floor as `range_m * R33` (the body z axis's
+/// vertical component) plus its mounting offset.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+#[type_name("insuwb::Height")]
+pub struct Height {
+    /// Common header; `meas_time_ns` is the reading's time.
+    pub header: Header,
+    /// The distance measured along the body z axis down to the floor, m.
+    pub range_m: f64,
+    /// What measured it: [`Height::SOURCE_RANGE_FINDER`].
+    pub source: u32,
+}
+
+impl Height {
+    /// A range finder looking down along the body z axis.
+    pub const SOURCE_RANGE_FINDER: u32 = 1;
+}
+
 /// A UWB position (and velocity) fix from multilateration (topic [`topics::UWB_FIX`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
 #[repr(C)]
@@ -716,6 +738,8 @@ pub mod topics {
     pub const BODY_VEL: &str = "body_vel";
     /// Raw UWB two-way ranges ([`crate::UwbRange`]).
     pub const UWB_RANGE: &str = "uwb_range";
+    /// Height measurements ([`crate::Height`]).
+    pub const HEIGHT: &str = "height";
 }
 
 /// Anything carrying a [`Header`].
@@ -739,6 +763,7 @@ impl_has_header!(
     UwbTdoa,
     UwbRange,
     BodyVelocity,
+    Height,
     UwbFix,
     NavState,
     InsCorrection,
