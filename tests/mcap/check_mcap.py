@@ -19,13 +19,17 @@ ALL.csv is `insuwb log cat LOG --csv` (every record), FUSED.csv
   from the file's ros2msg schemas (`get_types_from_msg`) and decodes the
   odometry, IMU and `insuwb_msgs/msg/UwbFix` messages, and the
   `insuwb_msgs/msg/BodyVelocity` ones where the log has body velocities,
-  with `deserialize_cdr`, compared with the log.
+  with `deserialize_cdr`, compared with the log; where the log has
+  heights, the `insuwb_msgs/msg/Height` ones too: each with its record's
+  seq and stamp, in `base_link`, a positive finite `range_m` and source 1
+  (a range finder).
 
 Prints one line per check and `OK` at the end; exits 1 on the first
 failure. `--partial` allows a log without every topic (a cut copy).
 """
 
 import csv
+import math
 import re
 import sys
 from collections import Counter
@@ -48,9 +52,11 @@ TOPICS = {
     "truth": ["/insuwb/truth"],
     "health": ["/diagnostics"],
     "body_vel": ["/insuwb/body_vel"],
+    "height": ["/insuwb/height"],
 }
 # Topics a full log of a launched group has (`body_vel` only where a
-# velocity source publishes: checked when present).
+# velocity source publishes, `height` only where a range finder does:
+# checked when present).
 REQUIRED = ["imu", "uwb_tdoa", "uwb_fix", "nav", "correction", "fused", "diag", "truth", "health"]
 
 
@@ -165,7 +171,9 @@ def main():
     imu_rows = [r for r in records if r[0] == "imu"]
     fix_rows = [r for r in records if r[0] == "uwb_fix"]
     vel_rows = [r for r in records if r[0] == "body_vel"]
-    decoded = {"/insuwb/odom": [], "/insuwb/imu": [], "/insuwb/uwb_fix": [], "/insuwb/body_vel": []}
+    height_rows = [r for r in records if r[0] == "height"]
+    decoded = {"/insuwb/odom": [], "/insuwb/imu": [], "/insuwb/uwb_fix": [], "/insuwb/body_vel": [],
+               "/insuwb/height": []}
     bag_counts = Counter()
     with BagReader(mcap_path) as bag:
         conns = {c.topic: c for c in bag.connections}
@@ -178,7 +186,8 @@ def main():
     for topic, msgtype in [("/insuwb/odom", "nav_msgs/msg/Odometry"),
                            ("/insuwb/imu", "sensor_msgs/msg/Imu"),
                            ("/insuwb/uwb_fix", "insuwb_msgs/msg/UwbFix"),
-                           ("/insuwb/body_vel", "insuwb_msgs/msg/BodyVelocity")]:
+                           ("/insuwb/body_vel", "insuwb_msgs/msg/BodyVelocity"),
+                           ("/insuwb/height", "insuwb_msgs/msg/Height")]:
         check(topic not in conns or conns[topic].msgtype == msgtype,
               f"rosbags: {topic} is a {conns.get(topic)}")
     for m, row in zip(decoded["/insuwb/odom"], fused, strict=True):
@@ -202,10 +211,18 @@ def main():
               and m.sample.seq == int(row[1])
               and stamp_ns(m.header.stamp) == int(row[3]) and m.header.frame_id == "base_link",
               f"rosbags body_vel {v} {s} {m.range_mm} != log {row[5:13]}")
+    for m, row in zip(decoded["/insuwb/height"], height_rows, strict=True):
+        check(math.isfinite(m.range_m) and m.range_m > 0 and close(m.range_m, row[5])
+              and m.source == int(row[6]) == 1
+              and m.sample.seq == int(row[1])
+              and stamp_ns(m.header.stamp) == int(row[3]) and m.header.frame_id == "base_link",
+              f"rosbags height range_m {m.range_m} source {m.source} seq {m.sample.seq} "
+              f"!= log {row[:7]}")
     print(f"rosbags: opened as a bag, {len(types)} types registered from the schemas, "
           f"decoded {len(decoded['/insuwb/odom'])} odometry, {len(decoded['/insuwb/imu'])} imu, "
           f"{len(decoded['/insuwb/uwb_fix'])} insuwb_msgs/msg/UwbFix, "
-          f"{len(decoded['/insuwb/body_vel'])} insuwb_msgs/msg/BodyVelocity messages equal to the log")
+          f"{len(decoded['/insuwb/body_vel'])} insuwb_msgs/msg/BodyVelocity, "
+          f"{len(decoded['/insuwb/height'])} insuwb_msgs/msg/Height messages equal to the log")
     print("OK")
 
 

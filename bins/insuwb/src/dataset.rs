@@ -120,8 +120,9 @@ pub enum Aiding {
     /// None: IMU and UWB alone.
     #[default]
     None,
-    /// The optical-flow deck's body velocities (a UTIL log's `estFlow`
-    /// with its `estTOF` ranges; a scenario's `[sim.flow]`).
+    /// The optical-flow deck's body velocities and its range finder's
+    /// heights (a UTIL log's `estFlow` with its `estTOF` ranges; a
+    /// scenario's `[sim.flow]`).
     Flow,
     /// Wheel odometry (a scenario's `[sim.odometry]`).
     Odometry,
@@ -198,13 +199,17 @@ impl Loaded {
         Ok(())
     }
 
-    /// Puts the velocities `aiding` names into the dataset.
+    /// Puts the velocities `aiding` names (and the flow deck's heights
+    /// with its flow) into the dataset.
     ///
     /// # Errors
     /// The log holds no such records (naming the file).
     pub fn use_aiding(&mut self, aiding: Aiding, path: &Path) -> Result<()> {
         match aiding {
-            Aiding::None => self.data.velocity.clear(),
+            Aiding::None => {
+                self.data.velocity.clear();
+                self.data.height.clear();
+            }
             Aiding::Odometry => bail!(
                 "{}: --aiding odometry is for a simulated scenario's wheel odometry (--scenario with [sim.odometry]); a log holds none",
                 path.display()
@@ -223,6 +228,20 @@ impl Loaded {
                     );
                 }
                 self.data.velocity = flow;
+                self.data.height.clone_from(&self.height);
+                if let Some(h) = &self.height_stats {
+                    tracing::info!(
+                        "{}: {} heights from {} range records; refused: {} range below {} m, {} above {} m, {} time backwards",
+                        path.display(),
+                        h.heights,
+                        h.records,
+                        h.range_low,
+                        self.config.flow.min_range_m,
+                        h.range_high,
+                        self.config.flow.max_range_m,
+                        h.time_backwards
+                    );
+                }
                 let Some(stats) = &self.flow_stats else {
                     return Ok(());
                 };
@@ -265,6 +284,13 @@ pub struct Loaded {
     /// What a UTIL log's flow records gave (None: no flow records, or a
     /// project log).
     pub flow_stats: Option<insuwb_data::FlowStats>,
+    /// The log's heights (a project log's `height` records, or a UTIL
+    /// log's range finder through [`insuwb_data::range_heights`]): they
+    /// aid with the flow (`--aiding flow`).
+    pub height: Vec<insuwb_msg::Height>,
+    /// What a UTIL log's range records gave (None: no flow records, or a
+    /// project log).
+    pub height_stats: Option<insuwb_data::HeightStats>,
     /// The height the flight segment is cut at, m (`None`: the whole log,
     /// a log without flight phases).
     pub flight_min_height_m: Option<f64>,
@@ -330,9 +356,11 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
     };
     let mut recorded = Vec::new();
     let mut velocity = Vec::new();
+    let mut height = Vec::new();
     for r in records {
         match r {
             Record::BodyVel(s) => velocity.push(s),
+            Record::Height(s) => height.push(s),
             Record::Imu(s) => data.imu.push(s),
             Record::Tdoa(s) => data.tdoa.push(s),
             Record::Range(s) => data.range.push(s),
@@ -379,6 +407,8 @@ fn load_project_log(path: &Path, config: Option<&str>) -> Result<Loaded> {
         config_origin: origin,
         velocity,
         flow_stats: None,
+        height,
+        height_stats: None,
         flight_min_height_m,
         segment_note: String::new(),
     })
@@ -449,12 +479,13 @@ fn load_util(
         .flow
         .validate()
         .with_context(|| format!("{origin}: [flow]"))?;
-    let (velocity, flow_stats) = if flight.flow.is_empty() {
-        (Vec::new(), None)
+    let (velocity, flow_stats, height, height_stats) = if flight.flow.is_empty() {
+        (Vec::new(), None, Vec::new(), None)
     } else {
         let (v, stats) =
             insuwb_data::flow_velocities(&flight.flow, &flight.ranges, &flight.imu, &config.flow);
-        (v, Some(stats))
+        let (h, hstats) = insuwb_data::range_heights(&flight.ranges, &config.flow);
+        (v, Some(stats), h, Some(hstats))
     };
     let mut data = Dataset {
         name: path.display().to_string(),
@@ -463,6 +494,7 @@ fn load_util(
         range: flight.twr,
         truth: flight.truth,
         velocity: Vec::new(),
+        height: Vec::new(),
         segment,
     };
     sort_streams(&mut data);
@@ -473,6 +505,8 @@ fn load_util(
         config_origin: origin,
         velocity,
         flow_stats,
+        height,
+        height_stats,
         flight_min_height_m: Some(min_h),
         segment_note: String::new(),
     })

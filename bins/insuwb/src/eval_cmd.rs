@@ -534,6 +534,7 @@ pub fn sim(a: &SimArgs) -> Result<()> {
             insuwb_sim::SimRecord::Range(s) => Record::Range(s),
             insuwb_sim::SimRecord::Truth(s) => Record::Truth(s),
             insuwb_sim::SimRecord::Velocity(s) => Record::BodyVel(s),
+            insuwb_sim::SimRecord::Height(s) => Record::Height(s),
         };
         w.append(&rec)?;
         n += 1;
@@ -692,6 +693,13 @@ pub fn import_util(a: &ImportUtilArgs) -> Result<()> {
             .velocity
             .iter()
             .map(|s| (s.header.meas_time_ns, 3, Record::BodyVel(*s))),
+    );
+    // And its range finder's heights.
+    recs.extend(
+        loaded
+            .height
+            .iter()
+            .map(|s| (s.header.meas_time_ns, 4, Record::Height(*s))),
     );
     recs.sort_by_key(|r| (r.0, r.1));
     for (_, _, r) in &recs {

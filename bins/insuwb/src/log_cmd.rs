@@ -18,13 +18,14 @@ pub enum LogCmd {
     Cat {
         /// The log file.
         file: PathBuf,
-        /// Only this topic (imu, uwb_tdoa, uwb_fix, nav, correction, fused, diag, truth, health, body_vel).
+        /// Only this topic (imu, uwb_tdoa, uwb_fix, nav, correction, fused, diag, truth, health, body_vel, uwb_range, height).
         #[arg(long)]
         topic: Option<String>,
         /// CSV instead of debug text: topic, seq, generation, meas_time_ns,
         /// pub_time_ns, then the sample's fields (diag: nis, fading, dim, then
         /// dim each of innovation, innovation variance, outlier weight, R in use;
-        /// body_vel: velocity x, y, z, sigma x, y, z, source, range mm).
+        /// body_vel: velocity x, y, z, sigma x, y, z, source, range mm;
+        /// height: range m, source).
         #[arg(long)]
         csv: bool,
     },
@@ -215,6 +216,7 @@ fn csv_line(rec: &Record) -> String {
             s.source,
             s.range_mm
         ),
+        Record::Height(s) => format!("{head},{},{}", s.range_m, s.source),
     }
 }
 

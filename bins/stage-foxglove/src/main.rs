@@ -1,7 +1,7 @@
 //! The insuwb Foxglove live-view stage (`insuwb-stage-foxglove`): reads the
 //! robot config, takes the `foxglove` role's lock, and runs
 //! `insuwb_foxglove::live` (iceoryx2 `fused`, `uwb_fix`, `uwb_tdoa`,
-//! `diag`, `truth`, `body_vel`, `health` in; the Foxglove WebSocket protocol out on
+//! `diag`, `truth`, `body_vel`, `height`, `health` in; the Foxglove WebSocket protocol out on
 //! `[foxglove] bind`) until SIGINT/SIGTERM. Normally started by
 //! `insuwb launch` when `stages` lists `foxglove`.
 
@@ -21,7 +21,7 @@ use insuwb_stage::lock::{StageLock, STAGE_LOCK_WAIT};
 #[derive(Debug, Parser)]
 #[command(
     version,
-    about = "The insuwb Foxglove live view: fused pose, path, UWB fixes, anchors, truth, filter diagnostics, body velocities, UWB ranges and stage health over the Foxglove WebSocket protocol (normally started by `insuwb launch`)."
+    about = "The insuwb Foxglove live view: fused pose, path, UWB fixes, anchors, truth, filter diagnostics, body velocities, heights, UWB ranges and stage health over the Foxglove WebSocket protocol (normally started by `insuwb launch`)."
 )]
 struct Args {
     /// The robot group configuration (config/robot.toml) with its `[foxglove]` table.
@@ -72,13 +72,14 @@ fn run(args: &Args) -> Result<()> {
     let view = LiveView::open(setup).context("opening the Foxglove live view")?;
     let stats = view.run().context("the Foxglove live view")?;
     tracing::info!(
-        "foxglove: logged {} poses, {} fixes, {} truth, {} errors, {} diagnostics, {} body velocities, {} UWB ranges, {} health; {} invalid samples, {} too old",
+        "foxglove: logged {} poses, {} fixes, {} truth, {} errors, {} diagnostics, {} body velocities, {} heights, {} UWB ranges, {} health; {} invalid samples, {} too old",
         stats.poses,
         stats.fixes,
         stats.truth,
         stats.errors,
         stats.diags,
         stats.velocities,
+        stats.heights,
         stats.ranges,
         stats.health,
         stats.invalid,

@@ -1,7 +1,8 @@
 //! The optical-flow deck's measurement model: pixel flow, the range
 //! finder's distance and the body rates give the body-frame velocity
 //! ([`BodyVelocity`], source flow), which carries that distance
-//! (`range_mm`) for a filter's height.
+//! (`range_mm`); each range finder reading in the deck's range is also a
+//! height ([`Height`], [`range_heights`]) for a filter.
 //!
 //! The model is the Crazyflie firmware's (bitcraze/crazyflie-firmware,
 //! `src/modules/src/kalman_core/mm_flow.c` and
@@ -48,7 +49,7 @@
 //! sensor is out of focus; beyond the range finder's reach the distance is
 //! not known), or when no IMU sample covers it.
 
-use insuwb_msg::{BodyVelocity, Header, ImuSample};
+use insuwb_msg::{BodyVelocity, Header, Height, ImuSample};
 use serde::{Deserialize, Serialize};
 
 /// One flow-deck record: motion counts since the previous read, in the
@@ -196,6 +197,56 @@ pub struct FlowStats {
     pub no_gyro: u64,
     /// A record at or before the previous one's time.
     pub time_backwards: u64,
+}
+
+/// Range-finder records turned into heights, and those refused by reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct HeightStats {
+    /// Range records read.
+    pub records: u64,
+    /// Heights produced.
+    pub heights: u64,
+    /// The range not finite, or below `min_range_m` (on or near the
+    /// floor, where the sensor reads 0 or too short).
+    pub range_low: u64,
+    /// The range above `max_range_m` (out of the range finder's reach).
+    pub range_high: u64,
+    /// A record at or before the previous one's time.
+    pub time_backwards: u64,
+}
+
+/// The heights of one flight's range records (sorted by time): each reading
+/// within the deck's [`FlowDeck::min_range_m`]..[`FlowDeck::max_range_m`],
+/// as the flow velocities use them, at its own time (`header.seq` counting
+/// from 0); the others refused and counted by reason.
+#[must_use]
+pub fn range_heights(ranges: &[RangeRecord], deck: &FlowDeck) -> (Vec<Height>, HeightStats) {
+    let mut stats = HeightStats::default();
+    let mut out = Vec::with_capacity(ranges.len());
+    let mut prev_t: Option<u64> = None;
+    for r in ranges {
+        stats.records += 1;
+        if prev_t.is_some_and(|p| r.t_ns <= p) {
+            stats.time_backwards += 1;
+            continue;
+        }
+        prev_t = Some(r.t_ns);
+        if r.range_m.is_nan() || r.range_m < deck.min_range_m {
+            stats.range_low += 1;
+            continue;
+        }
+        if r.range_m > deck.max_range_m {
+            stats.range_high += 1;
+            continue;
+        }
+        out.push(Height {
+            header: Header::new(out.len() as u64, r.t_ns),
+            range_m: r.range_m,
+            source: Height::SOURCE_RANGE_FINDER,
+        });
+        stats.heights += 1;
+    }
+    (out, stats)
 }
 
 /// Body velocities from the flow and range records of one flight and its
@@ -374,6 +425,42 @@ mod tests {
         }];
         let (_, s) = flow_velocities(&[rec(510)], &late, &imu, &FlowDeck::default());
         assert_eq!(s.no_gyro, 1);
+    }
+
+    #[test]
+    fn readings_in_the_decks_range_are_heights_the_others_are_counted() {
+        let ms = 1_000_000u64;
+        let r = |t: u64, range_m: f64| RangeRecord {
+            t_ns: t * ms,
+            range_m,
+        };
+        let ranges = [
+            r(10, 0.05),
+            r(20, 1.234),
+            r(20, 1.3),
+            r(15, 1.3),
+            r(30, f64::NAN),
+            r(40, 5.0),
+            r(50, 1.25),
+        ];
+        let (h, stats) = range_heights(&ranges, &FlowDeck::default());
+        assert_eq!(
+            h.iter()
+                .map(|h| (h.header.seq, h.header.meas_time_ns / ms, h.range_m))
+                .collect::<Vec<_>>(),
+            [(0, 20, 1.234), (1, 50, 1.25)]
+        );
+        assert!(h.iter().all(|h| h.source == Height::SOURCE_RANGE_FINDER));
+        assert_eq!(
+            stats,
+            HeightStats {
+                records: 7,
+                heights: 2,
+                range_low: 2,
+                range_high: 1,
+                time_backwards: 2,
+            }
+        );
     }
 
     #[test]

@@ -31,7 +31,10 @@ pub mod util;
 
 pub use anchors::{AnchorError, Anchors};
 pub use cflog::{is_cflog, CfLog, CfLogError, CutKind, CutReport, Integrity, ParseOptions};
-pub use flow::{flow_velocities, FlowDeck, FlowDeckError, FlowRecord, FlowStats, RangeRecord};
+pub use flow::{
+    flow_velocities, range_heights, FlowDeck, FlowDeckError, FlowRecord, FlowStats, HeightStats,
+    RangeRecord,
+};
 pub use segment::{flight_segment, interpolate_truth, interpolate_truth_within};
 pub use util::{
     load_util_flight, ImportError, ImportOptions, ImportStats, LoadError, UtilFlight,

@@ -6,8 +6,8 @@
 use insuwb_fusion::config::{build_estimator, ConfigError, FusionConfig};
 use insuwb_fusion::runner::{self, RunOutput};
 use insuwb_msg::{
-    BodyVelocity, FilterKind, FusedState, GroundTruth, ImuSample, NavState, UwbFix, UwbRange,
-    UwbTdoa,
+    BodyVelocity, FilterKind, FusedState, GroundTruth, Height, ImuSample, NavState, UwbFix,
+    UwbRange, UwbTdoa,
 };
 
 use crate::metrics::{compute, Estimate, Metrics, MetricsError, TruthTrack};
@@ -29,6 +29,8 @@ pub struct Dataset {
     /// Body-frame velocities (odometry, flow) the filters are aided with;
     /// empty: no aiding.
     pub velocity: Vec<BodyVelocity>,
+    /// Heights (a range finder's) the filters are aided with; empty: none.
+    pub height: Vec<Height>,
     /// Evaluate only epochs inside this span (ns), e.g. the flight segment.
     pub segment: Option<(u64, u64)>,
 }
@@ -197,9 +199,23 @@ pub fn evaluate_at(
     for &kind in filters {
         let est = build_estimator(kind, cfg)?;
         let out = if ranging {
-            runner::run_aided(&data.imu, &data.range, &data.velocity, cfg, est)?
+            runner::run_aided(
+                &data.imu,
+                &data.range,
+                &data.velocity,
+                &data.height,
+                cfg,
+                est,
+            )?
         } else {
-            runner::run_aided(&data.imu, &data.tdoa, &data.velocity, cfg, est)?
+            runner::run_aided(
+                &data.imu,
+                &data.tdoa,
+                &data.velocity,
+                &data.height,
+                cfg,
+                est,
+            )?
         };
         let track = match at {
             Epochs::Fixes => sample_fused(&out.fused, &fix_epochs),

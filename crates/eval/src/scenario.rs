@@ -70,11 +70,13 @@ pub fn dataset(file: &ScenarioFile, seed: u64) -> Result<Dataset, ScenarioError>
         range: out.range,
         truth: out.truth,
         velocity: out.velocity,
+        height: out.height,
         segment: None,
     })
 }
 
-/// [`dataset`] with the body velocities of `opts.velocity_sources` alone and
+/// [`dataset`] with the body velocities of `opts.velocity_sources` alone (and
+/// the range finder's heights with the flow's) and
 /// the evaluation window of `opts` as its segment.
 ///
 /// # Errors
@@ -102,6 +104,13 @@ pub fn dataset_with(
     }
     data.velocity
         .retain(|v| opts.velocity_sources.contains(&v.source));
+    // The range finder's heights come with the flow deck's velocities.
+    if !opts
+        .velocity_sources
+        .contains(&insuwb_msg::BodyVelocity::SOURCE_FLOW)
+    {
+        data.height.clear();
+    }
     data.segment = opts
         .window_s
         .map(|[a, b]| (seconds_to_ns(a), seconds_to_ns(b)));

@@ -24,9 +24,9 @@ pub const DEFAULT_BIND: &str = "127.0.0.1:8765";
 
 /// The topics of the live view, under [`FoxgloveConfig::topic_prefix`]
 /// (`truth` and `error` only for a source with ground truth, `body_vel`
-/// from the first body velocity on, `uwb_range` from the first UWB
-/// two-way range on).
-pub const TOPICS: [&str; 12] = [
+/// from the first body velocity on, `height` from the first height on,
+/// `uwb_range` from the first UWB two-way range on).
+pub const TOPICS: [&str; 13] = [
     "pose",
     "tf",
     "path",
@@ -37,6 +37,7 @@ pub const TOPICS: [&str; 12] = [
     "robot",
     "diag",
     "body_vel",
+    "height",
     "uwb_range",
     "health",
 ];

@@ -13,9 +13,10 @@
 //! - Quaternions: insuwb's `[w, x, y, z]` becomes Foxglove's `x, y, z, w`,
 //!   normalised.
 //! - `diag`, the position error against ground truth, body velocities
-//!   (odometry, optical flow), UWB two-way ranges and stage health are
-//!   JSON messages with a JSON schema ([`DIAG_SCHEMA`], [`ERROR_SCHEMA`],
-//!   [`BODY_VEL_SCHEMA`], [`UWB_RANGE_SCHEMA`], [`HEALTH_SCHEMA`]): every
+//!   (odometry, optical flow), heights (a range finder), UWB two-way ranges
+//!   and stage health are JSON messages with a JSON schema
+//!   ([`DIAG_SCHEMA`], [`ERROR_SCHEMA`], [`BODY_VEL_SCHEMA`],
+//!   [`HEIGHT_SCHEMA`], [`UWB_RANGE_SCHEMA`], [`HEALTH_SCHEMA`]): every
 //!   number is a plottable field.
 //!
 //! ```
@@ -36,10 +37,12 @@ use foxglove::messages::{
     PosesInFrame, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
     Vector3,
 };
-use insuwb_msg::check::{range_values, velocity_values, InvalidRange, InvalidVelocity};
+use insuwb_msg::check::{
+    height_values, range_values, velocity_values, InvalidHeight, InvalidRange, InvalidVelocity,
+};
 use insuwb_msg::{
-    name_str, BodyVelocity, FilterDiag, FilterKind, FusedState, GroundTruth, Health, StageCounters,
-    UwbFix, UwbRange,
+    name_str, BodyVelocity, FilterDiag, FilterKind, FusedState, GroundTruth, Health, Height,
+    StageCounters, UwbFix, UwbRange,
 };
 use insuwb_report::clock::ClockOffset;
 use insuwb_report::health::StageCondition;
@@ -69,6 +72,10 @@ pub enum ConvertError {
     /// range, a quality above 100).
     #[error("ConvertError::Range: {0}")]
     Range(#[from] InvalidRange),
+    /// A height that cannot be a measurement (`insuwb_msg::check`'s value
+    /// check: a non-finite range, a range out of range, an unknown source).
+    #[error("ConvertError::Height: {0}")]
+    Height(#[from] InvalidHeight),
 }
 
 /// One UWB anchor on the map.
@@ -558,6 +565,63 @@ pub fn body_velocity_json(
         vel_mps: [axis(0), axis(1), axis(2)],
         sigma_mps: v.sigma_mps,
         range_m: v.range_m(),
+    })
+}
+
+/// A range finder's distance to the floor along body z (topic `height`;
+/// schema [`HEIGHT_SCHEMA`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HeightJson {
+    /// The measurement's time.
+    pub timestamp: JsonTime,
+    /// The body frame the range is along (`child_frame_id`).
+    pub frame_id: String,
+    /// What measured it: `range_finder`.
+    pub source: &'static str,
+    /// The distance measured along body z down to the floor, m.
+    pub range_m: f64,
+}
+
+/// The JSON schema of [`HeightJson`].
+pub const HEIGHT_SCHEMA: &str = r#"{
+  "title": "insuwb.Height",
+  "description": "A range finder's distance to the floor along the body z axis",
+  "type": "object",
+  "properties": {
+    "timestamp": {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}}},
+    "frame_id": {"type": "string", "description": "the body frame"},
+    "source": {"type": "string", "enum": ["range_finder"]},
+    "range_m": {"type": "number", "description": "the distance along body z down to the floor, m"}
+  }
+}"#;
+
+/// The name of a height's source (`Height::SOURCE_*`).
+#[must_use]
+pub fn height_source_name(source: u32) -> &'static str {
+    match source {
+        Height::SOURCE_RANGE_FINDER => "range_finder",
+        _ => "unknown",
+    }
+}
+
+/// A height as [`HeightJson`] in `body_frame_id`, after the value check
+/// the gates use ([`height_values`]).
+///
+/// # Errors
+/// [`ConvertError::Height`] for values that cannot be a measurement,
+/// [`ConvertError::Sample`] for a stamp out of range.
+pub fn height_json(
+    h: &Height,
+    body_frame_id: &str,
+    clock: &ClockOffset,
+) -> Result<HeightJson, ConvertError> {
+    height_values(h)?;
+    let t = stamp_ns(h.header.meas_time_ns, clock)?;
+    Ok(HeightJson {
+        timestamp: timestamp(t).into(),
+        frame_id: body_frame_id.to_owned(),
+        source: height_source_name(h.source),
+        range_m: h.range_m,
     })
 }
 
@@ -1151,6 +1215,41 @@ mod tests {
             "ConvertError::Velocity: body velocity source 7 is unknown"
         );
         assert_eq!(velocity_source_name(7), "unknown");
+    }
+
+    #[test]
+    fn a_height_shows_its_range_in_the_body_frame() {
+        let mut h = Height {
+            header: Header::new(6, 2_750_000_000),
+            range_m: 1.375,
+            source: Height::SOURCE_RANGE_FINDER,
+        };
+        let j = height_json(&h, "base_link", &ClockOffset::ZERO).unwrap();
+        assert_eq!((j.timestamp.sec, j.timestamp.nsec), (2, 750_000_000));
+        assert_eq!(j.frame_id, "base_link");
+        assert_eq!((j.source, j.range_m), ("range_finder", 1.375));
+        let json = serde_json::to_value(&j).unwrap();
+        assert_eq!(json["range_m"], 1.375);
+        assert_schema_covers(HEIGHT_SCHEMA, &json);
+        // The gates' value check: refused with its reason.
+        h.range_m = f64::NAN;
+        assert!(matches!(
+            height_json(&h, "base_link", &ClockOffset::ZERO),
+            Err(ConvertError::Height(InvalidHeight::NonFinite(_)))
+        ));
+        h.range_m = 0.0;
+        assert!(matches!(
+            height_json(&h, "base_link", &ClockOffset::ZERO),
+            Err(ConvertError::Height(InvalidHeight::OutOfRange { .. }))
+        ));
+        h.range_m = 1.375;
+        h.source = 7;
+        let e = height_json(&h, "base_link", &ClockOffset::ZERO).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "ConvertError::Height: height source 7 is unknown"
+        );
+        assert_eq!(height_source_name(7), "unknown");
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! The live-view loop: subscribes to `fused`, `uwb_fix`, `uwb_tdoa`,
-//! `uwb_range`, `diag`, `truth`, `body_vel` and `health` over iceoryx2 and
-//! serves them to the Foxglove app over the Foxglove WebSocket protocol
-//! (the `foxglove` SDK's server, subprotocol `foxglove.sdk.v1`):
+//! `uwb_range`, `diag`, `truth`, `body_vel`, `height` and `health` over
+//! iceoryx2 and serves them to the Foxglove app over the Foxglove WebSocket
+//! protocol (the `foxglove` SDK's server, subprotocol `foxglove.sdk.v1`):
 //!
 //! | topic (prefix `/insuwb`) | schema | encoding | from |
 //! |---|---|---|---|
@@ -15,6 +15,7 @@
 //! | `/robot` | `foxglove.SceneUpdate` | protobuf | the robot's model in `base_link`, each health period |
 //! | `/diag` | `insuwb.FilterDiag` | json | each filter update: innovations, outlier weights, fading |
 //! | `/body_vel` | `insuwb.BodyVelocity` | json | each body velocity (odometry, optical flow) in `base_link`, once one came |
+//! | `/height` | `insuwb.Height` | json | each height (a range finder's distance along body z) in `base_link`, once one came |
 //! | `/uwb_range` | `insuwb.UwbRange` | json | each UWB two-way range: anchor, range, quality, offset removed, anchor position; once one came |
 //! | `/health` | `insuwb.GroupHealth` | json | each health period: one entry per stage |
 //!
@@ -22,11 +23,11 @@
 //! other a TDOA sample or a range names. The channels of truth and error
 //! exist where the source publishes truth ([`LiveSetup::truth`]): every
 //! channel is made before the server starts, so that each client gets them
-//! all in its first advertisement. The exceptions are `body_vel` and
-//! `uwb_range`: no setting says whether a velocity source or a two-way
-//! ranging tag publishes, so each channel is made (and advertised to the
-//! clients connected then) at its first sample, and a group without one
-//! shows no empty channel. Timestamps and log times: see
+//! all in its first advertisement. The exceptions are `body_vel`, `height`
+//! and `uwb_range`: no setting says whether a velocity source, a range
+//! finder or a two-way ranging tag publishes, so each channel is made (and
+//! advertised to the clients connected then) at its first sample, and a
+//! group without one shows no empty channel. Timestamps and log times: see
 //! [`crate::convert`].
 //!
 //! The loop ([`insuwb_report::report_loop`], the ROS 2 bridge's) sleeps in
@@ -51,7 +52,7 @@ use std::time::Duration;
 use foxglove::messages::{FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate};
 use foxglove::{Channel, Context, PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
 use insuwb_msg::{
-    topics, BodyVelocity, FilterDiag, FoxgloveCounters, FusedState, GroundTruth, Health,
+    topics, BodyVelocity, FilterDiag, FoxgloveCounters, FusedState, GroundTruth, Health, Height,
     StageCounters, UwbFix, UwbRange, UwbTdoa,
 };
 use insuwb_runtime::{
@@ -137,6 +138,8 @@ pub struct LiveStats {
     pub diags: u64,
     /// Body velocities.
     pub velocities: u64,
+    /// Heights.
+    pub heights: u64,
     /// UWB two-way ranges.
     pub ranges: u64,
     /// Health messages.
@@ -174,6 +177,7 @@ struct Inputs {
     diag: Sub<FilterDiag>,
     truth: Sub<GroundTruth>,
     body_vel: Sub<BodyVelocity>,
+    height: Sub<Height>,
     health: Sub<Health>,
 }
 
@@ -198,6 +202,13 @@ const BODY_VEL_CHANNEL: LazySpec = LazySpec {
     what: "body velocities",
 };
 
+const HEIGHT_CHANNEL: LazySpec = LazySpec {
+    topic: "height",
+    schema_name: "insuwb.Height",
+    schema: convert::HEIGHT_SCHEMA,
+    what: "heights",
+};
+
 const UWB_RANGE_CHANNEL: LazySpec = LazySpec {
     topic: "uwb_range",
     schema_name: "insuwb.UwbRange",
@@ -205,7 +216,7 @@ const UWB_RANGE_CHANNEL: LazySpec = LazySpec {
     what: "UWB ranges",
 };
 
-/// A channel made at its first message (`body_vel`, `uwb_range`).
+/// A channel made at its first message (`body_vel`, `height`, `uwb_range`).
 enum LazyChannel {
     /// No message yet.
     NotYet,
@@ -239,6 +250,8 @@ struct Outputs {
     health: JsonChannel,
     /// Body velocities, from the first one on.
     body_vel: LazyChannel,
+    /// Heights, from the first one on.
+    height: LazyChannel,
     /// UWB two-way ranges, from the first one on.
     uwb_range: LazyChannel,
     /// Truth and position error, where the source has truth.
@@ -306,6 +319,7 @@ impl LiveView {
             diag: stage.subscriber::<FilterDiag>(topics::DIAG)?,
             truth: stage.subscriber::<GroundTruth>(topics::TRUTH)?,
             body_vel: stage.subscriber::<BodyVelocity>(topics::BODY_VEL)?,
+            height: stage.subscriber::<Height>(topics::HEIGHT)?,
             health: stage.subscriber::<Health>(topics::HEALTH)?,
         };
         let health = stage.health_reporter()?;
@@ -386,6 +400,7 @@ impl LiveView {
                 diag,
                 health: health_ch,
                 body_vel: LazyChannel::NotYet,
+                height: LazyChannel::NotYet,
                 uwb_range: LazyChannel::NotYet,
                 truth,
                 server: Some(server),
@@ -550,6 +565,7 @@ impl ReportOutputs for Outputs {
         let Self {
             stats,
             body_vel,
+            height,
             _ctx: ctx,
             setup,
             ..
@@ -571,6 +587,24 @@ impl ReportOutputs for Outputs {
                     }
                 }
                 Err(e) => invalid(stats, "body velocity", v.header.seq, &e),
+            }
+        })?;
+        inputs.height.drain(|h| {
+            if h.header.pub_time_ns < opened_ns {
+                stats.old += 1;
+                return;
+            }
+            match convert::height_json(&h, body_frame, clock) {
+                Ok(j) => {
+                    let t =
+                        u64::from(j.timestamp.sec) * 1_000_000_000 + u64::from(j.timestamp.nsec);
+                    if let Some(ch) = height.get(ctx, &setup.foxglove, &HEIGHT_CHANNEL) {
+                        if ch.log(&j, t) {
+                            stats.heights += 1;
+                        }
+                    }
+                }
+                Err(e) => invalid(stats, "height", h.header.seq, &e),
             }
         })?;
         let now = monotonic_ns();
@@ -619,13 +653,21 @@ impl ReportOutputs for Outputs {
             inputs.diag.stats(),
             inputs.truth.stats(),
             inputs.body_vel.stats(),
+            inputs.height.stats(),
             inputs.health.stats(),
         ] {
             c.add_sub(&st);
         }
         let s = &self.stats;
-        c.published =
-            s.poses + s.fixes + s.truth + s.errors + s.diags + s.velocities + s.ranges + s.health;
+        c.published = s.poses
+            + s.fixes
+            + s.truth
+            + s.errors
+            + s.diags
+            + s.velocities
+            + s.heights
+            + s.ranges
+            + s.health;
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
         let clients = self.server.as_ref().map_or(0, |h| h.client_count());

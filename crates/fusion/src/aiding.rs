@@ -24,7 +24,7 @@
 //! `scale_corrected`). The factor is observable only while the vehicle
 //! moves; at rest it keeps its prior or its last estimate.
 
-use insuwb_msg::BodyVelocity;
+use insuwb_msg::{BodyVelocity, Height};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -42,14 +42,14 @@ pub struct AidingConfig {
     pub flow: ScaleConfig,
     /// Wheel odometry's scale factor estimate.
     pub odometry: ScaleConfig,
-    /// The range finder's height, where a flow velocity carries its range
-    /// (`BodyVelocity::range_mm`).
+    /// The range finder's height (`insuwb_msg::Height` samples).
     pub height: HeightConfig,
 }
 
-/// The height a flow deck's range finder gives (`[fusion.aiding.height]`):
-/// `(range + range_offset_m) · R33` above the floor at ENU z = 0, with
-/// `R33` the filter's `cos` of its tilt, as one update per flow velocity
+/// The height a range finder gives (`[fusion.aiding.height]`, from
+/// [`insuwb_msg::Height`] samples: the flow deck's VL53L1x, a downward
+/// lidar): `(range + range_offset_m) · R33` above the floor at ENU z = 0,
+/// with `R33` the filter's `cos` of its tilt, as one update per reading
 /// of the tight filter. With the first one the tight filter also turns on
 /// a state for the height at which the UWB places the tag above the
 /// vehicle's (`insuwb_eskf::Eskf::enable_radio_height`): the radio's
@@ -90,11 +90,10 @@ pub(crate) fn height_aiding() -> AidingConfig {
 impl HeightConfig {
     /// The height (ENU z of the IMU) that `m`'s range gives at attitude
     /// `att`: `(range + range_offset_m) R33`; `None` while height updates
-    /// are off or `m` carries no range.
+    /// are off.
     #[must_use]
-    pub fn height_m(&self, m: &BodyVelocity, att: &UnitQuaternion<f64>) -> Option<f64> {
-        let range = m.range_m().filter(|_| self.sigma_m > 0.0)?;
-        Some((range + self.range_offset_m) * (att * Vector3::z()).z)
+    pub fn height_m(&self, m: &Height, att: &UnitQuaternion<f64>) -> Option<f64> {
+        (self.sigma_m > 0.0).then(|| (m.range_m + self.range_offset_m) * (att * Vector3::z()).z)
     }
 }
 

@@ -33,8 +33,8 @@ use std::collections::VecDeque;
 
 use insuwb_filter::{DivergenceMonitor, MonitorConfig, MonitorConfigError};
 use insuwb_msg::{
-    fixed_name, BodyVelocity, FilterDiag, FusedState, Header, InsCorrection, NavState, UwbFix,
-    UwbRange, UwbTdoa, LAYOUT_VERSION,
+    fixed_name, BodyVelocity, FilterDiag, FusedState, Header, Height, InsCorrection, NavState,
+    UwbFix, UwbRange, UwbTdoa, LAYOUT_VERSION,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -235,6 +235,9 @@ pub enum Measurement {
     /// publishes nothing for it, its correction goes out with the next
     /// fix's. It neither initialises nor resets the filter.
     Velocity(BodyVelocity),
+    /// A height (a range finder's): an aiding update as a body velocity
+    /// is ([`Estimator::update_height`]), handled as one.
+    Height(Height),
 }
 
 impl Measurement {
@@ -247,7 +250,14 @@ impl Measurement {
             Self::Tdoa(t) => &t.header,
             Self::Range(r) => &r.header,
             Self::Velocity(v) => &v.header,
+            Self::Height(h) => &h.header,
         }
+    }
+    /// An aiding measurement (a body velocity, a height): it waits for the
+    /// UWB stream to pass its time, neither initialises nor resets the
+    /// filter, and a loose filter publishes nothing for it.
+    fn is_aiding(&self) -> bool {
+        matches!(self, Self::Velocity(_) | Self::Height(_))
     }
 }
 
@@ -642,6 +652,7 @@ impl FusionEngine {
             }
             Measurement::Range(r) => insuwb_msg::check::range_values(r).is_ok(),
             Measurement::Velocity(v) => insuwb_msg::check::velocity_values(v).is_ok(),
+            Measurement::Height(h) => insuwb_msg::check::height_values(h).is_ok(),
         };
         if !finite {
             self.counters.dropped_invalid += 1;
@@ -654,7 +665,7 @@ impl FusionEngine {
         let uwb = match m {
             Measurement::Tdoa(_) | Measurement::Range(_) => self.est.is_tight(),
             Measurement::Fix(_) => !self.est.is_tight(),
-            Measurement::Velocity(_) => false,
+            Measurement::Velocity(_) | Measurement::Height(_) => false,
         };
         if uwb {
             self.uwb_newest_ns = Some(self.uwb_newest_ns.map_or(t, |u| u.max(t)));
@@ -705,8 +716,8 @@ impl FusionEngine {
     fn process(&mut self, out: &mut Outputs) {
         while let Some(m) = self.pending.front().copied() {
             let t_m = m.time();
-            // A body velocity waits for the UWB stream to pass its time.
-            if matches!(m, Measurement::Velocity(_))
+            // An aiding measurement waits for the UWB stream to pass its time.
+            if m.is_aiding()
                 && self.uwb_newest_ns.is_none_or(|u| u < t_m)
                 && !self.latest_nav().is_some_and(|n| {
                     n.header.meas_time_ns >= t_m.saturating_add(self.velocity_wait_ns)
@@ -844,6 +855,7 @@ impl FusionEngine {
             Measurement::Tdoa(t) => self.est.update_tdoa(&ins, &t),
             Measurement::Range(r) => self.est.update_range(&ins, &r),
             Measurement::Velocity(v) => self.est.update_velocity(&ins, &v),
+            Measurement::Height(h) => self.est.update_height(&ins, &h),
         };
         let Some(info) = info else {
             return; // not a measurement this estimator uses
@@ -874,13 +886,13 @@ impl FusionEngine {
             let epoch = self.epoch_of(m.time());
             // An epoch's fused state is stamped with its last UWB
             // measurement; with a velocity only when it has none.
-            if !(matches!(m, Measurement::Velocity(_)) && self.dirty.is_some()) {
+            if !(m.is_aiding() && self.dirty.is_some()) {
                 self.dirty = Some((epoch, m, ins));
             }
             if m.header().flags & UwbTdoa::FLAG_EPOCH_END != 0 {
                 self.emit_epoch(out);
             }
-        } else if !matches!(m, Measurement::Velocity(_)) {
+        } else if !m.is_aiding() {
             self.emit(&m, &ins, out);
         }
         // A loose filter's body-velocity update publishes nothing: the

@@ -5,7 +5,7 @@
 
 use crate::aiding::{scale_corrected, AidingConfig, HeightConfig, VelocityScales};
 use crate::vibration::{VibrationConfig, VibrationMeter};
-use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
+use insuwb_msg::{BodyVelocity, FilterKind, Height, NavState, UwbFix, UwbRange, UwbTdoa};
 
 /// The acceleration an INS that coasted through an IMU gap missed, m/s^2
 /// (a robot's manoeuvres: 1 m/s^2 is a 0.8 m/s loop of 0.64 m radius).
@@ -147,6 +147,11 @@ pub trait Estimator: std::fmt::Debug + Send {
     /// Updates with a body-frame velocity (odometry, flow); `None` when it
     /// does not use them (default).
     fn update_velocity(&mut self, _ins: &InsAt, _m: &BodyVelocity) -> Option<UpdateInfo> {
+        None
+    }
+    /// Updates with a height (a range finder's, [`crate::aiding::HeightConfig`]);
+    /// `None` when it is not an update of its own (default).
+    fn update_height(&mut self, _ins: &InsAt, _m: &Height) -> Option<UpdateInfo> {
         None
     }
     /// Returns the navigation error estimate and zeroes it (closed loop).
@@ -837,6 +842,19 @@ impl Estimator for PaperEstimator {
         None
     }
 
+    /// The range finder's height becomes the vertical loop's target
+    /// ([`HeightConfig`]); no update of the planar filter of its own.
+    fn update_height(&mut self, ins: &InsAt, m: &Height) -> Option<UpdateInfo> {
+        let q = ins.quat;
+        let att = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[0], q[1], q[2], q[3],
+        ));
+        if let Some(z) = self.height.height_m(m, &att) {
+            self.range_height = Some((m.header.meas_time_ns, z));
+        }
+        None
+    }
+
     /// Each measured axis `i` of the body velocity, the unit vector `u =
     /// C e_i` (ENU) of the INS attitude, as a scalar measurement of the
     /// planar error state: the INS's velocity along the axis, `u . v`,
@@ -855,9 +873,6 @@ impl Estimator for PaperEstimator {
         let att = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             q[0], q[1], q[2], q[3],
         ));
-        if let Some(z) = self.height.height_m(m, &att) {
-            self.range_height = Some((m.header.meas_time_ns, z));
-        }
         let scale = self.scales.on_sample(m, &att)?;
         let [ve, vn, vu] = ins.vel_mps;
         let (kappa, gate) = (self.cfg.velocity_kappa, self.cfg.velocity_gate_sigma);
@@ -1224,14 +1239,12 @@ mod tests {
             ..LooseConfig::default()
         })
         .with_aiding(&aiding);
-        let flow = BodyVelocity {
+        let range = Height {
             header: Header::new(0, 1_000_000_000),
-            vel_mps: [0.0; 3],
-            sigma_mps: [0.3, 0.3, 0.0],
-            source: BodyVelocity::SOURCE_FLOW,
-            range_mm: 1200,
+            range_m: 1.2,
+            source: Height::SOURCE_RANGE_FINDER,
         };
-        let _ = e.update_velocity(&ins_at([0.0, 0.0, 1.5]), &flow);
+        assert!(e.update_height(&ins_at([0.0, 0.0, 1.5]), &range).is_none());
         // First fix (T 0.1 s), 0.1 s after the range: the INS 0.25 m above
         // the range's 1.25 m (the fix's 1.0 m is not the target).
         e.update_fix(
@@ -1254,7 +1267,7 @@ mod tests {
             ..LooseConfig::default()
         })
         .with_aiding(&AidingConfig::default());
-        let _ = off.update_velocity(&ins_at([0.0, 0.0, 1.5]), &flow);
+        let _ = off.update_height(&ins_at([0.0, 0.0, 1.5]), &range);
         off.update_fix(
             &ins_at([0.0, 0.0, 1.5]),
             &fix(1_100_000_000, [0.0, 0.0, 1.0], 0),

@@ -16,10 +16,10 @@
 //! recording's clock, ticking on every input; unset, it publishes the
 //! updates' fused states only.
 
-use insuwb_msg::check::{ImuGate, RangeGate, Refusals, TdoaGate, VelocityGate};
+use insuwb_msg::check::{HeightGate, ImuGate, RangeGate, Refusals, TdoaGate, VelocityGate};
 use insuwb_msg::{
-    BodyVelocity, FilterDiag, FilterKind, FusedState, ImuSample, InsCorrection, NavState, UwbFix,
-    UwbRange, UwbTdoa,
+    BodyVelocity, FilterDiag, FilterKind, FusedState, HasHeader, Height, ImuSample, InsCorrection,
+    NavState, UwbFix, UwbRange, UwbTdoa,
 };
 use insuwb_uwb::fix::{FixBuilder, FixStats, PushError};
 
@@ -69,6 +69,8 @@ pub enum Input<'a> {
     /// A body-frame velocity (odometry, flow): to fusion, for the filters
     /// that take one.
     Velocity(&'a BodyVelocity),
+    /// A height (a range finder's): to fusion, for the filters that take one.
+    Height(&'a Height),
 }
 
 /// A UWB measurement type the runner takes: a TDOA difference or a
@@ -107,6 +109,7 @@ impl Input<'_> {
             Self::Tdoa(m) => m.header.meas_time_ns,
             Self::Range(m) => m.header.meas_time_ns,
             Self::Velocity(v) => v.header.meas_time_ns,
+            Self::Height(h) => h.header.meas_time_ns,
         }
     }
 }
@@ -151,25 +154,38 @@ pub fn merged<'a, U: UwbInput>(
     })
 }
 
-/// [`merged`] with a third stream, body velocities, each after the IMU
-/// samples and TDOA measurements of its time.
+/// [`merged`] with the aiding streams, body velocities and heights, each
+/// sample after the IMU samples and TDOA measurements of its time (a
+/// velocity before a height of the same time).
 pub fn merged_aided<'a, U: UwbInput>(
     imu: &'a [ImuSample],
     tdoa: &'a [U],
     velocity: &'a [BodyVelocity],
+    height: &'a [Height],
     ties: Ties,
 ) -> impl Iterator<Item = Input<'a>> {
-    let mut base = merged(imu, tdoa, ties).peekable();
+    let with_velocity = after_their_time(merged(imu, tdoa, ties), velocity, Input::Velocity);
+    after_their_time(with_velocity, height, Input::Height)
+}
+
+/// `base` with the time-sorted `extra` merged in, each after the inputs of
+/// its time.
+fn after_their_time<'a, T: HasHeader>(
+    base: impl Iterator<Item = Input<'a>>,
+    extra: &'a [T],
+    wrap: fn(&'a T) -> Input<'a>,
+) -> impl Iterator<Item = Input<'a>> {
+    let mut base = base.peekable();
     let mut k = 0usize;
     std::iter::from_fn(move || {
-        let vel_first = match (base.peek(), velocity.get(k)) {
-            (Some(b), Some(v)) => v.header.meas_time_ns < b.time(),
+        let extra_first = match (base.peek(), extra.get(k)) {
+            (Some(b), Some(e)) => e.header().meas_time_ns < b.time(),
             (None, Some(_)) => true,
             (_, None) => false,
         };
-        if vel_first {
+        if extra_first {
             k += 1;
-            velocity.get(k - 1).map(Input::Velocity)
+            extra.get(k - 1).map(wrap)
         } else {
             base.next()
         }
@@ -183,6 +199,7 @@ pub struct Runner {
     tdoa_gate: TdoaGate,
     range_gate: RangeGate,
     vel_gate: VelocityGate,
+    height_gate: HeightGate,
     ins: InsEngine,
     fixb: FixBuilder,
     fusion: FusionEngine,
@@ -215,6 +232,7 @@ impl Runner {
             tdoa_gate: TdoaGate::new(),
             range_gate: RangeGate::new(),
             vel_gate: VelocityGate::new(),
+            height_gate: HeightGate::new(),
             ins: InsEngine::new(cfg.ins_engine_config())?,
             fixb: FixBuilder::new(cfg.fix.clone())?.with_calibration(cfg.calibration.clone()),
             tight: est.is_tight(),
@@ -249,6 +267,7 @@ impl Runner {
             Input::Tdoa(m) => self.tdoa_gate.check(m).is_ok(),
             Input::Range(m) => self.range_gate.check(m).is_ok(),
             Input::Velocity(v) => self.vel_gate.check(v).is_ok(),
+            Input::Height(h) => self.height_gate.check(h).is_ok(),
         };
         if !passed {
             return;
@@ -298,6 +317,10 @@ impl Runner {
                 self.fusion
                     .on_measurement(Measurement::Velocity(*v), &mut self.o);
             }
+            Input::Height(h) => {
+                self.fusion
+                    .on_measurement(Measurement::Height(*h), &mut self.o);
+            }
         }
         self.settle();
         if let Some(p) = self.policy.as_mut() {
@@ -323,6 +346,7 @@ impl Runner {
             tdoa: *self.tdoa_gate.refusals(),
             velocity: *self.vel_gate.refusals(),
             range: *self.range_gate.refusals(),
+            height: *self.height_gate.refusals(),
         };
         self.out.fix_stats = *self.fixb.stats();
         self.out
@@ -393,10 +417,11 @@ pub fn run_with<U: UwbInput>(
     cfg: &FusionConfig,
     est: Box<dyn Estimator>,
 ) -> Result<RunOutput, ConfigError> {
-    run_aided(imu, tdoa, &[], cfg, est)
+    run_aided(imu, tdoa, &[], &[], cfg, est)
 }
 
-/// [`run_with`] with body velocities (odometry, flow) as aiding updates.
+/// [`run_with`] with body velocities (odometry, flow) and heights (a range
+/// finder) as aiding updates.
 ///
 /// # Errors
 /// A configuration that does not validate.
@@ -404,11 +429,12 @@ pub fn run_aided<U: UwbInput>(
     imu: &[ImuSample],
     tdoa: &[U],
     velocity: &[BodyVelocity],
+    height: &[Height],
     cfg: &FusionConfig,
     est: Box<dyn Estimator>,
 ) -> Result<RunOutput, ConfigError> {
     let mut r = Runner::new(cfg, est)?;
-    for input in merged_aided(imu, tdoa, velocity, Ties::ImuFirst) {
+    for input in merged_aided(imu, tdoa, velocity, height, Ties::ImuFirst) {
         r.push(input);
     }
     Ok(r.finish())
@@ -586,18 +612,33 @@ mod tests {
         }
     }
 
+    fn height(t: u64, range_m: f64) -> Height {
+        Height {
+            header: Header::new(t, t * 10_000_000),
+            range_m,
+            source: Height::SOURCE_RANGE_FINDER,
+        }
+    }
+
+    fn letter(x: Input<'_>) -> (char, u64) {
+        let c = match x {
+            Input::Imu(_) => 'i',
+            Input::Tdoa(_) => 't',
+            Input::Range(_) => 'r',
+            Input::Velocity(_) => 'v',
+            Input::Height(_) => 'h',
+        };
+        (c, x.time() / 10_000_000)
+    }
+
     #[test]
-    fn velocities_merge_after_their_time_and_bad_ones_are_refused_and_counted() {
+    fn aiding_merges_after_its_time_and_bad_samples_are_refused_and_counted() {
         let i = [imu(0), imu(1), imu(2)];
         let t = [tdoa(1), tdoa(3)];
         let v = [vel(1, 0.5), vel(2, f64::NAN), vel(4, 0.5)];
-        let order: Vec<(char, u64)> = merged_aided(&i, &t, &v, Ties::ImuFirst)
-            .map(|x| match x {
-                Input::Imu(s) => ('i', s.header.meas_time_ns / 10_000_000),
-                Input::Tdoa(m) => ('t', m.header.meas_time_ns / 10_000_000),
-                Input::Range(m) => ('r', m.header.meas_time_ns / 10_000_000),
-                Input::Velocity(v) => ('v', v.header.meas_time_ns / 10_000_000),
-            })
+        let h = [height(1, 1.0), height(3, -0.5), height(4, 1.1)];
+        let order: Vec<(char, u64)> = merged_aided(&i, &t, &v, &h, Ties::ImuFirst)
+            .map(letter)
             .collect();
         assert_eq!(
             order,
@@ -606,33 +647,29 @@ mod tests {
                 ('i', 1),
                 ('t', 1),
                 ('v', 1),
+                ('h', 1),
                 ('i', 2),
                 ('v', 2),
                 ('t', 3),
-                ('v', 4)
+                ('h', 3),
+                ('v', 4),
+                ('h', 4)
             ]
         );
         let cfg = FusionConfig::default();
         let est = build_estimator(FilterKind::IakfTdoa, &cfg).unwrap();
-        let out = run_aided(&i, &t, &v, &cfg, est).unwrap();
+        let out = run_aided(&i, &t, &v, &h, &cfg, est).unwrap();
         assert_eq!(out.refusals.velocity.non_finite, 1);
         assert_eq!(out.refusals.velocity.total(), 1);
+        assert_eq!(out.refusals.height.out_of_range, 1);
+        assert_eq!(out.refusals.height.total(), 1);
     }
 
     #[test]
     fn merged_breaks_ties_as_asked() {
         let i = [imu(0), imu(1), imu(2)];
         let t = [tdoa(1), tdoa(3)];
-        let order = |ties| {
-            merged(&i, &t, ties)
-                .map(|x| match x {
-                    Input::Imu(s) => ('i', s.header.meas_time_ns / 10_000_000),
-                    Input::Tdoa(m) => ('t', m.header.meas_time_ns / 10_000_000),
-                    Input::Range(m) => ('r', m.header.meas_time_ns / 10_000_000),
-                    Input::Velocity(v) => ('v', v.header.meas_time_ns / 10_000_000),
-                })
-                .collect::<Vec<_>>()
-        };
+        let order = |ties| merged(&i, &t, ties).map(letter).collect::<Vec<_>>();
         assert_eq!(
             order(Ties::ImuFirst),
             [('i', 0), ('i', 1), ('t', 1), ('i', 2), ('t', 3)]

@@ -20,7 +20,7 @@ use insuwb_eskf::{
     Covariance, Eskf, EskfConfig, EskfConfigError, MultirotorDynamics, StateVector, TdoaOutcome,
     TdoaUpdateReport, IDX_ATT, IDX_POS, IDX_VEL, N_STATES,
 };
-use insuwb_msg::{BodyVelocity, FilterKind, NavState, UwbFix, UwbRange, UwbTdoa};
+use insuwb_msg::{BodyVelocity, FilterKind, Height, NavState, UwbFix, UwbRange, UwbTdoa};
 use insuwb_nav::vehicle::{model_accel_nav, Mechanisation};
 use insuwb_uwb::calibration::SiteCalibration;
 use nalgebra::{UnitQuaternion, Vector3};
@@ -420,53 +420,6 @@ impl TightEstimator {
         self.eskf.radio_height_error()
     }
 
-    /// The range finder's height of `m` as one update: `z = (range +
-    /// range_offset_m) R33` against the INS height, `H = -1` on the
-    /// position's z (the tilt's part of `R33` is second order at level
-    /// flight and left out), weighted and gated as every
-    /// pseudo-measurement; the first one turns the radio's height state on.
-    fn update_height(
-        &mut self,
-        ins: &InsAt,
-        att: &UnitQuaternion<f64>,
-        m: &BodyVelocity,
-        info: &mut UpdateInfo,
-    ) {
-        let c = &self.height;
-        let Some(z) = c.height_m(m, att) else {
-            return;
-        };
-        if !self
-            .eskf
-            .enable_radio_height(c.radio_sigma_m, c.radio_corr_time_s)
-        {
-            self.update_errors += 1;
-            return;
-        }
-        let mut h = StateVector::zeros();
-        h[IDX_POS + 2] = -1.0;
-        let innovation = z - ins.pos_m[2];
-        let r = c.sigma_m * c.sigma_m;
-        let k = info.dim as usize;
-        match self.eskf.update_pseudo(&h, innovation, r) {
-            Ok(rep) if rep.applied => {
-                if let (Some(inn), Some(rd)) = (info.innovation.get_mut(k), info.r_diag.get_mut(k))
-                {
-                    *inn = innovation;
-                    *rd = r;
-                }
-                self.height_applied += 1;
-                info.nis += rep.nis;
-                info.dim += 1;
-            }
-            Ok(_) => {
-                self.height_rejected += 1;
-                info.outlier = true;
-            }
-            Err(_) => self.update_errors += 1,
-        }
-    }
-
     /// Body-velocity components (odometry, flow) applied and gated out.
     #[must_use]
     pub fn velocity_counts(&self) -> (u64, u64) {
@@ -843,8 +796,57 @@ impl Estimator for TightEstimator {
         if measured == 0 {
             return None;
         }
-        self.update_height(ins, &att, m, &mut info);
         info.rejected = info.dim == 0;
+        info.divergence = self.eskf.needs_reset();
+        Some(info)
+    }
+
+    /// The range finder's height as one update: `z = (range +
+    /// range_offset_m) R33` against the INS height, `H = -1` on the
+    /// position's z (the tilt's part of `R33` is second order at level
+    /// flight and left out), weighted and gated as every
+    /// pseudo-measurement; the first one turns the radio's height state on.
+    /// `None` while height updates are off.
+    fn update_height(&mut self, ins: &InsAt, m: &Height) -> Option<UpdateInfo> {
+        let q = ins.quat;
+        let att =
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+        let c = self.height;
+        let z = c.height_m(m, &att)?;
+        self.propagate();
+        let mut info = UpdateInfo {
+            fading: 1.0,
+            ..UpdateInfo::default()
+        };
+        if !self
+            .eskf
+            .enable_radio_height(c.radio_sigma_m, c.radio_corr_time_s)
+        {
+            self.update_errors += 1;
+            return None;
+        }
+        let mut h = StateVector::zeros();
+        h[IDX_POS + 2] = -1.0;
+        let innovation = z - ins.pos_m[2];
+        let r = c.sigma_m * c.sigma_m;
+        info.innovation[0] = innovation;
+        info.r_diag[0] = r;
+        match self.eskf.update_pseudo(&h, innovation, r) {
+            Ok(rep) if rep.applied => {
+                self.height_applied += 1;
+                info.nis = rep.nis;
+                info.dim = 1;
+            }
+            Ok(_) => {
+                self.height_rejected += 1;
+                info.outlier = true;
+                info.rejected = true;
+            }
+            Err(_) => {
+                self.update_errors += 1;
+                return None;
+            }
+        }
         info.divergence = self.eskf.needs_reset();
         Some(info)
     }
@@ -1005,12 +1007,13 @@ mod tests {
         assert_eq!(damping(&e), Some((1.5, 0.5)), "a second later: the damping");
     }
 
-    /// A flow velocity's range is a height update once height aiding is
-    /// on: `(range + offset) R33` against the INS height, its innovation and
+    /// A range finder's height is an update once height aiding is on:
+    /// `(range + offset) R33` against the INS height, its innovation and
     /// variance as configured, and the first one turns the radio's height
-    /// state on; a range of 0 or height aiding off leaves the height alone.
+    /// state on; with height aiding off it is no update and leaves the
+    /// height alone; a flow velocity is never a height.
     #[test]
-    fn a_flow_range_updates_the_height() {
+    fn a_range_finder_height_updates_the_height() {
         let aiding = crate::aiding::height_aiding();
         // Tilted 0.2 rad about body x: R33 = cos 0.2.
         let tilt = 0.2_f64;
@@ -1019,20 +1022,30 @@ mod tests {
             quat,
             ..ins_at([0.0, 0.0, 1.0])
         };
-        let flow = |range_mm: u32| BodyVelocity {
+        let range = Height {
+            header: Header::new(0, 0),
+            range_m: 1.2,
+            source: Height::SOURCE_RANGE_FINDER,
+        };
+        let flow = BodyVelocity {
             header: Header::new(0, 0),
             vel_mps: [0.0; 3],
             sigma_mps: [0.3, 0.3, 0.0],
             source: BodyVelocity::SOURCE_FLOW,
-            range_mm,
+            range_mm: 1200,
         };
         let mut e = estimator([0.0; 3]).with_aiding(&aiding, 2.0);
         assert!(e.radio_height_error().is_none());
-        let info = e.update_velocity(&ins, &flow(1200)).unwrap();
-        assert_eq!(info.dim, 3, "two velocity axes and the height");
+        assert_eq!(e.update_velocity(&ins, &flow).unwrap().dim, 2);
+        assert!(
+            e.radio_height_error().is_none(),
+            "a flow velocity is no height"
+        );
+        let info = e.update_height(&ins, &range).unwrap();
+        assert_eq!((info.dim, info.rejected), (1, false));
         let want = (1.2 + 0.05) * tilt.cos() - 1.0;
-        assert!((info.innovation[2] - want).abs() < 1e-12, "{info:?}");
-        assert!((info.r_diag[2] - 0.03 * 0.03).abs() < 1e-15);
+        assert!((info.innovation[0] - want).abs() < 1e-12, "{info:?}");
+        assert!((info.r_diag[0] - 0.03 * 0.03).abs() < 1e-15);
         assert_eq!(e.height_counts(), (1, 0));
         let (b, sigma) = e.radio_height_error().unwrap();
         assert_eq!(b, 0.0);
@@ -1040,12 +1053,12 @@ mod tests {
             (sigma - aiding.height.radio_sigma_m).abs() < 1e-9,
             "{sigma}"
         );
-        // No range, or height aiding off: the velocity alone.
-        assert_eq!(e.update_velocity(&ins, &flow(0)).unwrap().dim, 2);
+        assert!(e.take_correction().d_pos_m[2] < 0.0, "the INS is moved up");
         let mut off = estimator([0.0; 3]).with_aiding(&AidingConfig::default(), 2.0);
-        assert_eq!(off.update_velocity(&ins, &flow(1200)).unwrap().dim, 2);
+        assert!(off.update_height(&ins, &range).is_none());
         assert_eq!(off.height_counts(), (0, 0));
         assert!(off.radio_height_error().is_none());
+        assert_eq!(off.take_correction().d_pos_m[2], 0.0);
     }
 
     fn ins_at(pos_m: [f64; 3]) -> InsAt {

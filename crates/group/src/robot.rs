@@ -205,32 +205,44 @@ pub struct FusionProcessConfig {
     /// covariance prediction on the fix-to-fused path. Negative: off.
     /// Ignored at `speed = "max"` (the drivers run ahead there).
     pub eager_lag_s: f64,
-    /// The velocity sources whose body velocities (topic `body_vel`) aid
-    /// the filter: `flow` (an optical-flow deck, e.g. a replayed UTIL
-    /// flight's) and `odometry` (a wheeled base); empty (default): none,
-    /// the stage does not subscribe. Their weights and scale factors are
-    /// the estimator settings' `[fusion.aiding]`.
+    /// The sources whose samples aid the filter: `flow` (an optical-flow
+    /// deck: its body velocities on `body_vel` and its range finder's
+    /// heights on `height`, e.g. a replayed UTIL flight's), `odometry` (a
+    /// wheeled base's body velocities) and `range_finder` (heights alone);
+    /// empty (default): none, the stage does not subscribe. Their weights
+    /// and scale factors are the estimator settings' `[fusion.aiding]`.
     pub aiding_sources: Vec<AidingSource>,
 }
 
-/// A velocity source the fusion process may use (`[fusion] aiding_sources`).
+/// An aiding source the fusion process may use (`[fusion] aiding_sources`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AidingSource {
-    /// Optical flow with a range finder (`BodyVelocity::SOURCE_FLOW`).
+    /// Optical flow with a range finder (`BodyVelocity::SOURCE_FLOW`, and
+    /// the range finder's `Height`s).
     Flow,
     /// Wheel odometry (`BodyVelocity::SOURCE_ODOMETRY`).
     Odometry,
+    /// A range finder alone (`Height::SOURCE_RANGE_FINDER`).
+    RangeFinder,
 }
 
 impl AidingSource {
-    /// The `BodyVelocity::source` code of its samples.
+    /// The `BodyVelocity::source` code of its body velocities (`None`: it
+    /// gives none).
     #[must_use]
-    pub const fn code(self) -> u32 {
+    pub const fn velocity_code(self) -> Option<u32> {
         match self {
-            Self::Flow => insuwb_msg::BodyVelocity::SOURCE_FLOW,
-            Self::Odometry => insuwb_msg::BodyVelocity::SOURCE_ODOMETRY,
+            Self::Flow => Some(insuwb_msg::BodyVelocity::SOURCE_FLOW),
+            Self::Odometry => Some(insuwb_msg::BodyVelocity::SOURCE_ODOMETRY),
+            Self::RangeFinder => None,
         }
+    }
+
+    /// Whether it gives heights (`Height::SOURCE_RANGE_FINDER`).
+    #[must_use]
+    pub const fn gives_height(self) -> bool {
+        matches!(self, Self::Flow | Self::RangeFinder)
     }
 }
 

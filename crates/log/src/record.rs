@@ -1,7 +1,7 @@
 //! The [`Record`] enum: one variant per topic, the payload of every log frame.
 
 use insuwb_msg::{
-    topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Header, Health, ImuSample,
+    topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Header, Health, Height, ImuSample,
     InsCorrection, NavState, UwbFix, UwbRange, UwbTdoa,
 };
 use serde::{Deserialize, Serialize};
@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 /// The postcard encoding starts with the variant index (a varint); the
 /// indices are part of the format and frozen: `Imu` = 0, `Tdoa` = 1,
 /// `Fix` = 2, `Nav` = 3, `Correction` = 4, `Fused` = 5, `Diag` = 6,
-/// `Truth` = 7, `Health` = 8, `BodyVel` = 9, `Range` = 10. New variants are only ever
+/// `Truth` = 7, `Health` = 8, `BodyVel` = 9, `Range` = 10, `Height` = 11. New variants are only ever
 /// appended, so a log written before a variant existed reads unchanged.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum Record {
@@ -37,11 +37,13 @@ pub enum Record {
     BodyVel(BodyVelocity),
     /// UWB two-way range ([`topics::UWB_RANGE`]).
     Range(UwbRange),
+    /// Height: a range finder's distance to the floor ([`topics::HEIGHT`]).
+    Height(Height),
 }
 
 impl Record {
     /// Every topic a record can carry, in variant-index order.
-    pub const TOPICS: [&'static str; 11] = [
+    pub const TOPICS: [&'static str; 12] = [
         topics::IMU,
         topics::UWB_TDOA,
         topics::UWB_FIX,
@@ -53,6 +55,7 @@ impl Record {
         topics::HEALTH,
         topics::BODY_VEL,
         topics::UWB_RANGE,
+        topics::HEIGHT,
     ];
 
     /// The topic name of this record (from [`insuwb_msg::topics`]).
@@ -70,6 +73,7 @@ impl Record {
             Self::Health(_) => topics::HEALTH,
             Self::BodyVel(_) => topics::BODY_VEL,
             Self::Range(_) => topics::UWB_RANGE,
+            Self::Height(_) => topics::HEIGHT,
         }
     }
 
@@ -88,6 +92,7 @@ impl Record {
             Self::Health(s) => &s.header,
             Self::BodyVel(s) => &s.header,
             Self::Range(s) => &s.header,
+            Self::Height(s) => &s.header,
         }
     }
 
@@ -105,6 +110,7 @@ impl Record {
             Self::Health(s) => &mut s.header,
             Self::BodyVel(s) => &mut s.header,
             Self::Range(s) => &mut s.header,
+            Self::Height(s) => &mut s.header,
         }
     }
 }
@@ -127,5 +133,6 @@ impl_from_sample!(
     GroundTruth => Truth,
     Health => Health,
     BodyVelocity => BodyVel,
-    UwbRange => Range
+    UwbRange => Range,
+    Height => Height
 );

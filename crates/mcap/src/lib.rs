@@ -81,6 +81,8 @@ pub const TOPIC_DIAG: &str = "/insuwb/diag";
 pub const TOPIC_TRUTH: &str = "/insuwb/truth";
 /// MCAP topic of `body_vel` as `insuwb_msgs/msg/BodyVelocity`.
 pub const TOPIC_BODY_VEL: &str = "/insuwb/body_vel";
+/// MCAP topic of `height` as `insuwb_msgs/msg/Height`.
+pub const TOPIC_HEIGHT: &str = "/insuwb/height";
 
 /// The MCAP topics each insuwb topic is written to: one message on each
 /// per record (a record a ROS conversion refuses is counted in
@@ -99,6 +101,7 @@ pub fn mcap_topics(insuwb_topic: &str) -> &'static [&'static str] {
         topics::TRUTH => &[TOPIC_TRUTH],
         topics::HEALTH => &[TOPIC_DIAGNOSTICS],
         topics::BODY_VEL => &[TOPIC_BODY_VEL],
+        topics::HEIGHT => &[TOPIC_HEIGHT],
         _ => &[],
     }
 }
@@ -117,7 +120,7 @@ pub const METADATA_NAME: &str = "insuwb_log";
 pub struct ExportOptions {
     /// Frame ids (defaults `map`, `base_link`, `base_link`, as the bridge's
     /// `[ros2]` defaults); the `insuwb_msgs` messages with positions use
-    /// `frame_id` too, the body velocities `child_frame_id`.
+    /// `frame_id` too, the body velocities and heights `child_frame_id`.
     pub frames: Frames,
     /// `hardware_id` of the diagnostics (default `insuwb`).
     pub hardware_id: String,
@@ -445,6 +448,11 @@ impl<W: Write + Seek> RecordWriter<W> {
             Record::BodyVel(s) => self.put(
                 TOPIC_BODY_VEL,
                 &msgs::BodyVelocity::from_sample(s, stamp, &frames.child_frame_id),
+                &h,
+            )?,
+            Record::Height(s) => self.put(
+                TOPIC_HEIGHT,
+                &msgs::Height::from_sample(s, stamp, &frames.child_frame_id),
                 &h,
             )?,
         }

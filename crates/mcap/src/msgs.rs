@@ -1,8 +1,9 @@
 //! The `insuwb_msgs` package: ROS 2 message definitions of the insuwb
-//! samples that have no standard ROS type (`uwb_tdoa`, `uwb_range`, `uwb_fix`, `nav`,
-//! `correction`, `diag`, `truth`, `body_vel`) and of the whole fused state, as serde
-//! structs in `.msg` field order, so that CDR encodes them as a ROS 2 node
-//! would and every channel of an export has a `ros2msg` schema.
+//! samples that have no standard ROS type (`uwb_tdoa`, `uwb_range`,
+//! `uwb_fix`, `nav`, `correction`, `diag`, `truth`, `body_vel`, `height`)
+//! and of the whole fused state, as serde structs in `.msg` field order, so
+//! that CDR encodes them as a ROS 2 node would and every channel of an
+//! export has a `ros2msg` schema.
 //!
 //! Each message starts with a `std_msgs/Header` (stamp from the sample's
 //! `meas_time_ns`, see [`crate`]) and an [`SampleHeader`] (the insuwb
@@ -277,6 +278,20 @@ pub struct BodyVelocity {
     pub range_mm: u32,
 }
 
+/// `insuwb_msgs/Height`: a range finder's distance to the floor along
+/// body z (`height`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct Height {
+    /// Stamp and the body frame (`base_link`).
+    pub header: Header,
+    /// The insuwb header.
+    pub sample: SampleHeader,
+    /// The distance measured along the body z axis down to the floor, m.
+    pub range_m: f64,
+    /// What measured it: 1 a range finder.
+    pub source: u32,
+}
+
 /// `insuwb_msgs/SampleHeader`.
 pub static SAMPLE_HEADER: MsgDef = MsgDef {
     package: PACKAGE,
@@ -396,6 +411,14 @@ pub static BODY_VELOCITY: MsgDef = MsgDef {
     uses: &[&ros::HEADER, &SAMPLE_HEADER, &ros::VECTOR3],
 };
 
+/// `insuwb_msgs/Height`.
+pub static HEIGHT: MsgDef = MsgDef {
+    package: PACKAGE,
+    name: "Height",
+    text: "std_msgs/Header header\nSampleHeader sample\nfloat64 range_m\nuint32 source\n",
+    uses: &[&ros::HEADER, &SAMPLE_HEADER],
+};
+
 macro_rules! ros_message {
     ($($ty:ident => $def:ident),* $(,)?) => {$(
         impl RosMessage for $ty {
@@ -414,6 +437,7 @@ ros_message!(
     FilterDiag => FILTER_DIAG,
     GroundTruth => GROUND_TRUTH,
     BodyVelocity => BODY_VELOCITY,
+    Height => HEIGHT,
 );
 
 fn point(v: &[f64; 3]) -> Point {
@@ -629,6 +653,19 @@ impl BodyVelocity {
     }
 }
 
+impl Height {
+    /// The message of a sample, with its stamp and the body frame.
+    #[must_use]
+    pub fn from_sample(s: &m::Height, stamp: Time, body_frame_id: &str) -> Self {
+        Self {
+            header: header(stamp, body_frame_id),
+            sample: (&s.header).into(),
+            range_m: s.range_m,
+            source: s.source,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -645,6 +682,7 @@ mod tests {
             (FilterDiag::type_name(), FilterDiag::schema()),
             (GroundTruth::type_name(), GroundTruth::schema()),
             (BodyVelocity::type_name(), BodyVelocity::schema()),
+            (Height::type_name(), Height::schema()),
         ] {
             assert!(name.starts_with("insuwb_msgs/msg/"), "{name}");
             assert!(schema.starts_with("std_msgs/Header header\nSampleHeader sample\n"));

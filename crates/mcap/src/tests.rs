@@ -84,6 +84,11 @@ fn one_of_each(t_ns: u64) -> Vec<Record> {
             source: m::BodyVelocity::SOURCE_FLOW,
             range_mm: 0,
         }),
+        Record::Height(m::Height {
+            header: hdr(12, t_ns),
+            range_m: 1.25,
+            source: m::Height::SOURCE_RANGE_FINDER,
+        }),
     ]
 }
 
@@ -142,6 +147,7 @@ fn every_topic_gets_its_channel_and_schema() {
         (TOPIC_TRUTH, "insuwb_msgs/msg/GroundTruth"),
         (TOPIC_DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray"),
         (TOPIC_BODY_VEL, "insuwb_msgs/msg/BodyVelocity"),
+        (TOPIC_HEIGHT, "insuwb_msgs/msg/Height"),
     ];
     assert_eq!(got.len(), want.len());
     for (topic, ty) in want {
@@ -160,7 +166,7 @@ fn every_topic_gets_its_channel_and_schema() {
         }
     }
     assert!(stats.skipped.is_empty());
-    assert_eq!(stats.total_messages(), 13);
+    assert_eq!(stats.total_messages(), 14);
 }
 
 #[test]
@@ -168,7 +174,7 @@ fn a_body_velocity_is_its_sample_in_the_body_frame() {
     let recs = one_of_each(3_000_000_007);
     let (bytes, _) = export_to_vec(&recs);
     let got = read(&bytes);
-    let Some(Record::BodyVel(v)) = recs.last() else {
+    let Some(Record::BodyVel(v)) = recs.iter().find(|r| matches!(r, Record::BodyVel(_))) else {
         panic!()
     };
     let stamp = Time { sec: 3, nanosec: 7 };
@@ -179,6 +185,23 @@ fn a_body_velocity_is_its_sample_in_the_body_frame() {
     assert_eq!(want.source, m::BodyVelocity::SOURCE_FLOW);
     assert_eq!(want.sample.seq, 10);
     assert_eq!(got[TOPIC_BODY_VEL][0].3, cdr::encode(&want, "x").unwrap());
+}
+
+#[test]
+fn a_height_is_its_sample_in_the_body_frame() {
+    let recs = one_of_each(3_000_000_007);
+    let (bytes, _) = export_to_vec(&recs);
+    let got = read(&bytes);
+    let Some(Record::Height(s)) = recs.iter().find(|r| matches!(r, Record::Height(_))) else {
+        panic!()
+    };
+    let stamp = Time { sec: 3, nanosec: 7 };
+    let want = msgs::Height::from_sample(s, stamp, "base_link");
+    assert_eq!(want.header.frame_id, "base_link");
+    assert_eq!(want.range_m, 1.25);
+    assert_eq!(want.source, m::Height::SOURCE_RANGE_FINDER);
+    assert_eq!(want.sample.seq, 12);
+    assert_eq!(got[TOPIC_HEIGHT][0].3, cdr::encode(&want, "x").unwrap());
 }
 
 #[test]
@@ -320,8 +343,8 @@ fn a_cut_log_exports_its_whole_records_and_says_where_it_stopped() {
     assert_eq!(s.stats.total_records(), 19);
     let got = read(&std::fs::read(&out).unwrap());
     let n: usize = got.values().map(Vec::len).sum();
-    // 19 records = the first round (10 records, 12 messages) and the
-    // second but its body velocity (9 records, 11 messages).
+    // 19 records = the first round (12 records, 14 messages) and the
+    // second's first 7, up to its filter diagnostics (9 messages).
     assert_eq!(n, 23);
     assert_eq!(got[TOPIC_IMU].len(), 2);
     assert_eq!(got[TOPIC_BODY_VEL].len(), 1);

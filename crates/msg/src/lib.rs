@@ -189,9 +189,9 @@ pub struct BodyVelocity {
     pub source: u32,
     /// The range finder's distance to the ground along body z that scaled
     /// a flow velocity, mm (the time-of-flight sensor's own unit, so never
-    /// negative or NaN); 0: none (odometry, or flow without it). A filter
-    /// can take it as a height measurement (`[fusion.aiding.flow]
-    /// height_sigma_m`).
+    /// negative or NaN); 0: none (odometry, or flow without it). A record
+    /// of what the velocity was scaled with: the filters take their height
+    /// from the range finder's own readings ([`Height`]).
     pub range_mm: u32,
 }
 

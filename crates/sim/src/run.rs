@@ -8,7 +8,7 @@
 //! ([`crate::rng::stream`]); the output is a pure function of the
 //! scenario and the seed.
 
-use insuwb_msg::{BodyVelocity, GroundTruth, Header, ImuSample, UwbRange, UwbTdoa};
+use insuwb_msg::{BodyVelocity, GroundTruth, Header, Height, ImuSample, UwbRange, UwbTdoa};
 use thiserror::Error;
 
 use crate::rng::{self, Noise};
@@ -124,6 +124,10 @@ pub struct SimOutput {
     /// it), `seq` counting from 0 over the merged stream. Empty without
     /// `[sim.odometry]` and `[sim.flow]`.
     pub velocity: Vec<BodyVelocity>,
+    /// The flow deck's range finder ([`Height::SOURCE_RANGE_FINDER`]) with
+    /// `[sim.flow] range_sigma_m` above 0: one height per flow sample, at
+    /// its time, the range its `range_mm` holds. Empty otherwise.
+    pub height: Vec<Height>,
     /// The IMU biases drawn for this run.
     pub imu_errors: ImuErrorRealisation,
 }
@@ -141,6 +145,8 @@ pub enum SimRecord {
     Range(UwbRange),
     /// Body-frame velocity (odometry, flow).
     Velocity(BodyVelocity),
+    /// Height (the flow deck's range finder).
+    Height(Height),
 }
 
 impl SimRecord {
@@ -153,11 +159,12 @@ impl SimRecord {
             Self::Tdoa(s) => s.header.meas_time_ns,
             Self::Range(s) => s.header.meas_time_ns,
             Self::Velocity(s) => s.header.meas_time_ns,
+            Self::Height(s) => s.header.meas_time_ns,
         }
     }
 
     /// Tie-break rank at equal times: truth 0, IMU 1, UWB (TDOA 2, range
-    /// 3), velocity 4.
+    /// 3), velocity 4, height 5.
     fn rank(&self) -> u8 {
         match self {
             Self::Truth(_) => 0,
@@ -165,6 +172,7 @@ impl SimRecord {
             Self::Tdoa(_) => 2,
             Self::Range(_) => 3,
             Self::Velocity(_) => 4,
+            Self::Height(_) => 5,
         }
     }
 }
@@ -172,7 +180,8 @@ impl SimRecord {
 impl SimOutput {
     /// All samples in one stream ordered by measurement time; at equal times
     /// truth comes first, then IMU, then UWB (TDOA differences, then
-    /// ranges), then body velocities (each stream keeps its own order).
+    /// ranges), then body velocities, then heights (each stream keeps its
+    /// own order).
     #[must_use]
     pub fn merged(&self) -> Vec<SimRecord> {
         let mut out = Vec::with_capacity(
@@ -180,14 +189,16 @@ impl SimOutput {
                 + self.tdoa.len()
                 + self.range.len()
                 + self.truth.len()
-                + self.velocity.len(),
+                + self.velocity.len()
+                + self.height.len(),
         );
-        let (mut t, mut i, mut u, mut r, mut v) = (
+        let (mut t, mut i, mut u, mut r, mut v, mut h) = (
             self.truth.iter().peekable(),
             self.imu.iter().peekable(),
             self.tdoa.iter().peekable(),
             self.range.iter().peekable(),
             self.velocity.iter().peekable(),
+            self.height.iter().peekable(),
         );
         loop {
             let cands = [
@@ -196,6 +207,7 @@ impl SimOutput {
                 u.peek().map(|s| SimRecord::Tdoa(**s)),
                 r.peek().map(|s| SimRecord::Range(**s)),
                 v.peek().map(|s| SimRecord::Velocity(**s)),
+                h.peek().map(|s| SimRecord::Height(**s)),
             ];
             let best = cands
                 .iter()
@@ -218,6 +230,9 @@ impl SimOutput {
                 }
                 SimRecord::Velocity(_) => {
                     v.next();
+                }
+                SimRecord::Height(_) => {
+                    h.next();
                 }
             }
             out.push(rec);
@@ -300,6 +315,21 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Result<SimOutput, SimError> {
     let (imu, truth, imu_errors) = simulate_imu(scenario, &model, seed)?;
     let uwb = simulate_uwb(scenario, &model, seed)?;
     let velocity = simulate_velocity(scenario, &model, seed)?;
+    let height = velocity
+        .iter()
+        .filter_map(|v| {
+            v.range_m().map(|range_m| Height {
+                header: Header::new(0, v.header.meas_time_ns),
+                range_m,
+                source: Height::SOURCE_RANGE_FINDER,
+            })
+        })
+        .enumerate()
+        .map(|(k, mut h)| {
+            h.header.seq = k as u64;
+            h
+        })
+        .collect();
     Ok(SimOutput {
         imu,
         tdoa: uwb.tdoa,
@@ -308,6 +338,7 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Result<SimOutput, SimError> {
         range: uwb.range,
         range_truth: uwb.range_truth,
         velocity,
+        height,
         imu_errors,
     })
 }

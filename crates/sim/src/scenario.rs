@@ -474,7 +474,8 @@ impl Default for OdometryConfig {
 /// velocity, `scale * v + noise` on each, the vertical axis not measured,
 /// and, with `range_sigma_m` above 0, the range finder's distance to the
 /// floor (the height: the simulated body does not tilt) plus its noise in
-/// each sample's `range_mm`.
+/// each sample's `range_mm` and as a height sample of its own
+/// (`SimOutput::height`).
 /// Samples are taken at `offset_s + k / rate_hz` for times before
 /// `duration_s` and outside the dropouts.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -488,8 +489,7 @@ pub struct FlowConfig {
     pub scale: f64,
     /// White noise of each axis, m/s; > 0 (default 0.05).
     pub sigma_mps: f64,
-    /// White noise of the range, m; 0 (default): the samples carry no
-    /// range.
+    /// White noise of the range, m; 0 (default): no range, no heights.
     pub range_sigma_m: f64,
     /// Intervals without flow (default none).
     pub dropouts: Vec<Dropout>,

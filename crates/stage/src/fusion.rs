@@ -13,8 +13,8 @@ use insuwb_fusion::config::{build_estimator, FusionConfig};
 use insuwb_fusion::engine::{FusionEngine, Measurement, Outputs};
 use insuwb_fusion::output::{OutputPolicy, OutputPolicyConfig};
 use insuwb_msg::{
-    topics, BodyVelocity, FilterDiag, FusedState, FusionCounters, HealthState, InsCorrection,
-    NavState, StageCounters, StageRole, UwbFix, UwbKind, UwbRange, UwbTdoa,
+    topics, BodyVelocity, FilterDiag, FusedState, FusionCounters, HealthState, Height,
+    InsCorrection, NavState, StageCounters, StageRole, UwbFix, UwbKind, UwbRange, UwbTdoa,
 };
 use insuwb_runtime::anticipate::Anticipator;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage, Wake};
@@ -207,12 +207,22 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     } else {
         None
     };
-    // Body velocities only from the sources the robot config names.
-    let vel_codes: Vec<u32> = cfg.fusion.aiding_sources.iter().map(|s| s.code()).collect();
+    // Body velocities and heights only from the sources the robot config names.
+    let vel_codes: Vec<u32> = cfg
+        .fusion
+        .aiding_sources
+        .iter()
+        .filter_map(|s| s.velocity_code())
+        .collect();
     let vel_sub = if vel_codes.is_empty() {
         None
     } else {
         Some(stage.subscriber::<BodyVelocity>(topics::BODY_VEL)?)
+    };
+    let height_sub = if cfg.fusion.aiding_sources.iter().any(|s| s.gives_height()) {
+        Some(stage.subscriber::<Height>(topics::HEIGHT)?)
+    } else {
+        None
     };
     let mut fused_pub = stage.publisher::<FusedState>(topics::FUSED)?;
     let mut diag_pub = stage.publisher::<FilterDiag>(topics::DIAG)?;
@@ -224,6 +234,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
     let tdoa_a = tdoa_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
     let range_a = range_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
     let vel_a = vel_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
+    let height_a = height_sub.as_ref().map(|s| waiter.attach(s)).transpose()?;
     let tick_period = Duration::from_secs_f64((0.5 / policy_cfg.coast_rate_hz).min(0.05));
     let tick = waiter.attach_interval(tick_period)?;
     let tick_ns = u64::try_from(tick_period.as_nanos()).unwrap_or(u64::MAX);
@@ -265,6 +276,7 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
             || tdoa_a.as_ref().is_some_and(|a| f.contains(a))
             || range_a.as_ref().is_some_and(|a| f.contains(a))
             || vel_a.as_ref().is_some_and(|a| f.contains(a))
+            || height_a.as_ref().is_some_and(|a| f.contains(a))
         {
             // The INS states are taken first and handed over last: a
             // measurement published before an INS state is then always
@@ -305,6 +317,13 @@ pub fn run(cfg: &RobotConfig, epoch_ns: u64) -> Result<()> {
                 vel_sub.drain(|v| {
                     if fresh(v.header.pub_time_ns) && vel_codes.contains(&v.source) {
                         engine.on_measurement(Measurement::Velocity(v), &mut out);
+                    }
+                })?;
+            }
+            if let Some(height_sub) = &height_sub {
+                height_sub.drain(|h| {
+                    if fresh(h.header.pub_time_ns) {
+                        engine.on_measurement(Measurement::Height(h), &mut out);
                     }
                 })?;
             }

@@ -28,8 +28,9 @@ use anyhow::{bail, Context, Result};
 use crossbeam_channel::{bounded, RecvTimeoutError, TryRecvError, TrySendError};
 use insuwb_log::{Metadata, Record, SegmentWriter};
 use insuwb_msg::{
-    topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Health, HealthState, ImuSample,
-    InsCorrection, LoggerCounters, NavState, StageCounters, StageRole, UwbFix, UwbRange, UwbTdoa,
+    topics, BodyVelocity, FilterDiag, FusedState, GroundTruth, Health, HealthState, Height,
+    ImuSample, InsCorrection, LoggerCounters, NavState, StageCounters, StageRole, UwbFix, UwbRange,
+    UwbTdoa,
 };
 use insuwb_runtime::drain::DrainClock;
 use insuwb_runtime::{monotonic_ns, HealthCounters, Stage};
@@ -168,6 +169,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
     let truth = stage.subscriber::<GroundTruth>(topics::TRUTH)?;
     let hsub = stage.subscriber::<Health>(topics::HEALTH)?;
     let body_vel = stage.subscriber::<BodyVelocity>(topics::BODY_VEL)?;
+    let height = stage.subscriber::<Height>(topics::HEIGHT)?;
     let mut health = stage.health_reporter()?;
     let waiter = stage.waiter()?;
     // Fused states wake the logger at once (the fusion -> logger hop stays
@@ -213,6 +215,7 @@ pub fn run(cfg: &RobotConfig) -> Result<()> {
             truth.drain(|s| send(Record::Truth(s)))?;
             hsub.drain(|s| send(Record::Health(s)))?;
             body_vel.drain(|s| send(Record::BodyVel(s)))?;
+            height.drain(|s| send(Record::Height(s)))?;
             bulk.drained(monotonic_ns());
             // Full: a kick is pending already.
             let _ = kick_tx.try_send(());

@@ -8,7 +8,7 @@
 use anyhow::{bail, Context, Result};
 use insuwb_group::sources;
 use insuwb_log::Record;
-use insuwb_msg::{BodyVelocity, GroundTruth, ImuSample, UwbRange, UwbTdoa};
+use insuwb_msg::{BodyVelocity, GroundTruth, Height, ImuSample, UwbRange, UwbTdoa};
 
 /// One sample from a source.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -23,6 +23,8 @@ pub enum Item {
     Truth(GroundTruth),
     /// A body-frame velocity (odometry, flow), from the IMU driver.
     Velocity(BodyVelocity),
+    /// A height (a range finder's), from the IMU driver.
+    Height(Height),
 }
 
 impl Item {
@@ -35,6 +37,7 @@ impl Item {
             Self::Range(s) => s.header.meas_time_ns,
             Self::Truth(s) => s.header.meas_time_ns,
             Self::Velocity(s) => s.header.meas_time_ns,
+            Self::Height(s) => s.header.meas_time_ns,
         }
     }
 }
@@ -42,7 +45,7 @@ impl Item {
 /// Which samples a driver wants.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Want {
-    /// IMU, body velocities and ground truth (the IMU driver).
+    /// IMU, body velocities, heights and ground truth (the IMU driver).
     Imu,
     /// TDOA differences and two-way ranges (the UWB driver).
     Uwb,
@@ -75,11 +78,12 @@ pub struct Recorded {
 }
 
 impl Recorded {
-    /// The streams of `items` (IMU, TDOA, range, body velocity, truth) merged by
-    /// time, each kept in its given order: a sample recorded with a time
-    /// before its predecessor's stays behind it, so the driver drops and
-    /// counts it as it would from a live sensor. At equal times IMU, TDOA
-    /// and ranges go before body velocities (the order `insuwb eval` feeds them), and
+    /// The streams of `items` (IMU, TDOA, range, body velocity, height,
+    /// truth) merged by time, each kept in its given order: a sample
+    /// recorded with a time before its predecessor's stays behind it, so the
+    /// driver drops and counts it as it would from a live sensor. At equal
+    /// times IMU, TDOA and ranges go before body velocities, and those
+    /// before heights (the order `insuwb eval` feeds them), and
     /// sensor samples before ground truth (truth is for evaluation: it must
     /// not delay a sensor sample).
     #[must_use]
@@ -89,9 +93,10 @@ impl Recorded {
             Item::Tdoa(_) => 1,
             Item::Range(_) => 2,
             Item::Velocity(_) => 3,
-            Item::Truth(_) => 4,
+            Item::Height(_) => 4,
+            Item::Truth(_) => 5,
         };
-        let mut streams: [Vec<Item>; 5] = Default::default();
+        let mut streams: [Vec<Item>; 6] = Default::default();
         for i in items {
             if let Some(s) = streams.get_mut(kind(&i)) {
                 s.push(i);
@@ -99,9 +104,9 @@ impl Recorded {
         }
         let total = streams.iter().map(Vec::len).sum();
         let mut merged = Vec::with_capacity(total);
-        let mut heads = [0usize; 5];
+        let mut heads = [0usize; 6];
         loop {
-            let next = (0..5)
+            let next = (0..6)
                 .filter_map(|k| {
                     let item = streams.get(k)?.get(*heads.get(k)?)?;
                     Some((item.time_ns(), k))
@@ -138,6 +143,12 @@ impl Recorded {
     #[must_use]
     pub fn has_velocity(&self) -> bool {
         self.items.iter().any(|i| matches!(i, Item::Velocity(_)))
+    }
+
+    /// Whether it holds heights (a range finder).
+    #[must_use]
+    pub fn has_height(&self) -> bool {
+        self.items.iter().any(|i| matches!(i, Item::Height(_)))
     }
 
     /// How many TDOA differences and how many two-way ranges it holds.
@@ -188,6 +199,7 @@ pub fn open(source: &sources::Source, scenario: &str, seed: u64, want: Want) -> 
                 items.extend(out.truth.iter().map(|s| Item::Truth(*s)));
                 items.extend(out.imu.iter().map(|s| Item::Imu(*s)));
                 items.extend(out.velocity.iter().map(|s| Item::Velocity(*s)));
+                items.extend(out.height.iter().map(|s| Item::Height(*s)));
             }
             Want::Uwb => {
                 items.extend(out.tdoa.iter().map(|s| Item::Tdoa(*s)));
@@ -205,6 +217,7 @@ pub fn open(source: &sources::Source, scenario: &str, seed: u64, want: Want) -> 
                 (Want::Imu, Record::Imu(s)) => items.push(Item::Imu(s)),
                 (Want::Imu, Record::Truth(s)) => items.push(Item::Truth(s)),
                 (Want::Imu, Record::BodyVel(s)) => items.push(Item::Velocity(s)),
+                (Want::Imu, Record::Height(s)) => items.push(Item::Height(s)),
                 (Want::Uwb, Record::Tdoa(s)) => items.push(Item::Tdoa(s)),
                 (Want::Uwb, Record::Range(s)) => items.push(Item::Range(s)),
                 _ => {}

@@ -275,8 +275,8 @@ pub fn offline_run(log: &Path, kind: insuwb_msg::FilterKind) -> insuwb_fusion::r
     offline_run_aided(log, kind, false)
 }
 
-/// [`offline_run`], aided by the log's body velocities when `aided`
-/// (`insuwb eval --aiding`).
+/// [`offline_run`], aided by the log's body velocities and heights when
+/// `aided` (`insuwb eval --aiding`).
 pub fn offline_run_aided(
     log: &Path,
     kind: insuwb_msg::FilterKind,
@@ -284,12 +284,14 @@ pub fn offline_run_aided(
 ) -> insuwb_fusion::runner::RunOutput {
     let (recs, _, header) = insuwb_log::read_all(log).unwrap();
     let (mut imu, mut tdoa, mut range, mut vel) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut height = Vec::new();
     for r in recs {
         match r {
             Record::Imu(s) => imu.push(s),
             Record::Tdoa(s) => tdoa.push(s),
             Record::Range(s) => range.push(s),
             Record::BodyVel(s) if aided => vel.push(s),
+            Record::Height(s) if aided => height.push(s),
             _ => {}
         }
     }
@@ -304,9 +306,10 @@ pub fn offline_run_aided(
     let est = insuwb_fusion::config::build_estimator(kind, &w.fusion).unwrap();
     // A ranging log (ranges, no TDOA) is run from its ranges, as eval does.
     if tdoa.is_empty() && !range.is_empty() {
-        return insuwb_fusion::runner::run_aided(&imu, &range, &vel, &w.fusion, est).unwrap();
+        return insuwb_fusion::runner::run_aided(&imu, &range, &vel, &height, &w.fusion, est)
+            .unwrap();
     }
-    insuwb_fusion::runner::run_aided(&imu, &tdoa, &vel, &w.fusion, est).unwrap()
+    insuwb_fusion::runner::run_aided(&imu, &tdoa, &vel, &height, &w.fusion, est).unwrap()
 }
 
 /// The child processes of `parent`: `(pid, command name)` (the stages of a

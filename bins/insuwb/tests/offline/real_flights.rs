@@ -364,7 +364,7 @@ fn tight_up(v: &Value) -> Vec<f64> {
 /// 0.972; better on 9 of the 16, the median ratio to the reference 0.834
 /// aided and unaided). The range finder gives the height: the tight
 /// filter's height RMSE at most 0.04 m at the median flight and 0.08 m on
-/// every one (today 0.018 and 0.028 m), where unaided it is above 0.1 m at
+/// every one (today 0.017 and 0.028 m), where unaided it is above 0.1 m at
 /// the median (today 0.216 m).
 #[test]
 fn flow_aided_flights_hold_todays_figures_and_beat_the_unaided() {

@@ -9,9 +9,10 @@
 //! odometry, IMU and `insuwb_msgs/msg/UwbFix` decoded and compared with the
 //! log). A copy of a segment cut mid-record exports its whole records and
 //! says where it stopped. No stage of the simulated group publishes body
-//! velocities, so a log written here carries them: exported on
-//! `/insuwb/body_vel` and decoded by `rosbags` as
-//! `insuwb_msgs/msg/BodyVelocity`, each equal to its record.
+//! velocities or heights, so a log written here carries them: exported on
+//! `/insuwb/body_vel` and `/insuwb/height` and decoded by `rosbags` as
+//! `insuwb_msgs/msg/BodyVelocity` and `insuwb_msgs/msg/Height`, each equal
+//! to its record.
 //!
 //! The Python environment is `target/pyenv` (or `INSUWB_PYENV`), installed
 //! by `.ci/run`; where it is missing the test says so and skips, unless
@@ -29,7 +30,7 @@ use std::time::Duration;
 
 use common::{insuwb, one_at_a_time, run_bounded, skip_or_fail, wait_bounded, Group};
 use insuwb_log::{LogReader, LogWriter, Metadata, Record};
-use insuwb_msg::{BodyVelocity, Header, ImuSample};
+use insuwb_msg::{BodyVelocity, Header, Height, ImuSample};
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1";
 /// Seconds the group runs.
@@ -210,7 +211,7 @@ fn a_group_log_exports_to_mcap_that_foreign_readers_decode() {
 }
 
 #[test]
-fn body_velocities_export_to_mcap_that_foreign_readers_decode() {
+fn body_velocities_and_heights_export_to_mcap_that_foreign_readers_decode() {
     let Some(py) = python() else {
         skip_or_fail(&format!(
             "no Python environment with mcap, mcap-ros2-support and rosbags (target/pyenv: run .ci/run, or python3 -m venv target/pyenv && target/pyenv/bin/pip install {PACKAGES})"
@@ -248,6 +249,15 @@ fn body_velocities_export_to_mcap_that_foreign_readers_decode() {
             range_mm,
         }))
         .unwrap();
+        // The flow deck's range finder beside its flow.
+        if source == BodyVelocity::SOURCE_FLOW {
+            w.append(&Record::Height(Height {
+                header: Header::new(k / 2, t + 6_000_000),
+                range_m: f64::from(range_mm) * 1e-3,
+                source: Height::SOURCE_RANGE_FINDER,
+            }))
+            .unwrap();
+        }
     }
     w.finish().unwrap();
     let mcap = dir.join("vel.mcap");
@@ -259,11 +269,22 @@ fn body_velocities_export_to_mcap_that_foreign_readers_decode() {
             .any(|l| l.contains("/insuwb/body_vel") && l.ends_with(&format!(" {N} messages"))),
         "{stdout}"
     );
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.contains("/insuwb/height") && l.ends_with(&format!(" {} messages", N / 2))),
+        "{stdout}"
+    );
     assert_eq!(info_counts(&log).get("body_vel"), Some(&N));
+    assert_eq!(info_counts(&log).get("height"), Some(&(N / 2)));
     let lines = check(&py, &dir, "vel", &log, &mcap, true);
     assert_eq!(
         lines.iter().filter(|l| l.starts_with("body_vel,")).count() as u64,
         N
+    );
+    assert_eq!(
+        lines.iter().filter(|l| l.starts_with("height,")).count() as u64,
+        N / 2
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -27,7 +27,13 @@ fn the_odometry_scale_error_is_estimated_by_the_filters_that_use_it() {
             let sim = insuwb_sim::simulate(&sc.sim, seed).unwrap();
             let cfg = sc.fusion_for_seed(seed).unwrap();
             let mut r = Runner::new(&cfg, build_estimator(kind, &cfg).unwrap()).unwrap();
-            for input in merged_aided(&sim.imu, &sim.tdoa, &sim.velocity, Ties::ImuFirst) {
+            for input in merged_aided(
+                &sim.imu,
+                &sim.tdoa,
+                &sim.velocity,
+                &sim.height,
+                Ties::ImuFirst,
+            ) {
                 r.push(input);
             }
             let [flow, (scale, sigma)] = r.engine_mut().estimator().aiding_scales().unwrap();
@@ -60,7 +66,7 @@ fn odometry_keeps_the_lateral_velocity_near_zero_through_the_turns() {
     for kind in [FilterKind::Kf, FilterKind::Iakf] {
         let run = |velocity: &[BodyVelocity]| {
             let est = build_estimator(kind, &cfg).unwrap();
-            let out = runner::run_aided(&sim.imu, &sim.tdoa, velocity, &cfg, est).unwrap();
+            let out = runner::run_aided(&sim.imu, &sim.tdoa, velocity, &[], &cfg, est).unwrap();
             lateral_rms(&out.fused, from_ns)
         };
         let (alone, aided) = (run(&[]), run(&sim.velocity));

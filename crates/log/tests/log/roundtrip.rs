@@ -138,6 +138,7 @@ fn variant_indices_are_frozen() {
         (topics::HEALTH, 8),
         (topics::BODY_VEL, 9),
         (topics::UWB_RANGE, 10),
+        (topics::HEIGHT, 11),
     ];
     let mut enc = RecordEncoder::new();
     let recs = one_of_each(1);

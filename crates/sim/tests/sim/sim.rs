@@ -146,6 +146,7 @@ fn merged_stream_is_time_ordered_with_truth_then_imu_then_uwb() {
         SimRecord::Imu(_) => 1,
         SimRecord::Tdoa(_) | SimRecord::Range(_) => 2,
         SimRecord::Velocity(_) => 3,
+        SimRecord::Height(_) => 4,
     };
     for w in m.windows(2) {
         let (a, b) = (&w[0], &w[1]);

@@ -4,7 +4,7 @@
 //! height plus its noise), at the configured times,
 //! bit-identical for a seed, and nothing else of the run changed by them.
 
-use insuwb_msg::BodyVelocity;
+use insuwb_msg::{BodyVelocity, Height};
 use insuwb_sim::{
     simulate, CirclePath, Dropout, FlowConfig, ImuErrors, OdometryConfig, Scenario,
     ScenarioConfigError, SimRecord, Trajectory,
@@ -151,6 +151,15 @@ fn flow_reads_the_body_frame_velocity_in_the_turn() {
         mean.abs() < 0.005 && (0.015..0.025).contains(&sd),
         "{mean} {sd}"
     );
+    // The range finder's heights: one per flow sample, at its time, the
+    // range it carries.
+    assert_eq!(out.height.len(), out.velocity.len());
+    for (k, (h, m)) in out.height.iter().zip(&out.velocity).enumerate() {
+        assert_eq!(h.header.seq, k as u64);
+        assert_eq!(h.header.meas_time_ns, m.header.meas_time_ns);
+        assert_eq!(h.source, Height::SOURCE_RANGE_FINDER);
+        assert_eq!(Some(h.range_m), m.range_m());
+    }
 }
 
 #[test]

@@ -1,9 +1,10 @@
-//! The IMU driver over a recorded source: publishes `imu` (checked) and
+//! The IMU driver over a recorded source: publishes `imu` (checked),
+//! `body_vel` and `height` (checked, where the recording holds them) and
 //! `truth` (simulation and replay only).
 
 use anyhow::Result;
-use insuwb_msg::check::{ImuGate, VelocityGate};
-use insuwb_msg::{topics, BodyVelocity, GroundTruth, ImuSample};
+use insuwb_msg::check::{HeightGate, ImuGate, VelocityGate};
+use insuwb_msg::{topics, BodyVelocity, GroundTruth, Header, Height, ImuSample};
 use insuwb_runtime::{HealthCounters, Pub, Stage};
 
 use super::pacing::{self, Paced, Progress};
@@ -23,6 +24,10 @@ struct ImuDriver {
     /// publisher only when it holds some.
     velocity: Option<Pub<BodyVelocity>>,
     vel_gate: VelocityGate,
+    /// Heights of the recording (a range finder): a publisher only when it
+    /// holds some.
+    height: Option<Pub<Height>>,
+    height_gate: HeightGate,
     generation: u32,
     source_id: u16,
     /// Values and time order ([`insuwb_msg::check`]), as `insuwb eval`.
@@ -41,33 +46,35 @@ impl Paced for ImuDriver {
     }
 
     fn publish(&mut self, item: Item, t_ns: u64) -> Result<()> {
+        // The recording's time on this run's clock, this process's stamps.
+        let stamp = |h: &mut Header| {
+            h.meas_time_ns = t_ns;
+            h.generation = self.generation;
+            h.source_id = self.source_id;
+        };
+        // Each sample is refused and counted by its stream's gate (the
+        // heartbeat reports it), as `insuwb eval` does.
         match item {
             Item::Truth(mut s) => {
-                s.header.meas_time_ns = t_ns;
-                s.header.generation = self.generation;
-                s.header.source_id = self.source_id;
+                stamp(&mut s.header);
                 self.truth.publish_raw(s)?;
             }
             Item::Imu(mut s) => {
-                s.header.meas_time_ns = t_ns;
-                s.header.generation = self.generation;
-                s.header.source_id = self.source_id;
-                // Refused and counted by the gate (the heartbeat reports it).
-                if self.gate.check(&s).is_err() {
-                    return Ok(());
+                stamp(&mut s.header);
+                if self.gate.check(&s).is_ok() {
+                    self.imu.publish_raw(s)?;
+                    self.counters.published += 1;
                 }
-                self.imu.publish_raw(s)?;
-                self.counters.published += 1;
             }
             Item::Velocity(mut s) => {
-                s.header.meas_time_ns = t_ns;
-                s.header.generation = self.generation;
-                s.header.source_id = self.source_id;
-                // Refused and counted by its gate, as `insuwb eval` does.
-                if self.vel_gate.check(&s).is_err() {
-                    return Ok(());
+                stamp(&mut s.header);
+                if let (Ok(()), Some(p)) = (self.vel_gate.check(&s), self.velocity.as_mut()) {
+                    p.publish_raw(s)?;
                 }
-                if let Some(p) = self.velocity.as_mut() {
+            }
+            Item::Height(mut s) => {
+                stamp(&mut s.header);
+                if let (Ok(()), Some(p)) = (self.height_gate.check(&s), self.height.as_mut()) {
                     p.publish_raw(s)?;
                 }
             }
@@ -79,11 +86,15 @@ impl Paced for ImuDriver {
     fn heartbeat(&mut self) -> Result<HealthCounters> {
         let refused = self.gate.refusals();
         let vel = self.vel_gate.refusals();
-        self.counters.dropped_invalid = refused.invalid() + vel.invalid();
-        self.counters.dropped_time = refused.time() + vel.time();
+        let height = self.height_gate.refusals();
+        self.counters.dropped_invalid = refused.invalid() + vel.invalid() + height.invalid();
+        self.counters.dropped_time = refused.time() + vel.time() + height.time();
         // Late subscribers get history only when the publisher acts.
         self.imu.update_connections()?;
         if let Some(p) = self.velocity.as_mut() {
+            p.update_connections()?;
+        }
+        if let Some(p) = self.height.as_mut() {
             p.update_connections()?;
         }
         Ok(self.counters)
@@ -113,6 +124,12 @@ pub fn run(cfg: &RobotConfig, source: &Source, speed: f64, epoch_ns: u64) -> Res
             None
         },
         vel_gate: VelocityGate::new(),
+        height: if src.has_height() {
+            Some(stage.publisher(topics::HEIGHT)?)
+        } else {
+            None
+        },
+        height_gate: HeightGate::new(),
         generation: stage.generation(),
         source_id: stage.source_id(),
         gate: ImuGate::new(),

@@ -104,7 +104,7 @@ impl Paced for UwbDriver {
         match item {
             Item::Tdoa(s) => self.publish_tdoa(s, t_ns),
             Item::Range(r) => self.publish_range(r, t_ns),
-            Item::Imu(_) | Item::Truth(_) | Item::Velocity(_) => Ok(()),
+            Item::Imu(_) | Item::Truth(_) | Item::Velocity(_) | Item::Height(_) => Ok(()),
         }
     }
 

@@ -163,6 +163,7 @@ fn stages_do_not_allocate_per_sample_in_the_steady_state() {
             R::Imu(s) => (1, &s.header),
             R::Truth(s) => (1, &s.header),
             R::BodyVel(s) => (1, &s.header),
+            R::Height(s) => (1, &s.header),
             R::Tdoa(s) => (2, &s.header),
             R::Range(s) => (2, &s.header),
             R::Fix(s) => (2, &s.header),

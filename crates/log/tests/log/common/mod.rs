@@ -7,7 +7,8 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use insuwb_log::Record;
 use insuwb_msg::{
     fixed_name, BodyVelocity, DeviceCounters, FilterDiag, FusedState, GroundTruth, Header, Health,
-    HealthState, ImuSample, InsCorrection, NavState, StageCounters, UwbFix, UwbRange, UwbTdoa,
+    HealthState, Height, ImuSample, InsCorrection, NavState, StageCounters, UwbFix, UwbRange,
+    UwbTdoa,
 };
 
 /// A scratch directory under the system temp dir, removed on drop.
@@ -192,6 +193,11 @@ pub fn one_of_each(seq: u64) -> Vec<Record> {
             quality: 42,
             range_m: 4.375,
             anchor_pos_m: ramp(-1.5),
+        }),
+        Record::Height(Height {
+            header: h,
+            range_m: 1.375,
+            source: Height::SOURCE_RANGE_FINDER,
         }),
     ]
 }
