@@ -361,8 +361,8 @@ fn tight_up(v: &Value) -> Vec<f64> {
 /// The flights with flow, aided by it: today's figures with margin, and
 /// better than the same flights unaided on the whole: the geometric mean
 /// over the flights of the aided over the unaided RMSE at most 0.98 (today
-/// 0.972; better on 9 of the 16, the median ratio to the reference 0.834
-/// aided and unaided). The range finder gives the height: the tight
+/// 0.971; better on 9 of the 16, the median ratio to the reference 0.836
+/// aided, 0.834 unaided). The range finder gives the height: the tight
 /// filter's height RMSE at most 0.04 m at the median flight and 0.08 m on
 /// every one (today 0.017 and 0.028 m), where unaided it is above 0.1 m at
 /// the median (today 0.216 m).
