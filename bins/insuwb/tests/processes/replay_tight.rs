@@ -1,9 +1,10 @@
 //! The real-flight default through the processes: a UTIL flight imported
-//! with `insuwb import util` (IMU, TDOA and the flow deck's body
-//! velocities), replayed through the five stages with the tight filter
-//! (`iakf_tdoa`, 1 kHz IMU) aided by the flow (`aiding_sources =
-//! ["flow"]`: the IMU driver publishes the velocities, the fusion stage
-//! fuses them, the logger records them), gives the fused states of `insuwb
+//! with `insuwb import util` (IMU, TDOA, the flow deck's body velocities
+//! and its range finder's heights), replayed through the five stages with
+//! the tight filter (`iakf_tdoa`, 1 kHz IMU) aided by the flow
+//! (`aiding_sources = ["flow"]`: the IMU driver publishes the velocities
+//! and heights, the fusion stage fuses them, the logger records them),
+//! gives the fused states of `insuwb
 //! eval --aiding flow`'s in-process code path, epoch by epoch, within 1 mm,
 //! when the fusion stage drops no measurement as late (a busy machine can
 //! make it drop a few: then their share and the accuracy are checked).
@@ -79,14 +80,13 @@ fn a_real_flight_replayed_with_the_tight_filter_equals_eval() {
     let piped = undegraded_fused(&g.log_dir());
     // The same log through the in-process code path of `insuwb eval`.
     let mut out = offline_run_aided(&log, insuwb_msg::FilterKind::IakfTdoa, true);
-    // The flow reached the fusion stage and the log.
-    let recorded = insuwb_log::read_segments(g.log_dir())
-        .unwrap()
-        .records
-        .iter()
-        .filter(|r| matches!(r, insuwb_log::Record::BodyVel(_)))
-        .count();
+    // The flow and the heights reached the fusion stage and the log.
+    let records = insuwb_log::read_segments(g.log_dir()).unwrap().records;
+    let count = |f: fn(&insuwb_log::Record) -> bool| records.iter().filter(|r| f(r)).count();
+    let recorded = count(|r| matches!(r, insuwb_log::Record::BodyVel(_)));
     assert!(recorded > 2000, "{recorded} body velocities recorded");
+    let heights = count(|r| matches!(r, insuwb_log::Record::Height(_)));
+    assert!(heights > 500, "{heights} heights recorded");
     out.fused.retain(|s| !uwb_only(s));
     assert!(
         out.fused.len() > 400,
