@@ -69,7 +69,9 @@
 //! `Health::dropped_invalid`, the time refusals in `Health::dropped_time`.
 //! A refused sample changes nothing in its gate but the counts. A new
 //! sample type gets its value check, its gate, its refusal enum and its
-//! counts the same way.
+//! counts the same way: a stream whose times strictly increase (the IMU,
+//! body velocities, heights) implements [`Ordered`] and its gate is an
+//! [`OrderedGate`].
 
 use crate::{BodyVelocity, Height, ImuSample, UwbRange, UwbTdoa};
 use serde::{Deserialize, Serialize};
@@ -805,51 +807,6 @@ fn strictly_after(last_ns: Option<u64>, time_ns: u64) -> Result<(), Option<u64>>
     }
 }
 
-/// The gate of an IMU stream: values ([`imu_values`]), then a time strictly
-/// after the previous accepted sample's (see the module doc).
-#[derive(Debug, Clone, Default)]
-pub struct ImuGate {
-    last_ns: Option<u64>,
-    refusals: ImuRefusals,
-}
-
-impl ImuGate {
-    /// A gate that has seen nothing.
-    #[must_use]
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Checks `s` (its time is `header.meas_time_ns`); an accepted sample's
-    /// time becomes the one the next must follow.
-    ///
-    /// # Errors
-    /// Why `s` is refused (also counted in [`ImuGate::refusals`]).
-    pub fn check(&mut self, s: &ImuSample) -> Result<(), ImuRefusal> {
-        let r = self.verdict(s);
-        match &r {
-            Ok(()) => self.last_ns = Some(s.header.meas_time_ns),
-            Err(e) => self.refusals.count(e),
-        }
-        r
-    }
-
-    fn verdict(&self, s: &ImuSample) -> Result<(), ImuRefusal> {
-        imu_values(s)?;
-        let time_ns = s.header.meas_time_ns;
-        strictly_after(self.last_ns, time_ns).map_err(|last| match last {
-            Some(last_ns) => ImuRefusal::TimeBackwards { time_ns, last_ns },
-            None => ImuRefusal::TimeRepeated { time_ns },
-        })
-    }
-
-    /// The samples refused so far, by reason.
-    #[must_use]
-    pub fn refusals(&self) -> &ImuRefusals {
-        &self.refusals
-    }
-}
-
 /// The gate of a TDOA stream: values ([`tdoa_values`]), then a time not
 /// before the previous accepted measurement's and no pair twice at one
 /// time (see the module doc). Holds its pair table inline: no allocation.
@@ -1016,95 +973,138 @@ impl RangeGate {
     }
 }
 
-/// The gate of a body-velocity stream: values ([`velocity_values`]), then a
-/// time strictly after the previous accepted measurement's.
-#[derive(Debug, Clone, Default)]
-pub struct VelocityGate {
-    last_ns: Option<u64>,
-    refusals: VelocityRefusals,
+/// A sample whose stream's gate refuses values that cannot be a
+/// measurement and any time not strictly after the previous accepted
+/// sample's ([`OrderedGate`]): the IMU, body velocities, heights.
+pub trait Ordered {
+    /// Why its values cannot be a measurement.
+    type Invalid;
+    /// Why a gate refused it.
+    type Refusal: From<Self::Invalid>;
+    /// Its refusals, by reason.
+    type Refusals: Default + Clone + std::fmt::Debug;
+    /// Its measurement time, ns.
+    fn time_ns(&self) -> u64;
+    /// Its value check.
+    ///
+    /// # Errors
+    /// The first failed check.
+    fn values(&self) -> Result<(), Self::Invalid>;
+    /// The refusal of a time before the previous accepted one, `last_ns`.
+    fn backwards(time_ns: u64, last_ns: u64) -> Self::Refusal;
+    /// The refusal of the previous accepted time again.
+    fn repeated(time_ns: u64) -> Self::Refusal;
+    /// Counts `r` under its reason.
+    fn count(counts: &mut Self::Refusals, r: &Self::Refusal);
 }
 
-impl VelocityGate {
+/// The gate of a stream of [`Ordered`] samples: values, then a time
+/// strictly after the previous accepted sample's (see the module doc).
+#[derive(Debug, Clone)]
+pub struct OrderedGate<T: Ordered> {
+    last_ns: Option<u64>,
+    refusals: T::Refusals,
+}
+
+impl<T: Ordered> Default for OrderedGate<T> {
+    fn default() -> Self {
+        Self {
+            last_ns: None,
+            refusals: T::Refusals::default(),
+        }
+    }
+}
+
+impl<T: Ordered> OrderedGate<T> {
     /// A gate that has seen nothing.
     #[must_use]
     pub fn new() -> Self {
         Self::default()
     }
 
-    /// Checks `m`; an accepted measurement's time becomes the one the next
-    /// must follow.
+    /// Checks `s`; an accepted sample's time becomes the one the next must
+    /// follow.
     ///
     /// # Errors
-    /// Why `m` is refused (also counted in [`VelocityGate::refusals`]).
-    pub fn check(&mut self, m: &BodyVelocity) -> Result<(), VelocityRefusal> {
-        let r = self.verdict(m);
+    /// Why `s` is refused (also counted in [`OrderedGate::refusals`]).
+    pub fn check(&mut self, s: &T) -> Result<(), T::Refusal> {
+        let r = self.verdict(s);
         match &r {
-            Ok(()) => self.last_ns = Some(m.header.meas_time_ns),
-            Err(e) => self.refusals.count(e),
+            Ok(()) => self.last_ns = Some(s.time_ns()),
+            Err(e) => T::count(&mut self.refusals, e),
         }
         r
     }
 
-    fn verdict(&self, m: &BodyVelocity) -> Result<(), VelocityRefusal> {
-        velocity_values(m)?;
-        let time_ns = m.header.meas_time_ns;
+    fn verdict(&self, s: &T) -> Result<(), T::Refusal> {
+        s.values()?;
+        let time_ns = s.time_ns();
         strictly_after(self.last_ns, time_ns).map_err(|last| match last {
-            Some(last_ns) => VelocityRefusal::TimeBackwards { time_ns, last_ns },
-            None => VelocityRefusal::TimeRepeated { time_ns },
+            Some(last_ns) => T::backwards(time_ns, last_ns),
+            None => T::repeated(time_ns),
         })
     }
 
-    /// The measurements refused so far, by reason.
+    /// The samples refused so far, by reason.
     #[must_use]
-    pub fn refusals(&self) -> &VelocityRefusals {
+    pub fn refusals(&self) -> &T::Refusals {
         &self.refusals
     }
 }
+
+/// Implements [`Ordered`] for a sample type with its value check, its
+/// refusal and its counts.
+macro_rules! ordered {
+    ($t:ty, $values:ident, $invalid:ty, $refusal:ident, $refusals:ty) => {
+        impl Ordered for $t {
+            type Invalid = $invalid;
+            type Refusal = $refusal;
+            type Refusals = $refusals;
+            fn time_ns(&self) -> u64 {
+                self.header.meas_time_ns
+            }
+            fn values(&self) -> Result<(), $invalid> {
+                $values(self)
+            }
+            fn backwards(time_ns: u64, last_ns: u64) -> $refusal {
+                $refusal::TimeBackwards { time_ns, last_ns }
+            }
+            fn repeated(time_ns: u64) -> $refusal {
+                $refusal::TimeRepeated { time_ns }
+            }
+            fn count(counts: &mut $refusals, r: &$refusal) {
+                counts.count(r);
+            }
+        }
+    };
+}
+ordered!(ImuSample, imu_values, InvalidImu, ImuRefusal, ImuRefusals);
+ordered!(
+    BodyVelocity,
+    velocity_values,
+    InvalidVelocity,
+    VelocityRefusal,
+    VelocityRefusals
+);
+ordered!(
+    Height,
+    height_values,
+    InvalidHeight,
+    HeightRefusal,
+    HeightRefusals
+);
+
+/// The gate of an IMU stream: values ([`imu_values`]), then a time strictly
+/// after the previous accepted sample's.
+pub type ImuGate = OrderedGate<ImuSample>;
+
+/// The gate of a body-velocity stream: values ([`velocity_values`]), then a
+/// time strictly after the previous accepted measurement's.
+pub type VelocityGate = OrderedGate<BodyVelocity>;
 
 /// The gate of a height stream: values ([`height_values`]), then a time
 /// strictly after the previous accepted measurement's.
-#[derive(Debug, Clone, Default)]
-pub struct HeightGate {
-    last_ns: Option<u64>,
-    refusals: HeightRefusals,
-}
-
-impl HeightGate {
-    /// A gate that has seen nothing.
-    #[must_use]
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Checks `m`; an accepted measurement's time becomes the one the next
-    /// must follow.
-    ///
-    /// # Errors
-    /// Why `m` is refused (also counted in [`HeightGate::refusals`]).
-    pub fn check(&mut self, m: &Height) -> Result<(), HeightRefusal> {
-        let r = self.verdict(m);
-        match &r {
-            Ok(()) => self.last_ns = Some(m.header.meas_time_ns),
-            Err(e) => self.refusals.count(e),
-        }
-        r
-    }
-
-    fn verdict(&self, m: &Height) -> Result<(), HeightRefusal> {
-        height_values(m)?;
-        let time_ns = m.header.meas_time_ns;
-        strictly_after(self.last_ns, time_ns).map_err(|last| match last {
-            Some(last_ns) => HeightRefusal::TimeBackwards { time_ns, last_ns },
-            None => HeightRefusal::TimeRepeated { time_ns },
-        })
-    }
-
-    /// The measurements refused so far, by reason.
-    #[must_use]
-    pub fn refusals(&self) -> &HeightRefusals {
-        &self.refusals
-    }
-}
+pub type HeightGate = OrderedGate<Height>;
 
 #[cfg(test)]
 mod tests {
