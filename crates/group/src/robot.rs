@@ -1078,6 +1078,38 @@ mod tests {
         )
     }
 
+    /// `[fusion] aiding_sources` names what aids the filter: the flow deck
+    /// gives body velocities and heights, odometry velocities alone, a
+    /// range finder heights alone; an unknown name is refused, naming it.
+    #[test]
+    fn aiding_sources_say_which_velocities_and_heights_the_filter_takes() {
+        let at = |list: &str| {
+            RobotConfig::from_str(
+                &format!("[fusion]\naiding_sources = {list}\n"),
+                "robot.toml",
+                Path::new("/tmp"),
+            )
+        };
+        let c = at(r#"["flow", "odometry", "range_finder"]"#).unwrap();
+        let got: Vec<(Option<u32>, bool)> = c
+            .fusion
+            .aiding_sources
+            .iter()
+            .map(|s| (s.velocity_code(), s.gives_height()))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (Some(insuwb_msg::BodyVelocity::SOURCE_FLOW), true),
+                (Some(insuwb_msg::BodyVelocity::SOURCE_ODOMETRY), false),
+                (None, true)
+            ]
+        );
+        assert!(load("", "").unwrap().fusion.aiding_sources.is_empty());
+        let e = at(r#"["sonar"]"#).unwrap_err().to_string();
+        assert!(e.contains("sonar") && e.contains("range_finder"), "{e}");
+    }
+
     /// `[uwb] kind` must agree with its source: the scenario, the device's
     /// protocol; the error names the key and the fix.
     #[test]
