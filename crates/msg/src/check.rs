@@ -244,24 +244,6 @@ impl ImuRefusals {
         };
         *n += 1;
     }
-
-    /// Refused for their values (`Health::dropped_invalid`).
-    #[must_use]
-    pub fn invalid(&self) -> u64 {
-        self.non_finite + self.out_of_range
-    }
-
-    /// Refused for their time (`Health::dropped_time`).
-    #[must_use]
-    pub fn time(&self) -> u64 {
-        self.time_backwards + self.time_repeated
-    }
-
-    /// Refused in all.
-    #[must_use]
-    pub fn total(&self) -> u64 {
-        self.invalid() + self.time()
-    }
 }
 
 /// TDOA measurements refused, by reason.
@@ -290,24 +272,6 @@ impl TdoaRefusals {
             TdoaRefusal::PairRepeated { .. } => &mut self.pair_repeated,
         };
         *n += 1;
-    }
-
-    /// Refused for their values (`Health::dropped_invalid`).
-    #[must_use]
-    pub fn invalid(&self) -> u64 {
-        self.non_finite + self.same_anchor + self.impossible
-    }
-
-    /// Refused for their time or as repeats (`Health::dropped_time`).
-    #[must_use]
-    pub fn time(&self) -> u64 {
-        self.time_backwards + self.pair_repeated
-    }
-
-    /// Refused in all.
-    #[must_use]
-    pub fn total(&self) -> u64 {
-        self.invalid() + self.time()
     }
 }
 
@@ -401,24 +365,6 @@ impl RangeRefusals {
             RangeRefusal::AnchorRepeated { .. } => &mut self.anchor_repeated,
         };
         *n += 1;
-    }
-
-    /// Refused for their values (`Health::dropped_invalid`).
-    #[must_use]
-    pub fn invalid(&self) -> u64 {
-        self.non_finite + self.out_of_range + self.quality
-    }
-
-    /// Refused for their time or as repeats (`Health::dropped_time`).
-    #[must_use]
-    pub fn time(&self) -> u64 {
-        self.time_backwards + self.anchor_repeated
-    }
-
-    /// Refused in all.
-    #[must_use]
-    pub fn total(&self) -> u64 {
-        self.invalid() + self.time()
     }
 }
 
@@ -514,24 +460,6 @@ impl VelocityRefusals {
         };
         *n += 1;
     }
-
-    /// Refused for their values (`Health::dropped_invalid`).
-    #[must_use]
-    pub fn invalid(&self) -> u64 {
-        self.non_finite + self.sigma + self.out_of_range + self.source
-    }
-
-    /// Refused for their time (`Health::dropped_time`).
-    #[must_use]
-    pub fn time(&self) -> u64 {
-        self.time_backwards + self.time_repeated
-    }
-
-    /// Refused in all.
-    #[must_use]
-    pub fn total(&self) -> u64 {
-        self.invalid() + self.time()
-    }
 }
 
 /// Why a height measurement's values cannot be a measurement.
@@ -602,25 +530,39 @@ impl HeightRefusals {
         };
         *n += 1;
     }
-
-    /// Refused for their values (`Health::dropped_invalid`).
-    #[must_use]
-    pub fn invalid(&self) -> u64 {
-        self.non_finite + self.out_of_range + self.source
-    }
-
-    /// Refused for their time (`Health::dropped_time`).
-    #[must_use]
-    pub fn time(&self) -> u64 {
-        self.time_backwards + self.time_repeated
-    }
-
-    /// Refused in all.
-    #[must_use]
-    pub fn total(&self) -> u64 {
-        self.invalid() + self.time()
-    }
 }
+
+/// The sums every refusal count has: `invalid` (refused for their
+/// values, `Health::dropped_invalid`), `time` (refused for their time or
+/// as repeats, `Health::dropped_time`) and `total`.
+macro_rules! refusal_sums {
+    ($t:ty; invalid: $($i:ident),+; time: $($k:ident),+) => {
+        impl $t {
+            /// Refused for their values (`Health::dropped_invalid`).
+            #[must_use]
+            pub fn invalid(&self) -> u64 {
+                0 $(+ self.$i)+
+            }
+
+            /// Refused for their time or as repeats (`Health::dropped_time`).
+            #[must_use]
+            pub fn time(&self) -> u64 {
+                0 $(+ self.$k)+
+            }
+
+            /// Refused in all.
+            #[must_use]
+            pub fn total(&self) -> u64 {
+                self.invalid() + self.time()
+            }
+        }
+    };
+}
+refusal_sums!(ImuRefusals; invalid: non_finite, out_of_range; time: time_backwards, time_repeated);
+refusal_sums!(TdoaRefusals; invalid: non_finite, same_anchor, impossible; time: time_backwards, pair_repeated);
+refusal_sums!(RangeRefusals; invalid: non_finite, out_of_range, quality; time: time_backwards, anchor_repeated);
+refusal_sums!(VelocityRefusals; invalid: non_finite, sigma, out_of_range, source; time: time_backwards, time_repeated);
+refusal_sums!(HeightRefusals; invalid: non_finite, out_of_range, source; time: time_backwards, time_repeated);
 
 /// Samples refused, by sample type and reason (what `insuwb eval` reports).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
