@@ -38,7 +38,7 @@ def blended_rmse(tight, fix, tau_s):
     prev = None
     se = 0.0
     for t in ts:
-        ee, en, te, tn = tight[t]
+        ee, en = tight[t][0], tight[t][1]
         fe, fn = fix[t][0], fix[t][1]
         d = (fe - ee, fn - en)
         if tau_s <= 0.0:
