@@ -57,7 +57,7 @@ fn run(args: &Args) -> Result<()> {
     let bridge = Bridge::open(setup).context("opening the ROS 2 bridge")?;
     let stats = bridge.run().context("the ROS 2 bridge")?;
     tracing::info!(
-        "ros2: published {} odometry, {} tf, {} imu, {} diagnostics; {} invalid samples, {} too old, {} failed writes; odometry in: {} body velocities, {} refused, {} in another frame, {} failed reads",
+        "ros2: published {} odometry, {} tf, {} imu, {} diagnostics; {} invalid samples, {} too old, {} failed writes; odometry in: {} body velocities, {} refused, {} in another frame, {} failed reads; range finder in: {} heights, {} refused, {} failed reads",
         stats.odometry,
         stats.tf,
         stats.imu,
@@ -68,7 +68,10 @@ fn run(args: &Args) -> Result<()> {
         stats.velocities,
         stats.velocities_refused,
         stats.velocities_other_frame,
-        stats.odometry_in_read_failures
+        stats.odometry_in_read_failures,
+        stats.heights,
+        stats.heights_refused,
+        stats.height_in_read_failures
     );
     Ok(())
 }

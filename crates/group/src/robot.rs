@@ -579,15 +579,19 @@ impl RobotConfig {
         self.ros2
             .validate()
             .map_err(|e| invalid(origin, &format!("ros2.{}", e.key), e.reason))?;
-        if !self.ros2.odometry_in.is_empty() && !self.stages.contains(&StageRole::Ros2) {
-            return Err(invalid(
-                origin,
-                "ros2.odometry_in",
-                format!(
-                    "[ros2] odometry_in = {:?} is read by the ROS 2 bridge, which runs only where `stages` lists \"ros2\": add \"ros2\" to stages, or leave odometry_in empty",
-                    self.ros2.odometry_in
-                ),
-            ));
+        for (key, topic) in [
+            ("odometry_in", &self.ros2.odometry_in),
+            ("height_in", &self.ros2.height_in),
+        ] {
+            if !topic.is_empty() && !self.stages.contains(&StageRole::Ros2) {
+                return Err(invalid(
+                    origin,
+                    &format!("ros2.{key}"),
+                    format!(
+                        "[ros2] {key} = {topic:?} is read by the ROS 2 bridge, which runs only where `stages` lists \"ros2\": add \"ros2\" to stages, or leave {key} empty"
+                    ),
+                ));
+            }
         }
         self.foxglove
             .validate()
@@ -1367,31 +1371,34 @@ mod tests {
         assert_eq!(have, want);
     }
 
-    /// `[ros2] odometry_in` is read by the bridge: refused, naming the key
-    /// and `stages`, where `stages` does not list `ros2`.
+    /// `[ros2] odometry_in` and `height_in` are read by the bridge: refused,
+    /// naming the key and `stages`, where `stages` does not list `ros2`.
     #[test]
-    fn odometry_in_needs_the_ros2_stage() {
-        let table = "[ros2]\nodometry_in = \"/wheel/odom\"\n";
-        let e = RobotConfig::from_str(table, "robot.toml", Path::new("/tmp")).unwrap_err();
-        let msg = format!("{e:#}");
-        assert!(
-            msg.contains("robot.toml:2: key 'ros2.odometry_in'"),
-            "{msg}"
-        );
-        assert!(
-            msg.contains("[ros2] odometry_in") && msg.contains("stages"),
-            "{msg}"
-        );
-        let c = RobotConfig::from_str(
-            &format!("stages = [\"imu\", \"uwb\", \"ins\", \"fusion\", \"ros2\"]\n{table}"),
-            "robot.toml",
-            Path::new("/tmp"),
-        )
-        .unwrap();
-        assert_eq!(
-            c.ros2.odometry_in_topic_name().as_deref(),
-            Some("/wheel/odom")
-        );
+    fn ros2_inputs_need_the_ros2_stage() {
+        for (key, topic) in [("odometry_in", "/wheel/odom"), ("height_in", "/flow/range")] {
+            let table = format!("[ros2]\n{key} = \"{topic}\"\n");
+            let e = RobotConfig::from_str(&table, "robot.toml", Path::new("/tmp")).unwrap_err();
+            let msg = format!("{e:#}");
+            assert!(
+                msg.contains(&format!("robot.toml:2: key 'ros2.{key}'")),
+                "{msg}"
+            );
+            assert!(
+                msg.contains(&format!("[ros2] {key}")) && msg.contains("stages"),
+                "{msg}"
+            );
+            let c = RobotConfig::from_str(
+                &format!("stages = [\"imu\", \"uwb\", \"ins\", \"fusion\", \"ros2\"]\n{table}"),
+                "robot.toml",
+                Path::new("/tmp"),
+            )
+            .unwrap();
+            let name = match key {
+                "odometry_in" => c.ros2.odometry_in_topic_name(),
+                _ => c.ros2.height_in_topic_name(),
+            };
+            assert_eq!(name.as_deref(), Some(topic));
+        }
         let bad = RobotConfig::from_str(
             "stages = [\"ros2\"]\n[ros2]\nodometry_in = \"/wheel/odom\"\nodometry_in_sigma_mps = -1.0\n",
             "robot.toml",

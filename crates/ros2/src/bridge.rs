@@ -10,12 +10,14 @@
 //! | `<ns>/imu` | `sensor_msgs/Imu` | reliable, volatile, keep-last 10 | each IMU sample (`publish_imu`) |
 //! | `/diagnostics` | `diagnostic_msgs/DiagnosticArray` | reliable, volatile, keep-last 10 | every `diagnostics_period_s`: one status per stage |
 //!
-//! and, when `[ros2] odometry_in` names a topic, it reads the robot base's
-//! odometry from ROS and publishes it on iceoryx2:
+//! and, when `[ros2] odometry_in` or `height_in` names a topic, it reads
+//! the robot base's odometry or a downward range finder from ROS and
+//! publishes them on iceoryx2:
 //!
 //! | ROS topic (in) | type | QoS | to |
 //! |---|---|---|---|
 //! | `odometry_in` | `nav_msgs/Odometry` or `geometry_msgs/TwistStamped` (`odometry_in_type`) | best effort, volatile, keep-last 100 (matches reliable and best-effort writers) | `body_vel`: a `BodyVelocity` of source odometry per message the velocity gate accepts |
+//! | `height_in` | `sensor_msgs/Range` | as `odometry_in` | `height`: a `Height` of source range finder per reading within the sensor's limits that the height gate accepts ([`crate::height_in`]) |
 //!
 //! Each message's linear twist is taken as the body's velocity (its frame
 //! should be `child_frame_id`; another is used all the same, counted and
@@ -40,15 +42,16 @@
 //! history, which its previous run published already.
 //!
 //! Heartbeat counters: `received` what the subscribers got and the odometry
-//! messages taken, `published` the DDS messages written and the body
-//! velocities published, `dropped_invalid` samples no conversion accepts
-//! and odometry refused for its values or undecodable, `dropped_time`
-//! samples too old to republish and odometry refused for its time, and
+//! and range messages taken, `published` the DDS messages written and the
+//! body velocities and heights published, `dropped_invalid` samples no
+//! conversion accepts and odometry and ranges refused for their values (or
+//! the sensor's limits) or undecodable, `dropped_time` samples too old to
+//! republish and odometry and ranges refused for their time, and
 //! [`Ros2BridgeCounters`] (odometry, IMU and transforms written, write
 //! failures, body velocities published, odometry in another frame).
 
 use insuwb_msg::{
-    topics, BodyVelocity, FusedState, Health, ImuSample, Ros2BridgeCounters, StageCounters,
+    topics, BodyVelocity, FusedState, Health, Height, ImuSample, Ros2BridgeCounters, StageCounters,
 };
 use insuwb_runtime::{
     monotonic_ns, HealthCounters, HealthReporter, PortError, Pub, RuntimeConfig, Stage, StageError,
@@ -63,8 +66,10 @@ use serde::de::DeserializeOwned;
 
 use crate::config::{OdometryInType, Ros2Config, Ros2ConfigError};
 use crate::convert::{self, ConvertError, Frames, RosStamp, TwistMessage};
+use crate::height_in::HeightIntake;
 use crate::msgs::{
-    DiagnosticArray, Header, Imu, Odometry, RosMessage, TfMessage, TransformStamped, TwistStamped,
+    DiagnosticArray, Header, Imu, Odometry, Range, RosMessage, TfMessage, TransformStamped,
+    TwistStamped,
 };
 use crate::odometry_in::OdometryIntake;
 use insuwb_report::clock::ClockOffset;
@@ -145,6 +150,13 @@ pub struct BridgeStats {
     pub velocities_other_frame: u64,
     /// Takes from the odometry reader that failed (not a message).
     pub odometry_in_read_failures: u64,
+    /// Heights published on `height` from `[ros2] height_in`.
+    pub heights: u64,
+    /// Range messages refused (beyond the sensor's limits, invalid values,
+    /// an undecodable message, a time not after the previous one's).
+    pub heights_refused: u64,
+    /// Takes from the range reader that failed (not a message).
+    pub height_in_read_failures: u64,
 }
 
 type Publisher<M> = ros2_client::Publisher<M>;
@@ -180,11 +192,19 @@ struct Outputs {
     imu_pub: Option<Publisher<Imu>>,
     diag_pub: Publisher<DiagnosticArray>,
     odometry_in: Option<OdometryIn>,
+    height_in: Option<HeightIn>,
     _node: ros2_client::Node,
     _context: Context,
 }
 
-/// Most messages taken from the odometry reader in one drain: a bound on
+/// The iceoryx2 publishers of what the bridge reads from ROS (`None`:
+/// that input is not configured).
+struct InPorts {
+    body_vel: Option<Pub<BodyVelocity>>,
+    height: Option<Pub<Height>>,
+}
+
+/// Most messages taken from an input reader in one drain: a bound on
 /// the loop's time even when a publisher floods it (the reader keeps
 /// [`crate::subscribe::QUEUE_DEPTH`]).
 const MAX_TAKES_PER_DRAIN: usize = 4 * crate::subscribe::QUEUE_DEPTH;
@@ -232,32 +252,124 @@ fn take_all<M: TwistMessage + DeserializeOwned + 'static>(
     clock: &ClockOffset,
     stats: &mut BridgeStats,
 ) -> Result<(), BridgeRunError> {
+    let BridgeStats {
+        velocities,
+        odometry_in_read_failures,
+        ..
+    } = stats;
+    let failures = odometry_in_read_failures;
+    take_each(reader, intake, clock, failures, "odometry_in", |v| {
+        body_vel.publish(v).map_err(BridgeRunError::Publish)?;
+        *velocities += 1;
+        Ok(())
+    })
+}
+
+/// An intake of ROS messages `M`: the checked sample of each, or none
+/// (counted by the intake).
+trait Intake<M> {
+    /// What a message becomes.
+    type Sample;
+    /// The sample of `m` received at `rx_ns`, `None` when refused.
+    fn take_message(&mut self, m: &M, clock: &ClockOffset, rx_ns: u64) -> Option<Self::Sample>;
+    /// Counts a message that did not decode.
+    fn count_undecodable(&mut self);
+}
+
+impl<M: TwistMessage> Intake<M> for OdometryIntake {
+    type Sample = BodyVelocity;
+    fn take_message(&mut self, m: &M, clock: &ClockOffset, rx_ns: u64) -> Option<BodyVelocity> {
+        self.take(m, clock, rx_ns)
+    }
+    fn count_undecodable(&mut self) {
+        self.undecodable();
+    }
+}
+
+impl Intake<Range> for HeightIntake {
+    type Sample = Height;
+    fn take_message(&mut self, m: &Range, clock: &ClockOffset, rx_ns: u64) -> Option<Height> {
+        self.take(m, clock, rx_ns)
+    }
+    fn count_undecodable(&mut self) {
+        self.undecodable();
+    }
+}
+
+/// Takes every message `reader` holds (at most [`MAX_TAKES_PER_DRAIN`]),
+/// without waiting, through `intake`, and hands each accepted sample to
+/// `publish`; a failed take ends the drain, counted in `failures` and
+/// warned of (the first, then one in a thousand) under the key `what`.
+fn take_each<M: DeserializeOwned + 'static, I: Intake<M>>(
+    reader: &Subscription<M>,
+    intake: &mut I,
+    clock: &ClockOffset,
+    failures: &mut u64,
+    what: &str,
+    mut publish: impl FnMut(I::Sample) -> Result<(), BridgeRunError>,
+) -> Result<(), BridgeRunError> {
     for _ in 0..MAX_TAKES_PER_DRAIN {
         match reader.take() {
             Ok(Some((m, _))) => {
-                if let Some(v) = intake.take(&m, clock, monotonic_ns()) {
-                    body_vel.publish(v).map_err(BridgeRunError::Publish)?;
-                    stats.velocities += 1;
+                if let Some(s) = intake.take_message(&m, clock, monotonic_ns()) {
+                    publish(s)?;
                 }
             }
             Ok(None) => break,
             Err(ReadError::Deserialization { .. } | ReadError::Malformed) => {
-                intake.undecodable();
+                intake.count_undecodable();
             }
             Err(e) => {
-                stats.odometry_in_read_failures += 1;
-                // The first failure and then one in a thousand.
-                if stats.odometry_in_read_failures % 1000 == 1 {
-                    tracing::warn!(
-                        "ros2: reading odometry_in failed ({} so far): {e}",
-                        stats.odometry_in_read_failures
-                    );
+                *failures += 1;
+                if *failures % 1000 == 1 {
+                    tracing::warn!("ros2: reading {what} failed ({failures} so far): {e}");
                 }
                 break;
             }
         }
     }
     Ok(())
+}
+
+/// The range finder in: DDS reader, intake, iceoryx2 publisher.
+struct HeightIn {
+    reader: Subscription<Range>,
+    intake: HeightIntake,
+    height: Pub<Height>,
+}
+
+impl HeightIn {
+    /// Takes every message the reader holds (at most
+    /// [`MAX_TAKES_PER_DRAIN`]), without waiting, and publishes the
+    /// heights the intake accepts.
+    fn drain(
+        &mut self,
+        clock: &ClockOffset,
+        stats: &mut BridgeStats,
+    ) -> Result<(), BridgeRunError> {
+        let Self {
+            reader,
+            intake,
+            height,
+        } = self;
+        let BridgeStats {
+            heights,
+            height_in_read_failures,
+            ..
+        } = stats;
+        take_each(
+            reader,
+            intake,
+            clock,
+            height_in_read_failures,
+            "height_in",
+            |h| {
+                height.publish(h).map_err(BridgeRunError::Publish)?;
+                *heights += 1;
+                Ok(())
+            },
+        )
+    }
 }
 
 impl std::fmt::Debug for Bridge {
@@ -284,8 +396,10 @@ fn reliable(depth: usize, durability: Durability) -> QosProfile {
         .history(History::KeepLast { depth })
 }
 
-/// The reader of `[ros2] odometry_in` (full name `topic`) of type `M`.
-fn twist_reader<M: RosMessage + DeserializeOwned + 'static>(
+/// The reader of an input topic (`[ros2] odometry_in`, `height_in`; full
+/// name `topic`) of type `M`, with the QoS that matches reliable and
+/// best-effort writers.
+fn in_reader<M: RosMessage + DeserializeOwned + 'static>(
     node: &mut ros2_client::Node,
     topic: &str,
 ) -> Result<Subscription<M>, BridgeOpenError> {
@@ -335,6 +449,10 @@ impl Bridge {
             Some(_) => Some(stage.publisher::<BodyVelocity>(topics::BODY_VEL)?),
             None => None,
         };
+        let height = match c.height_in_topic_name() {
+            Some(_) => Some(stage.publisher::<Height>(topics::HEIGHT)?),
+            None => None,
+        };
         let health = stage.health_reporter()?;
         insuwb_runtime::signal::with_signals_blocked(|| {
             Self::open_dds(
@@ -346,7 +464,7 @@ impl Bridge {
                     health: health_sub,
                 },
                 health,
-                body_vel,
+                InPorts { body_vel, height },
             )
         })
     }
@@ -357,8 +475,9 @@ impl Bridge {
         stage: Stage,
         inputs: Inputs,
         health: HealthReporter,
-        body_vel: Option<Pub<BodyVelocity>>,
+        ports: InPorts,
     ) -> Result<Self, BridgeOpenError> {
+        let InPorts { body_vel, height } = ports;
         let c = &setup.ros2;
         let context = dds(
             &format!("DDS participant in domain {}", c.domain_id),
@@ -410,10 +529,10 @@ impl Bridge {
             (Some(topic), Some(body_vel)) => {
                 let reader = match c.odometry_in_type {
                     OdometryInType::Odometry => {
-                        TwistReader::Odometry(twist_reader::<Odometry>(&mut node, &topic)?)
+                        TwistReader::Odometry(in_reader::<Odometry>(&mut node, &topic)?)
                     }
                     OdometryInType::TwistStamped => {
-                        TwistReader::TwistStamped(twist_reader::<TwistStamped>(&mut node, &topic)?)
+                        TwistReader::TwistStamped(in_reader::<TwistStamped>(&mut node, &topic)?)
                     }
                 };
                 tracing::info!(
@@ -425,6 +544,21 @@ impl Bridge {
                     reader,
                     intake: OdometryIntake::new(c),
                     body_vel,
+                })
+            }
+            _ => None,
+        };
+        let height_in = match (c.height_in_topic_name(), height) {
+            (Some(topic), Some(height)) => {
+                let reader = in_reader::<Range>(&mut node, &topic)?;
+                tracing::info!(
+                    "ROS 2 range finder in: {topic} (sensor_msgs/Range), heights on {}",
+                    topics::HEIGHT
+                );
+                Some(HeightIn {
+                    reader,
+                    intake: HeightIntake::new(),
+                    height,
                 })
             }
             _ => None,
@@ -461,6 +595,7 @@ impl Bridge {
                 imu_pub,
                 diag_pub,
                 odometry_in,
+                height_in,
                 stats: BridgeStats::default(),
                 opened_ns: monotonic_ns(),
                 setup,
@@ -492,6 +627,9 @@ impl Bridge {
             out.stats.velocities_refused = o.intake.dropped_invalid() + o.intake.dropped_time();
             out.stats.velocities_other_frame = o.intake.counts().other_frame;
         }
+        if let Some(h) = &out.height_in {
+            out.stats.heights_refused = h.intake.dropped_invalid() + h.intake.dropped_time();
+        }
         Ok(out.stats)
     }
 }
@@ -500,7 +638,7 @@ impl ReportOutputs for Outputs {
     type Inputs = Inputs;
     type Error = BridgeRunError;
 
-    /// Drains the three subscribers and the odometry reader and publishes
+    /// Drains the three subscribers and the input readers and publishes
     /// what they held.
     fn drain(
         &mut self,
@@ -522,6 +660,7 @@ impl ReportOutputs for Outputs {
             imu_pub,
             stats,
             odometry_in,
+            height_in,
             ..
         } = self;
         let only_valid = setup.ros2.only_valid;
@@ -585,6 +724,9 @@ impl ReportOutputs for Outputs {
         if let Some(o) = odometry_in {
             o.drain(clock, stats)?;
         }
+        if let Some(h) = height_in {
+            h.drain(clock, stats)?;
+        }
         let now = monotonic_ns();
         health_sub.drain(|h| group.note_heartbeat(h, now))?;
         Ok(())
@@ -638,7 +780,7 @@ impl ReportOutputs for Outputs {
             c.add_sub(&st);
         }
         let s = &self.stats;
-        c.published = s.odometry + s.imu + s.tf + s.diagnostics + s.velocities;
+        c.published = s.odometry + s.imu + s.tf + s.diagnostics + s.velocities + s.heights;
         c.dropped_invalid = s.invalid;
         c.dropped_time = s.old;
         let mut other_frame = 0;
@@ -647,6 +789,11 @@ impl ReportOutputs for Outputs {
             c.dropped_invalid += o.intake.dropped_invalid();
             c.dropped_time += o.intake.dropped_time();
             other_frame = o.intake.counts().other_frame;
+        }
+        if let Some(h) = &self.height_in {
+            c.received += h.intake.counts().received;
+            c.dropped_invalid += h.intake.dropped_invalid();
+            c.dropped_time += h.intake.dropped_time();
         }
         c.stage = StageCounters::Ros2Bridge(Ros2BridgeCounters {
             odometry: s.odometry,

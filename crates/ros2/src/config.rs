@@ -69,6 +69,10 @@ pub struct Ros2Config {
     /// 0 (unset, as many base drivers publish it), m/s; every axis's for
     /// `geometry_msgs/TwistStamped`, which has no covariance.
     pub odometry_in_sigma_mps: f64,
+    /// A ROS topic of a downward range finder (`sensor_msgs/Range`), read
+    /// and published as heights on iceoryx2 (`height`, source range
+    /// finder), relative to the namespace or absolute; empty: none.
+    pub height_in: String,
 }
 
 /// The message type of `[ros2] odometry_in`.
@@ -121,6 +125,7 @@ impl Default for Ros2Config {
             odometry_in: String::new(),
             odometry_in_type: OdometryInType::Odometry,
             odometry_in_sigma_mps: DEFAULT_ODOMETRY_IN_SIGMA_MPS,
+            height_in: String::new(),
         }
     }
 }
@@ -204,8 +209,13 @@ impl Ros2Config {
                 return bad(key, format!("must be in (0, 3600] s, got {v}"));
             }
         }
-        if !self.odometry_in.is_empty() {
-            check_name("odometry_in", &self.odometry_in)?;
+        for (key, topic) in [
+            ("odometry_in", &self.odometry_in),
+            ("height_in", &self.height_in),
+        ] {
+            if !topic.is_empty() {
+                check_name(key, topic)?;
+            }
         }
         let sigma = self.odometry_in_sigma_mps;
         if !(sigma.is_finite() && sigma > 0.0 && sigma <= MAX_ODOMETRY_IN_SIGMA_MPS) {
@@ -221,6 +231,12 @@ impl Ros2Config {
     #[must_use]
     pub fn odometry_in_topic_name(&self) -> Option<String> {
         (!self.odometry_in.is_empty()).then(|| self.full_topic(&self.odometry_in))
+    }
+
+    /// The full name of `height_in`, `None` when it is empty.
+    #[must_use]
+    pub fn height_in_topic_name(&self) -> Option<String> {
+        (!self.height_in.is_empty()).then(|| self.full_topic(&self.height_in))
     }
 
     /// The full name of a topic of the node: `topic` when absolute, else
@@ -361,7 +377,7 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, Ros2Config); 12] = [
+        let cases: [(&str, Ros2Config); 13] = [
             (
                 "domain_id",
                 Ros2Config {
@@ -433,6 +449,13 @@ mod tests {
                 },
             ),
             (
+                "height_in",
+                Ros2Config {
+                    height_in: "range down".into(),
+                    ..Ros2Config::default()
+                },
+            ),
+            (
                 "odometry_in_sigma_mps",
                 Ros2Config {
                     odometry_in_sigma_mps: 0.0,
@@ -482,6 +505,14 @@ mod tests {
         assert_eq!(c.odometry_in_type, OdometryInType::TwistStamped);
         assert_eq!(c.odometry_in_type.name(), "twist_stamped");
         assert!(toml::from_str::<Ros2Config>("odometry_in_type = \"twist\"").is_err());
+    }
+
+    #[test]
+    fn height_in_is_off_unless_set() {
+        assert_eq!(Ros2Config::default().height_in_topic_name(), None);
+        let c: Ros2Config = toml::from_str("height_in = \"/flow/range\"").unwrap();
+        c.validate().unwrap();
+        assert_eq!(c.height_in_topic_name().as_deref(), Some("/flow/range"));
     }
 
     #[test]

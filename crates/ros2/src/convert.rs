@@ -508,6 +508,15 @@ pub enum RosTimeSource {
     Receive,
 }
 
+/// Warns that a message read from ROS (`what`: odometry, a range) was
+/// refused, `total` the refusals so far: the first and then one in a
+/// thousand.
+pub(crate) fn warn_refused(what: &str, total: u64, e: &dyn std::fmt::Display) {
+    if total % 1000 == 1 {
+        tracing::warn!("ros2: {what} refused ({total} so far): {e}");
+    }
+}
+
 /// The CLOCK_MONOTONIC time of a stamp in the stamp clock (the inverse of
 /// [`ClockOffset::stamp`]); `None` for an invalid stamp (`nanosec` of 1e9
 /// or more) or one before the monotonic clock's start.

@@ -10,9 +10,12 @@
 //! - [`config`]: the `[ros2]` table of the robot config;
 //! - [`odometry_in`]: a robot base's odometry from ROS (`[ros2]
 //!   odometry_in`) made checked body velocities;
+//! - [`height_in`]: a downward range finder from ROS (`[ros2] height_in`)
+//!   made checked heights;
 //! - `bridge` (feature `dds`, on by default through `jazzy`): the stage's
 //!   loop, iceoryx2 in, DDS out through `ros2-client` (RustDDS), and the
-//!   base's odometry DDS in, `body_vel` out on iceoryx2. Feature
+//!   base's odometry and the range finder DDS in, `body_vel` and `height`
+//!   out on iceoryx2. Feature
 //!   `humble` (without the default features) builds it for ROS 2 Humble.
 //! - `subscribe` (feature `dds`): a `sensor_msgs/Imu` subscriber, the IMU
 //!   driver's source for an IMU already in ROS (`sources.imu = "ros2:/TOPIC"`).
@@ -34,6 +37,7 @@ pub mod bridge;
 pub mod cdr;
 pub mod config;
 pub mod convert;
+pub mod height_in;
 pub mod msgs;
 pub mod odometry_in;
 #[cfg(feature = "dds")]

@@ -326,6 +326,32 @@ pub struct Imu {
     pub linear_acceleration_covariance: [f64; 9],
 }
 
+/// `sensor_msgs/Range`: one reading of a ranger (ultrasound, infrared,
+/// time of flight) along its axis. REP 117: `-inf` for an object closer
+/// than `min_range`, `+inf` for nothing within `max_range`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Range {
+    /// Stamp (when the ranger returned the reading) and sensor frame.
+    pub header: Header,
+    /// [`Range::ULTRASOUND`] or [`Range::INFRARED`].
+    pub radiation_type: u8,
+    /// Angular size of the arc the reading is valid over, rad.
+    pub field_of_view: f32,
+    /// Shortest range the sensor reports, m.
+    pub min_range: f32,
+    /// Longest range the sensor reports, m.
+    pub max_range: f32,
+    /// The range, m (or `±inf`, REP 117).
+    pub range: f32,
+}
+
+impl Range {
+    /// `radiation_type` of a sonar.
+    pub const ULTRASOUND: u8 = 0;
+    /// `radiation_type` of an infrared or laser ranger (time of flight).
+    pub const INFRARED: u8 = 1;
+}
+
 /// `tf2_msgs/TFMessage`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct TfMessage {
@@ -479,6 +505,15 @@ pub static IMU: MsgDef = MsgDef {
            geometry_msgs/Vector3 linear_acceleration\nfloat64[9] linear_acceleration_covariance\n",
     uses: &[&HEADER, &QUATERNION, &VECTOR3],
 };
+/// `sensor_msgs/Range`.
+pub static RANGE: MsgDef = MsgDef {
+    package: "sensor_msgs",
+    name: "Range",
+    text: "uint8 ULTRASOUND=0\nuint8 INFRARED=1\n\
+           std_msgs/Header header\nuint8 radiation_type\nfloat32 field_of_view\n\
+           float32 min_range\nfloat32 max_range\nfloat32 range\n",
+    uses: &[&HEADER],
+};
 /// `tf2_msgs/TFMessage`.
 pub static TF_MESSAGE: MsgDef = MsgDef {
     package: "tf2_msgs",
@@ -523,6 +558,7 @@ ros_message!(Transform, TRANSFORM);
 ros_message!(TransformStamped, TRANSFORM_STAMPED);
 ros_message!(Odometry, ODOMETRY);
 ros_message!(Imu, IMU);
+ros_message!(Range, RANGE);
 ros_message!(TfMessage, TF_MESSAGE);
 ros_message!(KeyValue, KEY_VALUE);
 ros_message!(DiagnosticStatus, DIAGNOSTIC_STATUS);
@@ -566,6 +602,8 @@ mod tests {
             "tf2_msgs::msg::dds_::TFMessage_"
         );
         assert_eq!(Imu::dds_type_name(), "sensor_msgs::msg::dds_::Imu_");
+        assert_eq!(Range::dds_type_name(), "sensor_msgs::msg::dds_::Range_");
+        assert!(Range::schema().contains("\nfloat32 range\n================"));
         assert_eq!(
             TwistStamped::dds_type_name(),
             "geometry_msgs::msg::dds_::TwistStamped_"

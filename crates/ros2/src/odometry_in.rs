@@ -102,13 +102,7 @@ impl OdometryIntake {
                 Some(v.sample)
             }
             Err(e) => {
-                // The first refusal and then one in a thousand.
-                if self.gate.refusals().total() % 1000 == 1 {
-                    tracing::warn!(
-                        "ros2: odometry refused ({} so far): {e}",
-                        self.gate.refusals().total()
-                    );
-                }
+                crate::convert::warn_refused("odometry", self.gate.refusals().total(), &e);
                 None
             }
         }

@@ -1,16 +1,21 @@
-//! The ROS 2 bridge's odometry input against a DDS implementation nobody
-//! here wrote: a group with stages `imu` (simulated, a scenario without
-//! simulated velocities), `logger` and `ros2`, whose `[ros2] odometry_in`
-//! is `/wheel/odom`, runs, and a Python publisher built on the PyPI
+//! The ROS 2 bridge's odometry and range finder inputs against a DDS
+//! implementation nobody here wrote: a group with stages `imu` (simulated,
+//! a scenario without simulated velocities or heights), `logger` and
+//! `ros2`, whose `[ros2] odometry_in` is `/wheel/odom` and `height_in`
+//! `/flow/range`, runs, and a Python publisher built on the PyPI
 //! `cyclonedds` package (`tests/ros2/odometry_publisher.py`,
-//! `nav_msgs::msg::dds_::Odometry_` on `rt/wheel/odom`, reliable as base
-//! drivers publish) sends 150 messages at 50 Hz with known twists and twist
-//! covariances (set, unset, unknown), three of them invalid (a NaN
-//! velocity, a negative variance, a stamp before its predecessor's). The
-//! recording must hold exactly the valid ones as body velocities of source
-//! odometry, with their velocities and the sigmas of their covariances, at
-//! their stamps mapped to CLOCK_MONOTONIC, in time order; the bridge's last
-//! heartbeat must count the refused ones.
+//! `nav_msgs::msg::dds_::Odometry_` on `rt/wheel/odom` and
+//! `sensor_msgs::msg::dds_::Range_` on `rt/flow/range`, reliable as
+//! drivers publish) sends 150 messages of each at 50 Hz. The odometry
+//! carries known twists and twist covariances (set, unset, unknown), three
+//! of them invalid (a NaN velocity, a negative variance, a stamp before its
+//! predecessor's); the ranges known distances within the sensor's 0.04-4 m,
+//! four of them invalid (+inf, NaN, 4.5 m, a stamp before its
+//! predecessor's). The recording must hold exactly the valid ones, as body
+//! velocities of source odometry with their velocities and the sigmas of
+//! their covariances and as heights of source range finder with their
+//! ranges, at their stamps mapped to CLOCK_MONOTONIC, in time order; the
+//! bridge's last heartbeat must count the refused ones.
 //!
 //! DDS discovery multicasts, so the test body runs in a private network
 //! namespace (`unshare -n`, or `unshare -rn` when not root) with only
@@ -29,16 +34,16 @@ use std::time::Duration;
 
 use common::Group;
 use insuwb_log::Record;
-use insuwb_msg::BodyVelocity;
+use insuwb_msg::{BodyVelocity, Height};
 
 /// Set in the re-executed test process, inside the network namespace.
 const INNER: &str = "INSUWB_ROS2_ODOMETRY_SOURCE_INNER";
 /// This test's name in the binary, module and function (the re-executed
 /// process runs it alone, `--exact`).
-const TEST: &str =
-    "ros2_odometry_source::odometry_from_a_cyclonedds_publisher_becomes_body_velocities";
+const TEST: &str = "ros2_odometry_source::odometry_and_ranges_from_a_cyclonedds_publisher_become_body_velocities_and_heights";
 const DOMAIN: u16 = 44;
 const TOPIC: &str = "/wheel/odom";
+const RANGE_TOPIC: &str = "/flow/range";
 /// `[ros2] odometry_in_sigma_mps`: the sigma of an axis whose variance is 0
 /// (not the default, so that the test sees it is read).
 const DEFAULT_SIGMA_MPS: f64 = 0.15;
@@ -47,13 +52,16 @@ const DEFAULT_SIGMA_MPS: f64 = 0.15;
 const COUNT: usize = 150;
 const INVALID_VALUES: u64 = 2;
 const INVALID_TIME: u64 = 1;
+/// Ranges refused for their values (+inf, NaN, beyond 4 m) and their time.
+const INVALID_RANGE_VALUES: u64 = 3;
+const INVALID_RANGE_TIME: u64 = 1;
 /// Seconds the group runs: start, discovery, 3 s of messages, margin.
 const GROUP_S: f64 = 16.0;
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(90);
 
 #[test]
-fn odometry_from_a_cyclonedds_publisher_becomes_body_velocities() {
+fn odometry_and_ranges_from_a_cyclonedds_publisher_become_body_velocities_and_heights() {
     common::cyclonedds_test(INNER, TEST, BOUND, inner);
 }
 
@@ -74,11 +82,34 @@ fn sent(path: &std::path::Path) -> Vec<Sent> {
     v.as_array()
         .unwrap()
         .iter()
+        .filter(|s| s.get("vel").is_some())
         .map(|s| Sent {
             stamp_ns: i128::from(s["stamp_ns"].as_i64().unwrap()),
             vel: three(&s["vel"]),
             var: three(&s["var"]),
             invalid: s["invalid"].as_str().map(str::to_owned),
+        })
+        .collect()
+}
+
+/// The ranges the publisher sent: stamp (CLOCK_REALTIME ns), range (NaN or
+/// infinite as their strings), whether invalid.
+fn sent_ranges(path: &std::path::Path) -> Vec<(i128, f64, bool)> {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    v.as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|s| {
+            let r = s.get("range")?;
+            let value = r
+                .as_f64()
+                .unwrap_or_else(|| r.as_str().unwrap().parse().unwrap());
+            Some((
+                i128::from(s["stamp_ns"].as_i64().unwrap()),
+                value,
+                !s["invalid"].is_null(),
+            ))
         })
         .collect()
 }
@@ -106,7 +137,7 @@ fn inner() {
         "filter = \"iakf\"\naiding_sources = [\"odometry\"]\n",
         &format!(
             "[ros2]\ndomain_id = {DOMAIN}\npublish_imu = false\nodometry_in = \"{TOPIC}\"\n\
-             odometry_in_sigma_mps = {DEFAULT_SIGMA_MPS}\n"
+             odometry_in_sigma_mps = {DEFAULT_SIGMA_MPS}\nheight_in = \"{RANGE_TOPIC}\"\n"
         ),
     );
     g.set_stages(&["imu", "logger", "ros2"]);
@@ -120,6 +151,7 @@ fn inner() {
         common::python_script(&py, "tests/ros2/odometry_publisher.py")
             .args(["--domain", &DOMAIN.to_string()])
             .args(["--topic", TOPIC])
+            .args(["--range-topic", RANGE_TOPIC])
             .args(["--count", &COUNT.to_string()])
             .args(["--rate", "50"])
             .args(["--match-timeout", "10"])
@@ -141,10 +173,19 @@ fn inner() {
     let ros2 = &report["stages"]["ros2"];
     assert!(ros2.is_object(), "no ros2 heartbeat: {report}");
     let n = |k: &str| ros2[k].as_u64().unwrap_or_else(|| panic!("{k} in {ros2}"));
-    // NaN velocity, negative variance; the stamp before its predecessor's
-    // (nothing else of the bridge's is dropped: no fusion, no IMU out).
-    assert_eq!(n("dropped_invalid"), INVALID_VALUES, "{ros2}");
-    assert_eq!(n("dropped_time"), INVALID_TIME, "{ros2}");
+    // NaN velocity, negative variance, the three ranges; the stamps before
+    // their predecessors' (nothing else of the bridge's is dropped: no
+    // fusion, no IMU out).
+    assert_eq!(
+        n("dropped_invalid"),
+        INVALID_VALUES + INVALID_RANGE_VALUES,
+        "{ros2}"
+    );
+    assert_eq!(
+        n("dropped_time"),
+        INVALID_TIME + INVALID_RANGE_TIME,
+        "{ros2}"
+    );
     let counters = &ros2["counters"];
     assert_eq!(
         counters["velocities"].as_u64(),
@@ -156,7 +197,34 @@ fn inner() {
         Some(0),
         "other frames: {ros2}"
     );
-    assert!(n("received") >= COUNT as u64, "{ros2}");
+    assert!(n("received") >= 2 * COUNT as u64, "{ros2}");
+
+    // --- the recording: exactly the valid ranges, as heights ---
+    let ranges = sent_ranges(&out_json);
+    assert_eq!(ranges.len(), COUNT);
+    let valid_ranges: Vec<&(i128, f64, bool)> = ranges.iter().filter(|r| !r.2).collect();
+    assert_eq!(
+        valid_ranges.len() as u64,
+        COUNT as u64 - INVALID_RANGE_VALUES - INVALID_RANGE_TIME
+    );
+    let heights: Vec<Height> = common::records(&g.log_dir())
+        .into_iter()
+        .filter_map(|r| match r {
+            Record::Height(h) => Some(h),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(heights.len(), valid_ranges.len(), "logged heights");
+    for (h, (stamp_ns, range, _)) in heights.iter().zip(&valid_ranges) {
+        assert_eq!(h.source, Height::SOURCE_RANGE_FINDER);
+        // Sent as float32.
+        assert!((h.range_m - range).abs() < 1e-6, "{} vs {range}", h.range_m);
+        let d = i128::from(h.header.meas_time_ns) + offset_ns - stamp_ns;
+        assert!(d.abs() < 2_000_000, "height time {d} ns from its stamp");
+    }
+    assert!(heights
+        .windows(2)
+        .all(|w| w[0].header.meas_time_ns < w[1].header.meas_time_ns));
 
     // --- the recording: exactly the valid messages, at their stamps ---
     let logged: Vec<BodyVelocity> = common::records(&g.log_dir())

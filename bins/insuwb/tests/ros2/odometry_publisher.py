@@ -8,9 +8,14 @@ It waits (bounded) until a reader has matched, then publishes --count
 messages at --rate Hz with known twists and twist covariances (per axis: a
 variance, 0 for "unset", or 1e6 for "unknown"); a few are deliberately
 invalid: a NaN velocity, a negative variance, and one stamped before its
-predecessor. It writes what it published as JSON: each message's stamp,
-linear velocity, variances of the three linear axes and whether a receiver
-should keep it. Exit code 2 when no reader matched.
+predecessor. With --range-topic it also publishes, beside each, a
+downward range finder's `sensor_msgs/Range` (`sensor_msgs::msg::dds_::Range_`,
+infrared, limits 0.04-4 m, frame `range_down`) with a known range; four of
+them are invalid: nothing in reach (+inf, REP 117), NaN, beyond the
+sensor's 4 m, and one stamped before its predecessor. It writes what it
+published as JSON: each message's stamp, linear velocity, variances of the
+three linear axes (or its range) and whether a receiver should keep it.
+Exit code 2 when no reader matched.
 """
 
 import math
@@ -31,6 +36,7 @@ from ros_types import (
     Pose,
     PoseWithCovariance,
     Quaternion,
+    Range,
     Twist,
     TwistWithCovariance,
     Vector3,
@@ -39,6 +45,25 @@ from ros_types import (
 
 # Message index -> what is wrong with it.
 INVALID = {30: "nan", 70: "negative", 110: "older"}
+# Range index -> what is wrong with it.
+INVALID_RANGE = {40: "inf", 80: "nan", 100: "beyond", 120: "older"}
+
+
+def range_message(k, prev_stamp):
+    """Range k (m) and its message, stamped now (or before `prev_stamp`),
+    with what is wrong with it."""
+    what = INVALID_RANGE.get(k)
+    value = {"inf": math.inf, "nan": math.nan, "beyond": 4.5}.get(what, 0.3 + 0.01 * k)
+    stamp = prev_stamp - 5_000_000 if what == "older" else time.time_ns()
+    msg = Range(
+        header=Header(stamp=publish.ros_time(stamp), frame_id="range_down"),
+        radiation_type=1,
+        field_of_view=0.47,
+        min_range=0.04,
+        max_range=4.0,
+        range=value,
+    )
+    return msg, {"stamp_ns": stamp, "range": publish.json_numbers([value])[0], "invalid": what}
 
 
 def values(k):
@@ -68,6 +93,13 @@ def main():
 
     if not publish.wait_matched(writer, a, "odometry publisher"):
         return 2
+    ranges = None
+    if a.range_topic:
+        rtopic = Topic(dp, publish.dds_topic(a, a.range_topic), Range)
+        ranges = DataWriter(dp, rtopic, qos=qos)
+        if not publish.wait_matched(ranges, a, "range publisher"):
+            return 2
+    prev_range_stamp = None
 
     published = []
     prev_stamp = None
@@ -117,7 +149,14 @@ def main():
         )
         if what != "older":
             prev_stamp = stamp
-    publish.finish(a, published, "odometry publisher", "messages", len(INVALID))
+        if ranges is not None:
+            msg, sent = range_message(k, prev_range_stamp)
+            ranges.write(msg)
+            published.append(sent)
+            if sent["invalid"] != "older":
+                prev_range_stamp = sent["stamp_ns"]
+    invalid = len(INVALID) + (len(INVALID_RANGE) if ranges is not None else 0)
+    publish.finish(a, published, "odometry publisher", "messages", invalid)
     return 0
 
 

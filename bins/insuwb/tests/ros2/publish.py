@@ -14,7 +14,8 @@ from ros_types import Time
 
 def arguments(example_topic, count, rate):
     """The command line: --domain, --topic, --count, --rate, --match-timeout,
-    --settle, --out."""
+    --settle, --out, and --range-topic (a second topic, for the scripts that
+    publish ranges beside)."""
     ap = argparse.ArgumentParser()
     ap.add_argument("--domain", type=int, required=True)
     ap.add_argument("--topic", required=True, help=f"ROS topic, e.g. {example_topic}")
@@ -23,12 +24,13 @@ def arguments(example_topic, count, rate):
     ap.add_argument("--match-timeout", type=float, default=30.0)
     ap.add_argument("--settle", type=float, default=1.0)
     ap.add_argument("--out", required=True)
+    ap.add_argument("--range-topic", default="", help="ROS topic of ranges, e.g. /flow/range")
     return ap.parse_args()
 
 
-def dds_topic(a):
-    """The DDS topic of ROS topic --topic: `rt/<name>`."""
-    return "rt/" + a.topic.strip("/")
+def dds_topic(a, topic=None):
+    """The DDS topic of ROS topic `topic` (default --topic): `rt/<name>`."""
+    return "rt/" + (topic or a.topic).strip("/")
 
 
 def wait_matched(writer, a, who):

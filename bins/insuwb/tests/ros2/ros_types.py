@@ -6,7 +6,7 @@ field for field as the ROS 2 `.msg` definitions (nothing of insuwb).
 from dataclasses import dataclass
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
+from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint8, uint32
 
 
 @dataclass
@@ -102,6 +102,16 @@ class Imu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
     angular_velocity_covariance: array[float64, 9]
     linear_acceleration: Vector3
     linear_acceleration_covariance: array[float64, 9]
+
+
+@dataclass
+class Range(IdlStruct, typename="sensor_msgs::msg::dds_::Range_"):
+    header: Header
+    radiation_type: uint8
+    field_of_view: float32
+    min_range: float32
+    max_range: float32
+    range: float32
 
 
 @dataclass
