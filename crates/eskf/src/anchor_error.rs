@@ -138,6 +138,24 @@ impl AnchorErrors {
         self.pbb[(HEIGHT, HEIGHT)] = sigma_m * sigma_m;
     }
 
+    /// Sets the radio's height state to `value_m` with sigma
+    /// `value_sigma_m`, uncorrelated with every other state (a resumed
+    /// one), turning it on first with `sigma_m` and `corr_time_s`.
+    pub(crate) fn set_height(
+        &mut self,
+        sigma_m: f64,
+        corr_time_s: f64,
+        value_m: f64,
+        value_sigma_m: f64,
+    ) {
+        self.enable_height(sigma_m, corr_time_s);
+        self.pxb.column_mut(HEIGHT).fill(0.0);
+        self.pbb.column_mut(HEIGHT).fill(0.0);
+        self.pbb.row_mut(HEIGHT).fill(0.0);
+        self.b[HEIGHT] = value_m;
+        self.pbb[(HEIGHT, HEIGHT)] = value_sigma_m * value_sigma_m;
+    }
+
     /// The radio's height error and its sigma, m, while the state is on.
     pub(crate) fn height_error(&self) -> Option<(f64, f64)> {
         self.height_on()

@@ -919,6 +919,29 @@ impl Eskf {
         true
     }
 
+    /// Resumes the radio's height state (a checkpoint's
+    /// [`Eskf::radio_height_error`]) at `value_m` with sigma
+    /// `value_sigma_m`, uncorrelated with the other states, turning it on
+    /// as [`Eskf::enable_radio_height`] does where it is off; `false`, the
+    /// filter unchanged, for a value that is not finite, a sigma that is
+    /// not finite and positive, or a state that cannot be turned on.
+    pub fn restore_radio_height(
+        &mut self,
+        sigma_m: f64,
+        corr_time_s: f64,
+        value_m: f64,
+        value_sigma_m: f64,
+    ) -> bool {
+        let config_ok =
+            sigma_m.is_finite() && sigma_m > 0.0 && corr_time_s.is_finite() && corr_time_s > 0.0;
+        if !(config_ok && value_m.is_finite() && value_sigma_m.is_finite() && value_sigma_m > 0.0) {
+            return false;
+        }
+        self.anchors
+            .set_height(sigma_m, corr_time_s, value_m, value_sigma_m);
+        true
+    }
+
     /// The radio's height error and its sigma, m, while that state is on
     /// ([`Eskf::enable_radio_height`]).
     #[must_use]

@@ -893,13 +893,42 @@ impl Estimator for TightEstimator {
         out.extend((0..N_STATES).flat_map(|i| (0..N_STATES).map(move |j| p[(i, j)])));
     }
 
+    /// The filter's learnt noise scales, then, while it is on, the
+    /// radio's height state and its sigma (a memory of a minute and more,
+    /// which a restarted stage should not learn again).
     fn adaptive_snapshot(&self, out: &mut Vec<f64>) {
         out.clear();
         out.extend_from_slice(&self.eskf.adaptive_state());
+        if let Some((b, sigma)) = self.eskf.radio_height_error() {
+            out.extend_from_slice(&[b, sigma]);
+        }
     }
 
+    /// Restores an [`Self::adaptive_snapshot`]: three values (the noise
+    /// scales), or five (and the radio's height state, resumed where
+    /// height updates are on; left at its start where they are off).
     fn restore_adaptive(&mut self, s: &[f64]) -> bool {
-        self.eskf.restore_adaptive_state(s)
+        let (learnt, radio) = match s {
+            [a, b, c] => ([*a, *b, *c], None),
+            [a, b, c, h, hs] => ([*a, *b, *c], Some((*h, *hs))),
+            _ => return false,
+        };
+        let c = self.height;
+        if let Some((h, hs)) = radio {
+            if !(h.is_finite() && hs.is_finite() && hs > 0.0) {
+                return false;
+            }
+            if !self.eskf.restore_adaptive_state(&learnt) {
+                return false;
+            }
+            if c.sigma_m > 0.0 {
+                return self
+                    .eskf
+                    .restore_radio_height(c.radio_sigma_m, c.radio_corr_time_s, h, hs);
+            }
+            return true;
+        }
+        self.eskf.restore_adaptive_state(&learnt)
     }
 
     fn restore_covariance(&mut self, p: &[f64]) -> bool {
@@ -1005,6 +1034,44 @@ mod tests {
             step(&mut e, &mut t_ns);
         }
         assert_eq!(damping(&e), Some((1.5, 0.5)), "a second later: the damping");
+    }
+
+    /// A checkpoint carries the radio's height state while it is on, and a
+    /// restarted filter with height updates resumes it (one without them
+    /// takes the noise scales only); a checkpoint of three values (the
+    /// state off, or written before it was kept) still restores, and bad
+    /// values are refused.
+    #[test]
+    fn the_radio_height_state_goes_through_the_checkpoint() {
+        let aiding = crate::aiding::height_aiding();
+        let mut e = estimator([0.0; 3]).with_aiding(&aiding, 2.0);
+        let mut s = Vec::new();
+        e.adaptive_snapshot(&mut s);
+        assert_eq!(s.len(), 3, "off: the noise scales only");
+        assert!(e.restore_adaptive(&s));
+        assert!(e.radio_height_error().is_none());
+        let resumed = [s[0], s[1], s[2], -0.4, 0.05];
+        assert!(e.restore_adaptive(&resumed));
+        let (b, sigma) = e.radio_height_error().unwrap();
+        assert!((b + 0.4).abs() < 1e-15 && (sigma - 0.05).abs() < 1e-12);
+        let mut back = Vec::new();
+        e.adaptive_snapshot(&mut back);
+        assert_eq!(back.len(), 5);
+        let mut fresh = estimator([0.0; 3]).with_aiding(&aiding, 2.0);
+        assert!(fresh.restore_adaptive(&back));
+        assert_eq!(fresh.radio_height_error(), e.radio_height_error());
+        let mut off = estimator([0.0; 3]).with_aiding(&AidingConfig::default(), 2.0);
+        assert!(off.restore_adaptive(&back));
+        assert!(off.radio_height_error().is_none());
+        for bad in [
+            &[s[0], s[1], s[2], f64::NAN, 0.05][..],
+            &[s[0], s[1], s[2], 0.1, 0.0],
+            &[s[0], s[1], s[2], 0.1],
+        ] {
+            let mut g = estimator([0.0; 3]).with_aiding(&aiding, 2.0);
+            assert!(!g.restore_adaptive(bad), "{bad:?}");
+            assert!(g.radio_height_error().is_none());
+        }
     }
 
     /// A range finder's height is an update once height aiding is on:
