@@ -1,0 +1,115 @@
+#!/usr/bin/env python3
+"""What the radio gives a filter that knows the motion exactly.
+
+For every flight of the manifest (or those named), every 0.1 s epoch of
+the flight segment (`util_tdoa_bound.fix_epochs`: each anchor pair's last
+difference in the epoch, truth height above 0.3 m), each difference whose
+residual against the solution exceeds GATE_M (1 m) left out, as a robust
+estimator would leave it out (truth does not choose them):
+
+  fix       a least-squares fix from the epoch's differences alone
+            (3D Gauss-Newton started at the truth, solved again without
+            the differences it leaves beyond the gate);
+  known-W   the truth's trajectory plus one constant 3D offset, fitted by
+            least squares to the differences of all epochs so far,
+            weighted by exp(-age / W), each epoch's differences gated
+            against the offset so far (the first epoch's: its fix's):
+            what a filter whose velocity sensor were perfect (and whose
+            heading were right) would do with the radio, with a memory of
+            W seconds (1, 3, 10 s).
+
+Printed: the horizontal RMSE of each, as a ratio to the manifest's
+`uwb_ls_ref_m`, per flight and the median / worst / flights above 1.0.
+The offset's fit is linearised at the truth (the differences' geometry
+there); truth starts the solver and scores it, and gives the trajectory:
+an analysis of the data, not an estimator.
+
+Usage: python3 tools/util_known_motion.py DATA_DIR [FLIGHT ...]
+(DATA_DIR holds flights.csv; numpy required.)
+"""
+import statistics as st
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from util_tdoa_bound import fix_epochs, manifest, prepare, solve  # noqa: E402
+
+MEMORIES_S = (1.0, 3.0, 10.0)
+GATE_M = 1.0
+
+
+def flight(f):
+    """Horizontal RMSE of the per-epoch fixes and of each known-motion
+    solution, m."""
+    f["ok"] = np.ones_like(f["ok"])
+    pa, pb, z, ant, tt = (f[k] for k in ("pa", "pb", "z", "ant", "tt"))
+    ra = np.linalg.norm(ant - pa, axis=1)
+    rb = np.linalg.norm(ant - pb, axis=1)
+    # d(rb - ra)/d(antenna position) at the truth, and what is left to fit.
+    jac = (ant - pb) / rb[:, None] - (ant - pa) / ra[:, None]
+    res = z - (rb - ra)
+    epochs = []
+    fix_sq = []
+    for idx, truth in fix_epochs(f):
+        x = solve(truth, pa[idx], pb[idx], z[idx])
+        r = z[idx] - (np.linalg.norm(x - pb[idx], axis=1) - np.linalg.norm(x - pa[idx], axis=1))
+        inl = idx[np.abs(r) < GATE_M]
+        if len(inl) >= 4 and len(inl) < len(idx):
+            x = solve(truth, pa[inl], pb[inl], z[inl])
+        # A geometry that does not fix 3D: skipped for every column.
+        ok = bool(np.all(np.abs(x - truth) < 3.0))
+        if ok:
+            fix_sq.append(np.sum((x[:2] - truth[:2]) ** 2))
+        epochs.append((idx, ok, x - truth))
+    out = [float(np.sqrt(np.mean(fix_sq)))]
+    for w in MEMORIES_S:
+        info = np.zeros((3, 3))
+        rhs = np.zeros(3)
+        prev = None
+        sq = []
+        d = None
+        for idx, scored, first in epochs:
+            t = tt[idx[-1]]
+            if d is None:
+                d = first
+            idx = idx[np.abs(res[idx] - jac[idx] @ d) < GATE_M]
+            if prev is not None:
+                decay = np.exp(-(t - prev) / w)
+                info *= decay
+                rhs *= decay
+            prev = t
+            j = jac[idx]
+            info += j.T @ j
+            rhs += j.T @ res[idx]
+            if len(idx) and np.linalg.matrix_rank(info) == 3:
+                d = np.linalg.solve(info, rhs)
+            if scored:
+                sq.append(d[0] ** 2 + d[1] ** 2)
+        out.append(float(np.sqrt(np.mean(sq))))
+    return out
+
+
+def main():
+    data_dir, rows = manifest(sys.argv, __doc__)
+    want = set(sys.argv[2:])
+    names = ["fix"] + [f"known-{w:g}" for w in MEMORIES_S]
+    print(f"{'flight':18s} " + " ".join(f"{n:>9s}" for n in names) + "   (/ uwb_ls_ref_m)")
+    cols = [[] for _ in names]
+    for r in rows:
+        if want and r["file"] not in want:
+            continue
+        ref = float(r["uwb_ls_ref_m"])
+        got = [v / ref for v in flight(prepare(data_dir, r["file"], r["anchors"]))]
+        for c, v in zip(cols, got):
+            c.append(v)
+        print(f"{r['file']:18s} " + " ".join(f"{v:9.3f}" for v in got), flush=True)
+    if cols[0]:
+        print("median / worst / above 1.0: " + ", ".join(
+            f"{n} {st.median(c):.3f} / {max(c):.3f} / {sum(v > 1.0 for v in c)}"
+            for n, c in zip(names, cols)))
+
+
+if __name__ == "__main__":
+    main()
