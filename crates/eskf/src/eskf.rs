@@ -543,6 +543,8 @@ pub struct Eskf {
     r_adapt: [RAdapt; 2],
     /// The specific force of the last prediction step, ENU, m/s^2.
     f_last: [f64; 3],
+    /// A velocity measurement aids the filter ([`Eskf::set_heading_aided`]).
+    heading_aided: bool,
     /// Velocity noise density added to the accelerometer's, m^2/s^3
     /// ([`Eskf::set_extra_velocity_noise`]).
     q_vel_extra: f64,
@@ -736,6 +738,7 @@ impl Eskf {
             q_adapt: QAdapt::new(),
             r_adapt: [RAdapt::new(); 2],
             f_last: [0.0; 3],
+            heading_aided: false,
             q_vel_extra: 0.0,
             multirotor: None,
             tdoa_sigma_scale: 1.0,
@@ -1563,12 +1566,22 @@ impl Eskf {
 
     /// The yaw is held out of the updates: the last specific force given to
     /// [`Eskf::predict`] has a horizontal part below
-    /// [`EskfConfig::yaw_min_excitation_mps2`].
+    /// [`EskfConfig::yaw_min_excitation_mps2`] and no velocity measurement
+    /// aids the filter ([`Eskf::set_heading_aided`]).
     #[must_use]
     pub fn yaw_frozen(&self) -> bool {
         let f = self.f_last;
-        self.config.yaw_min_excitation_mps2 > 0.0
+        !self.heading_aided
+            && self.config.yaw_min_excitation_mps2 > 0.0
             && f[0].hypot(f[1]) < self.config.yaw_min_excitation_mps2
+    }
+
+    /// Whether a body-frame velocity measurement (odometry, optical flow)
+    /// aids the filter now: it makes the yaw observable whenever the
+    /// vehicle moves, so [`EskfConfig::yaw_min_excitation_mps2`] does not
+    /// hold the yaw meanwhile.
+    pub fn set_heading_aided(&mut self, aided: bool) {
+        self.heading_aided = aided;
     }
 
     /// The innovation-based scale on the process noise (1 when

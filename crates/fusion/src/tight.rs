@@ -453,6 +453,8 @@ impl TightEstimator {
             self.predict_errors += 1;
             return;
         };
+        self.eskf
+            .set_heading_aided(self.eskf.time_s() < self.aided_until_s);
         self.update_damping();
         for _ in 0..n {
             if self.eskf.predict_moving(step, quat, f, vel).is_err() {

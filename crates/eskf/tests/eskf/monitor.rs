@@ -521,17 +521,19 @@ fn range_sigma_is_learnt_from_the_innovations_within_its_bounds() {
 
 /// Below `yaw_min_excitation_mps2` of horizontal specific force the
 /// updates leave the yaw and the yaw-rate bias alone (the other states are
-/// updated as before); above it, or with the setting at 0, they move.
+/// updated as before); above it, with the setting at 0, or while a
+/// velocity measurement aids the filter, they move.
 #[test]
 fn yaw_is_held_while_unobservable() {
     let an = anchors();
     let lever = [0.3, 0.0, 0.1];
-    let yaw_after = |excitation: f64, f_h: f64| {
+    let yaw_after_aided = |excitation: f64, f_h: f64, aided: bool| {
         let mut f = Eskf::new(EskfConfig {
             yaw_min_excitation_mps2: excitation,
             ..config()
         })
         .unwrap();
+        f.set_heading_aided(aided);
         f.predict(1e-3, Q0, [f_h, 0.0, G_MPS2]).unwrap();
         let truth = [P_INS[0] + 0.1, P_INS[1], P_INS[2]];
         let z = tdoa_at(truth, &an[0], &an[2]);
@@ -540,7 +542,10 @@ fn yaw_is_held_while_unobservable() {
         assert!(x[IDX_POS].abs() > 1e-3, "{x:?}");
         (x[IDX_ATT + 2], x[14], f.yaw_frozen())
     };
+    let yaw_after = |excitation: f64, f_h: f64| yaw_after_aided(excitation, f_h, false);
     assert_eq!(yaw_after(1.0, 0.2), (0.0, 0.0, true));
+    let (yaw, _, frozen) = yaw_after_aided(1.0, 0.2, true);
+    assert!(yaw.abs() > 1e-6 && !frozen);
     let (yaw, _, frozen) = yaw_after(1.0, 2.0);
     assert!(yaw.abs() > 1e-6 && !frozen);
     let (yaw, _, frozen) = yaw_after(0.0, 0.0);
