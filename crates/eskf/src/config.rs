@@ -191,9 +191,9 @@ pub struct EskfConfig {
     /// acceleration; near hover, velocity errors from an accelerometer bias
     /// not yet learnt (vibration rectification, UTIL: up to 3.6 m/s^2 at
     /// lift-off) would otherwise be read as a heading error, tens of degrees
-    /// of it. Not while a body-frame velocity measurement aids the filter
-    /// ([`crate::Eskf::set_heading_aided`]), which makes the yaw observable
-    /// whenever the vehicle moves.
+    /// of it. A body-frame velocity measurement updates them at any specific
+    /// force ([`crate::Eskf::set_velocity_update`]): it makes the yaw
+    /// observable whenever the vehicle moves.
     pub yaw_min_excitation_mps2: f64,
     /// Apply the reset Jacobian `G = I - [d_att / 2 x]` to the attitude block
     /// of `P` when a correction is taken (Sola 2017, eq. 287). Default true;

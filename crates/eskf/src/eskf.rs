@@ -543,8 +543,9 @@ pub struct Eskf {
     r_adapt: [RAdapt; 2],
     /// The specific force of the last prediction step, ENU, m/s^2.
     f_last: [f64; 3],
-    /// A velocity measurement aids the filter ([`Eskf::set_heading_aided`]).
-    heading_aided: bool,
+    /// The updates that follow measure a body-frame velocity
+    /// ([`Eskf::set_velocity_update`]).
+    velocity_update: bool,
     /// Velocity noise density added to the accelerometer's, m^2/s^3
     /// ([`Eskf::set_extra_velocity_noise`]).
     q_vel_extra: f64,
@@ -738,7 +739,7 @@ impl Eskf {
             q_adapt: QAdapt::new(),
             r_adapt: [RAdapt::new(); 2],
             f_last: [0.0; 3],
-            heading_aided: false,
+            velocity_update: false,
             q_vel_extra: 0.0,
             multirotor: None,
             tdoa_sigma_scale: 1.0,
@@ -1566,22 +1567,23 @@ impl Eskf {
 
     /// The yaw is held out of the updates: the last specific force given to
     /// [`Eskf::predict`] has a horizontal part below
-    /// [`EskfConfig::yaw_min_excitation_mps2`] and no velocity measurement
-    /// aids the filter ([`Eskf::set_heading_aided`]).
+    /// [`EskfConfig::yaw_min_excitation_mps2`], and the update is not one of
+    /// a body-frame velocity ([`Eskf::set_velocity_update`]).
     #[must_use]
     pub fn yaw_frozen(&self) -> bool {
         let f = self.f_last;
-        !self.heading_aided
+        !self.velocity_update
             && self.config.yaw_min_excitation_mps2 > 0.0
             && f[0].hypot(f[1]) < self.config.yaw_min_excitation_mps2
     }
 
-    /// Whether a body-frame velocity measurement (odometry, optical flow)
-    /// aids the filter now: it makes the yaw observable whenever the
-    /// vehicle moves, so [`EskfConfig::yaw_min_excitation_mps2`] does not
-    /// hold the yaw meanwhile.
-    pub fn set_heading_aided(&mut self, aided: bool) {
-        self.heading_aided = aided;
+    /// Whether the pseudo updates that follow measure a body-frame velocity
+    /// (odometry, optical flow): such a measurement makes the yaw observable
+    /// whenever the vehicle moves, so [`EskfConfig::yaw_min_excitation_mps2`]
+    /// does not hold the yaw out of it (the TDOA and range updates stay
+    /// held).
+    pub fn set_velocity_update(&mut self, on: bool) {
+        self.velocity_update = on;
     }
 
     /// The innovation-based scale on the process noise (1 when

@@ -453,8 +453,6 @@ impl TightEstimator {
             self.predict_errors += 1;
             return;
         };
-        self.eskf
-            .set_heading_aided(self.eskf.time_s() < self.aided_until_s);
         self.update_damping();
         for _ in 0..n {
             if self.eskf.predict_moving(step, quat, f, vel).is_err() {
@@ -774,7 +772,12 @@ impl Estimator for TightEstimator {
             let innovation = z - predicted;
             let r = sigma * sigma;
             let k = info.dim as usize;
-            match self.eskf.update_pseudo(&h, innovation, r) {
+            // The measured body velocity observes the heading while the
+            // vehicle moves: the yaw is not held out of this update.
+            self.eskf.set_velocity_update(true);
+            let outcome = self.eskf.update_pseudo(&h, innovation, r);
+            self.eskf.set_velocity_update(false);
+            match outcome {
                 Ok(rep) => {
                     if let (Some(inn), Some(rd)) =
                         (info.innovation.get_mut(k), info.r_diag.get_mut(k))

@@ -8,8 +8,8 @@ use crate::common;
 
 use common::*;
 use insuwb_eskf::{
-    Covariance, Eskf, EskfConfig, PredictError, ResetError, TdoaOutcome, TdoaUpdateError, IDX_ATT,
-    IDX_POS,
+    Covariance, Eskf, EskfConfig, PredictError, ResetError, StateVector, TdoaOutcome,
+    TdoaUpdateError, IDX_ATT, IDX_POS, IDX_VEL,
 };
 use insuwb_filter::{DivergenceMonitor, MonitorConfig};
 use nalgebra::{Matrix3, Vector3};
@@ -521,19 +521,18 @@ fn range_sigma_is_learnt_from_the_innovations_within_its_bounds() {
 
 /// Below `yaw_min_excitation_mps2` of horizontal specific force the
 /// updates leave the yaw and the yaw-rate bias alone (the other states are
-/// updated as before); above it, with the setting at 0, or while a
-/// velocity measurement aids the filter, they move.
+/// updated as before); above it, or with the setting at 0, they move. An
+/// update of a body-frame velocity moves them at any specific force.
 #[test]
 fn yaw_is_held_while_unobservable() {
     let an = anchors();
     let lever = [0.3, 0.0, 0.1];
-    let yaw_after_aided = |excitation: f64, f_h: f64, aided: bool| {
+    let yaw_after = |excitation: f64, f_h: f64| {
         let mut f = Eskf::new(EskfConfig {
             yaw_min_excitation_mps2: excitation,
             ..config()
         })
         .unwrap();
-        f.set_heading_aided(aided);
         f.predict(1e-3, Q0, [f_h, 0.0, G_MPS2]).unwrap();
         let truth = [P_INS[0] + 0.1, P_INS[1], P_INS[2]];
         let z = tdoa_at(truth, &an[0], &an[2]);
@@ -542,12 +541,39 @@ fn yaw_is_held_while_unobservable() {
         assert!(x[IDX_POS].abs() > 1e-3, "{x:?}");
         (x[IDX_ATT + 2], x[14], f.yaw_frozen())
     };
-    let yaw_after = |excitation: f64, f_h: f64| yaw_after_aided(excitation, f_h, false);
     assert_eq!(yaw_after(1.0, 0.2), (0.0, 0.0, true));
-    let (yaw, _, frozen) = yaw_after_aided(1.0, 0.2, true);
-    assert!(yaw.abs() > 1e-6 && !frozen);
     let (yaw, _, frozen) = yaw_after(1.0, 2.0);
     assert!(yaw.abs() > 1e-6 && !frozen);
     let (yaw, _, frozen) = yaw_after(0.0, 0.0);
     assert!(yaw.abs() > 1e-6 && !frozen);
+}
+
+/// Near hover, a body-frame velocity update (the vehicle flying east at
+/// 1 m/s, its body x axis measured 0.1 m/s short) moves the yaw when it
+/// is marked as one, and leaves it alone otherwise.
+#[test]
+fn a_velocity_update_moves_the_yaw_below_the_excitation() {
+    let yaw_after = |velocity_update: bool| {
+        let mut f = Eskf::new(EskfConfig {
+            yaw_min_excitation_mps2: 1.0,
+            ..config()
+        })
+        .unwrap();
+        f.predict(1e-3, Q0, [0.0, 0.0, G_MPS2]).unwrap();
+        assert!(f.yaw_frozen());
+        // z = e_x . v with v = (1, 0, 0) m/s: H on the velocity -e_x, on the
+        // attitude -(e_x x v) = 0; along body y, -(e_y x v) = e_z: the yaw.
+        let mut h = StateVector::zeros();
+        h[IDX_VEL + 1] = -1.0;
+        h[IDX_ATT + 2] = 1.0;
+        f.set_velocity_update(velocity_update);
+        let rep = f.update_pseudo(&h, 0.1, 0.01).unwrap();
+        f.set_velocity_update(false);
+        assert!(rep.applied);
+        let x = *f.state();
+        assert!(x[IDX_VEL + 1].abs() > 1e-6, "{x:?}");
+        x[IDX_ATT + 2]
+    };
+    assert_eq!(yaw_after(false), 0.0);
+    assert!(yaw_after(true).abs() > 1e-4);
 }
