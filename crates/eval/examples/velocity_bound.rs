@@ -31,7 +31,9 @@
 //!   of SIGMA m: the radio's lasting errors without its varying ones;
 //! - `--tdoa2-consecutive`: on a flight whose differences are mostly
 //!   between anchors next to each other in the cycle of 8 (TDOA2), only
-//!   those: the others are formed over a lost packet's slot.
+//!   those: the others are formed over a lost packet's slot;
+//! - `--yaw`: each run's heading error against the motion capture's over
+//!   the segment (RMS, mean, and every 2 s) on standard error.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::collections::BTreeMap;
@@ -66,6 +68,7 @@ struct Options {
     no_heights: bool,
     synthetic: Option<f64>,
     tdoa2_consecutive: bool,
+    yaw: bool,
 }
 
 const HALF_BASE_NS: u64 = 20_000_000;
@@ -140,6 +143,43 @@ fn synthesise(data: &mut Dataset, lever: Vector3<f64>, sigma: f64, seed: u64) {
     data.tdoa = synthetic;
 }
 
+/// The heading error of `fused` against the truth over `segment`: RMS and
+/// mean (deg), and one sample every 2 s (s, deg).
+fn yaw_errors(
+    fused: &[FusedState],
+    truth: &[GroundTruth],
+    segment: Option<(u64, u64)>,
+) -> (f64, f64, Vec<(f64, f64)>) {
+    let (mut sq, mut sum, mut n) = (0.0, 0.0, 0usize);
+    let mut trace = Vec::new();
+    let mut next_ns = 0u64;
+    for st in fused {
+        let t = st.header.meas_time_ns;
+        if !segment.is_none_or(|(a, b)| (a..=b).contains(&t)) {
+            continue;
+        }
+        let Some(g) = interpolate_truth(truth, t) else {
+            continue;
+        };
+        let (_, _, yaw) = unit(g.quat).euler_angles();
+        let d = (st.yaw_rad - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        sq += d * d;
+        sum += d;
+        n += 1;
+        if t >= next_ns {
+            trace.push((t as f64 * 1e-9, d.to_degrees()));
+            next_ns = t + 2_000_000_000;
+        }
+    }
+    let nf = n.max(1) as f64;
+    (
+        (sq / nf).sqrt().to_degrees(),
+        (sum / nf).to_degrees(),
+        trace,
+    )
+}
+
 /// Only the differences between anchors next to each other in a cycle of
 /// 8, where most of them are.
 fn keep_consecutive(tdoa: &mut Vec<UwbTdoa>) {
@@ -165,6 +205,7 @@ fn main() {
             "--no-heights" => opt.no_heights = true,
             "--synthetic" => opt.synthetic = Some(rest.next().unwrap().parse().unwrap()),
             "--tdoa2-consecutive" => opt.tdoa2_consecutive = true,
+            "--yaw" => opt.yaw = true,
             name => want.push(name.to_owned()),
         }
     }
@@ -227,6 +268,18 @@ fn main() {
                 evaluate_at(data, &preset.fusion, &[FilterKind::IakfTdoa], Epochs::Truth).unwrap();
             let s = rep.solutions.iter().find(|s| s.key == "iakf_tdoa").unwrap();
             let fused = s.run.as_ref().map(|r| r.fused.clone()).unwrap_or_default();
+            if opt.yaw {
+                let (rms, mean, trace) = yaw_errors(&fused, &data.truth, data.segment);
+                let trace: Vec<String> = trace
+                    .iter()
+                    .map(|(t, d)| format!("{t:.0}s {d:+.0}"))
+                    .collect();
+                eprintln!(
+                    "{}: yaw error RMS {rms:.1} deg, mean {mean:+.1}; {}",
+                    f.name,
+                    trace.join(" ")
+                );
+            }
             (s.metrics.rmse_horizontal / reference, fused)
         };
         let (first, fused) = run(&data);
