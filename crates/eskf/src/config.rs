@@ -192,7 +192,7 @@ pub struct EskfConfig {
     /// not yet learnt (vibration rectification, UTIL: up to 3.6 m/s^2 at
     /// lift-off) would otherwise be read as a heading error, tens of degrees
     /// of it. A body-frame velocity measurement updates them at any specific
-    /// force ([`crate::Eskf::set_velocity_update`]): it makes the yaw
+    /// force ([`crate::Eskf::update_body_velocity`]): it makes the yaw
     /// observable whenever the vehicle moves.
     pub yaw_min_excitation_mps2: f64,
     /// Apply the reset Jacobian `G = I - [d_att / 2 x]` to the attitude block

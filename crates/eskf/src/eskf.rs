@@ -543,9 +543,6 @@ pub struct Eskf {
     r_adapt: [RAdapt; 2],
     /// The specific force of the last prediction step, ENU, m/s^2.
     f_last: [f64; 3],
-    /// The updates that follow measure a body-frame velocity
-    /// ([`Eskf::set_velocity_update`]).
-    velocity_update: bool,
     /// Velocity noise density added to the accelerometer's, m^2/s^3
     /// ([`Eskf::set_extra_velocity_noise`]).
     q_vel_extra: f64,
@@ -739,7 +736,6 @@ impl Eskf {
             q_adapt: QAdapt::new(),
             r_adapt: [RAdapt::new(); 2],
             f_last: [0.0; 3],
-            velocity_update: false,
             q_vel_extra: 0.0,
             multirotor: None,
             tdoa_sigma_scale: 1.0,
@@ -998,6 +994,34 @@ impl Eskf {
         innovation: f64,
         r: f64,
     ) -> Result<PseudoUpdateReport, PseudoUpdateError> {
+        self.pseudo_update(h, innovation, r, self.yaw_frozen())
+    }
+
+    /// [`Eskf::update_pseudo`] for one axis of a measured body-frame
+    /// velocity (odometry, optical flow): such a measurement makes the yaw
+    /// observable whenever the vehicle moves, so
+    /// [`EskfConfig::yaw_min_excitation_mps2`] does not hold the yaw out of
+    /// it (the TDOA and range updates stay held).
+    ///
+    /// # Errors
+    /// As [`Eskf::update_pseudo`].
+    pub fn update_body_velocity(
+        &mut self,
+        h: &StateVector,
+        innovation: f64,
+        r: f64,
+    ) -> Result<PseudoUpdateReport, PseudoUpdateError> {
+        self.pseudo_update(h, innovation, r, false)
+    }
+
+    /// The pseudo update, the yaw held out of it where `hold_yaw`.
+    fn pseudo_update(
+        &mut self,
+        h: &StateVector,
+        innovation: f64,
+        r: f64,
+        hold_yaw: bool,
+    ) -> Result<PseudoUpdateReport, PseudoUpdateError> {
         if !innovation.is_finite() || !h.iter().all(|v| v.is_finite()) {
             return Err(PseudoUpdateError::NonFinite);
         }
@@ -1026,7 +1050,7 @@ impl Eskf {
             LimitMode::ScaleInnovation => (lambda * v, r),
             LimitMode::InflateR => (v, r / (lambda * lambda)),
         };
-        self.scalar_update(&c, &cb, hph, r_gain, v_used);
+        self.scalar_update(&c, &cb, hph, r_gain, v_used, hold_yaw);
         Ok(PseudoUpdateReport { nis, applied: true })
     }
 
@@ -1318,7 +1342,7 @@ impl Eskf {
                 );
             }
         }
-        self.scalar_update(&c, &cb, hph, r_gain, v_used);
+        self.scalar_update(&c, &cb, hph, r_gain, v_used, self.yaw_frozen());
 
         self.touch_pair(slot, key);
         if lambda < 1.0 {
@@ -1567,23 +1591,13 @@ impl Eskf {
 
     /// The yaw is held out of the updates: the last specific force given to
     /// [`Eskf::predict`] has a horizontal part below
-    /// [`EskfConfig::yaw_min_excitation_mps2`], and the update is not one of
-    /// a body-frame velocity ([`Eskf::set_velocity_update`]).
+    /// [`EskfConfig::yaw_min_excitation_mps2`] (an update of a body-frame
+    /// velocity, [`Eskf::update_body_velocity`], is not held).
     #[must_use]
     pub fn yaw_frozen(&self) -> bool {
         let f = self.f_last;
-        !self.velocity_update
-            && self.config.yaw_min_excitation_mps2 > 0.0
+        self.config.yaw_min_excitation_mps2 > 0.0
             && f[0].hypot(f[1]) < self.config.yaw_min_excitation_mps2
-    }
-
-    /// Whether the pseudo updates that follow measure a body-frame velocity
-    /// (odometry, optical flow): such a measurement makes the yaw observable
-    /// whenever the vehicle moves, so [`EskfConfig::yaw_min_excitation_mps2`]
-    /// does not hold the yaw out of it (the TDOA and range updates stay
-    /// held).
-    pub fn set_velocity_update(&mut self, on: bool) {
-        self.velocity_update = on;
     }
 
     /// The innovation-based scale on the process noise (1 when
@@ -1659,14 +1673,22 @@ impl Eskf {
     /// `δx += K v`, Joseph form `P <- (I - K h^T) P (I - K h^T)^T + K r K^T
     /// = P - K c^T - c K^T + (hph + r) K K^T`.
     ///
-    /// While the yaw is unobservable (horizontal specific force below
-    /// [`EskfConfig::yaw_min_excitation_mps2`]) the gain's yaw and yaw-rate
-    /// bias entries are zero (a consider update: the Joseph form keeps `P`
-    /// consistent for any gain).
-    fn scalar_update(&mut self, c: &StateVector, cb: &ErrorVector, hph: f64, r: f64, v: f64) {
+    /// With `hold_yaw` (the yaw unobservable to this update,
+    /// [`Eskf::yaw_frozen`]) the gain's yaw and yaw-rate bias entries are
+    /// zero (a consider update: the Joseph form keeps `P` consistent for any
+    /// gain).
+    fn scalar_update(
+        &mut self,
+        c: &StateVector,
+        cb: &ErrorVector,
+        hph: f64,
+        r: f64,
+        v: f64,
+        hold_yaw: bool,
+    ) {
         let s = hph + r;
         let mut k = c / s;
-        if self.yaw_frozen() {
+        if hold_yaw {
             k[IDX_ATT + 2] = 0.0;
             k[IDX_GYRO_BIAS + 2] = 0.0;
         }

@@ -772,12 +772,7 @@ impl Estimator for TightEstimator {
             let innovation = z - predicted;
             let r = sigma * sigma;
             let k = info.dim as usize;
-            // The measured body velocity observes the heading while the
-            // vehicle moves: the yaw is not held out of this update.
-            self.eskf.set_velocity_update(true);
-            let outcome = self.eskf.update_pseudo(&h, innovation, r);
-            self.eskf.set_velocity_update(false);
-            match outcome {
+            match self.eskf.update_body_velocity(&h, innovation, r) {
                 Ok(rep) => {
                     if let (Some(inn), Some(rd)) =
                         (info.innovation.get_mut(k), info.r_diag.get_mut(k))

@@ -548,12 +548,12 @@ fn yaw_is_held_while_unobservable() {
     assert!(yaw.abs() > 1e-6 && !frozen);
 }
 
-/// Near hover, a body-frame velocity update (the vehicle flying east at
-/// 1 m/s, its body x axis measured 0.1 m/s short) moves the yaw when it
-/// is marked as one, and leaves it alone otherwise.
+/// Near hover, the update of a body-frame velocity (the vehicle flying
+/// east at 1 m/s, 0.1 m/s measured along its body y axis) moves the yaw;
+/// the same row as another pseudo-measurement leaves it alone.
 #[test]
 fn a_velocity_update_moves_the_yaw_below_the_excitation() {
-    let yaw_after = |velocity_update: bool| {
+    let yaw_after = |velocity: bool| {
         let mut f = Eskf::new(EskfConfig {
             yaw_min_excitation_mps2: 1.0,
             ..config()
@@ -566,9 +566,12 @@ fn a_velocity_update_moves_the_yaw_below_the_excitation() {
         let mut h = StateVector::zeros();
         h[IDX_VEL + 1] = -1.0;
         h[IDX_ATT + 2] = 1.0;
-        f.set_velocity_update(velocity_update);
-        let rep = f.update_pseudo(&h, 0.1, 0.01).unwrap();
-        f.set_velocity_update(false);
+        let rep = if velocity {
+            f.update_body_velocity(&h, 0.1, 0.01)
+        } else {
+            f.update_pseudo(&h, 0.1, 0.01)
+        }
+        .unwrap();
         assert!(rep.applied);
         let x = *f.state();
         assert!(x[IDX_VEL + 1].abs() > 1e-6, "{x:?}");
