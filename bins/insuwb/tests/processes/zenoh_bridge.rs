@@ -264,8 +264,9 @@ fn u(v: &Value, key: &str) -> u64 {
 fn check_poses(got: &Value, fused: &[FusedState]) {
     assert_eq!(got["errors"], serde_json::json!([]), "decoding failed");
     assert!(!fused.is_empty(), "empty recording");
-    // Two fused states can share a measurement time (updates of one epoch);
-    // the bridge publishes the one that was newest when it looked.
+    // Two fused states of the recording can share a measurement time (a
+    // fusion stage restarted under load publishes from its checkpoint
+    // again); a pose must be one of them.
     let mut by_time: BTreeMap<u64, Vec<&FusedState>> = BTreeMap::new();
     for s in fused {
         by_time.entry(s.header.meas_time_ns).or_default().push(s);
