@@ -266,8 +266,12 @@ fn main() {
         let run = |data: &Dataset| {
             let rep =
                 evaluate_at(data, &preset.fusion, &[FilterKind::IakfTdoa], Epochs::Truth).unwrap();
-            let s = rep.solutions.iter().find(|s| s.key == "iakf_tdoa").unwrap();
-            let fused = s.run.as_ref().map(|r| r.fused.clone()).unwrap_or_default();
+            let s = rep
+                .solutions
+                .into_iter()
+                .find(|s| s.key == "iakf_tdoa")
+                .unwrap();
+            let fused = s.run.map(|r| r.fused).unwrap_or_default();
             if opt.yaw {
                 let (rms, mean, trace) = yaw_errors(&fused, &data.truth, data.segment);
                 let trace: Vec<String> = trace
