@@ -889,6 +889,7 @@ mod tests {
             rmse_up: 0.0,
             nees_mean: nees,
             nis_mean: None,
+            divergences: None,
             epochs: 10,
         }
     }

@@ -72,6 +72,11 @@ pub struct Metrics {
     /// Mean NIS of the filter's updates, where it has one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub nis_mean: Option<f64>,
+    /// Times the divergence monitor fired inside the evaluated segment (each
+    /// a reset of the filter from the radio), for a filter run; the mean
+    /// over runs in [`mean_of`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub divergences: Option<f64>,
     /// Epochs evaluated.
     pub epochs: usize,
 }
@@ -275,6 +280,7 @@ pub fn compute(
         rmse_up: (su / nf).sqrt(),
         nees_mean: (nees_n > 0).then(|| nees_sum / nees_n as f64),
         nis_mean: (!nis_f.is_empty()).then(|| nis_f.iter().sum::<f64>() / nis_f.len() as f64),
+        divergences: None,
         epochs: n,
     })
 }
@@ -311,6 +317,7 @@ pub fn mean_of(runs: &[Metrics]) -> Option<Metrics> {
         rmse_up: avg(&|m| m.rmse_up),
         nees_mean: avg_opt(&|m| m.nees_mean),
         nis_mean: avg_opt(&|m| m.nis_mean),
+        divergences: avg_opt(&|m| m.divergences),
         epochs: runs.iter().map(|m| m.epochs).sum(),
     })
 }

@@ -955,6 +955,7 @@ mod tests {
             rmse_up: 0.0,
             nees_mean: None,
             nis_mean: None,
+            divergences: None,
             epochs: 0,
         }
     }

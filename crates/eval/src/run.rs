@@ -6,8 +6,8 @@
 use insuwb_fusion::config::{build_estimator, ConfigError, FusionConfig};
 use insuwb_fusion::runner::{self, RunOutput};
 use insuwb_msg::{
-    BodyVelocity, FilterKind, FusedState, GroundTruth, Height, ImuSample, NavState, UwbFix,
-    UwbRange, UwbTdoa,
+    BodyVelocity, FilterDiag, FilterKind, FusedState, GroundTruth, Height, ImuSample, NavState,
+    UwbFix, UwbRange, UwbTdoa,
 };
 
 use crate::metrics::{compute, Estimate, Metrics, MetricsError, TruthTrack};
@@ -269,10 +269,24 @@ fn solution(
     nis: &[f64],
     run: Option<RunOutput>,
 ) -> Result<Solution, EvalError> {
-    let metrics = compute(&track, truth, segment, nis).map_err(|source| EvalError::Metrics {
-        solution: key.to_owned(),
-        error: source,
-    })?;
+    let mut metrics =
+        compute(&track, truth, segment, nis).map_err(|source| EvalError::Metrics {
+            solution: key.to_owned(),
+            error: source,
+        })?;
+    if let Some(r) = &run {
+        let inside = |t: u64| segment.is_none_or(|(a, b)| (a..=b).contains(&t));
+        let n = r
+            .diag
+            .iter()
+            .filter(|d| d.header.flags & FilterDiag::FLAG_DIVERGENCE != 0)
+            .filter(|d| inside(d.header.meas_time_ns))
+            .count();
+        // Counts stay far below 2^53: exact in f64.
+        #[allow(clippy::cast_precision_loss)]
+        let n = n as f64;
+        metrics.divergences = Some(n);
+    }
     Ok(Solution {
         key: key.to_owned(),
         metrics,

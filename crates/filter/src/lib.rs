@@ -58,7 +58,10 @@ pub use model::{
     ModelConfig, ModelConfigError, ModelForm, PaperModel, PredictSteps, StepError, Transition14,
     Vec14, N_MEAS, N_STATES,
 };
-pub use monitor::{DivergenceMonitor, MonitorConfig, MonitorConfigError, MAX_MONITOR_WINDOW};
+pub use monitor::{
+    DivergenceMonitor, MonitorConfig, MonitorConfigError, MAX_MONITOR_WINDOW,
+    MAX_OUTLIER_WINDOW_LEN, MIN_OUTLIER_WINDOW_LEN,
+};
 pub use params::{
     FilterParams, FilterParamsError, FilterSetup, FilterSetupError, LimitMode, OutlierForm,
 };

@@ -387,7 +387,7 @@ impl FusionEngine {
         if info.rejected {
             self.monitor.push_rejected(t_ns as f64 * 1e-9)
         } else {
-            self.monitor.push(info.nis, info.dim)
+            self.monitor.push(t_ns as f64 * 1e-9, info.nis, info.dim)
         }
     }
 
@@ -1158,6 +1158,7 @@ mod tests {
                 gate_per_dim: 9.0,
                 fraction: 1.0,
                 max_reject_run_s: 1.0,
+                ..MonitorConfig::default()
             },
             ..FusionEngineConfig::default()
         };

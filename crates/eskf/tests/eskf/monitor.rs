@@ -65,7 +65,7 @@ fn hover(
             let fired = if rep.rejected {
                 monitor.push_rejected(f.time_s())
             } else {
-                monitor.push(rep.nis, 1)
+                monitor.push(f.time_s(), rep.nis, 1)
             };
             if fired && first.is_none() {
                 first = Some(k + 1);
@@ -81,6 +81,7 @@ fn monitor(window: usize, fraction: f64) -> DivergenceMonitor {
         gate_per_dim: 9.0,
         fraction,
         max_reject_run_s: 0.0,
+        ..MonitorConfig::default()
     })
     .unwrap()
 }
@@ -99,6 +100,7 @@ fn rejections_feed_the_monitor_and_reset_restores_the_prior() {
         gate_per_dim: 9.0,
         fraction: 0.7,
         max_reject_run_s: 1.0,
+        ..MonitorConfig::default()
     })
     .unwrap();
     assert_eq!(hover(&mut f, &mut m, 3.0, 0.0, None), None);
