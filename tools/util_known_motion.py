@@ -18,13 +18,22 @@ estimator would leave it out (truth does not choose them):
             heading were right) would do with the radio, with a memory of
             W seconds (1, 3, 10 s).
 
+With `--flow` (the flights whose logs hold the flow deck's records), the
+motion is no longer the truth's but dead-reckoned from the deck's body
+velocities (`util_flow_check.py`'s model: pixel flow, the range finder,
+the gyro), rotated into the world by the motion capture's attitude and
+integrated from the first epoch, the truth's vertical kept: the same fits
+with what these vehicles' motion sensor gives, under a perfect attitude
+and height (an optimistic bound on what the deck allows a filter that
+weights the radio so). The columns then read `flow-W`.
+
 Printed: the horizontal RMSE of each, as a ratio to the manifest's
 `uwb_ls_ref_m`, per flight and the median / worst / flights above 1.0.
 The offset's fit is linearised at the truth (the differences' geometry
 there); truth starts the solver and scores it, and gives the trajectory:
 an analysis of the data, not an estimator.
 
-Usage: python3 tools/util_known_motion.py DATA_DIR [FLIGHT ...]
+Usage: python3 tools/util_known_motion.py DATA_DIR [--flow] [FLIGHT ...]
 (DATA_DIR holds flights.csv; numpy required.)
 """
 import statistics as st
@@ -34,15 +43,61 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from util_tdoa_bound import fix_epochs, manifest, prepare, solve  # noqa: E402
+from util_tdoa_bound import fix_epochs, load, manifest, mocap_and_tdoa, prepare, solve  # noqa: E402
+from util_flow_check import RAD_PER_COUNT, rotation  # noqa: E402
 
 MEMORIES_S = (1.0, 3.0, 10.0)
 GATE_M = 1.0
 
 
-def flight(f):
+def flow_drift(path):
+    """The dead-reckoning error of the deck's velocities as a function of
+    time (s, the log's clock of `mocap_and_tdoa`): the world-frame
+    horizontal integral of (flow velocity - true velocity), each rotated by
+    the motion capture's attitude; None without flow records."""
+    d = load(path)
+    if "estFlow" not in d or "estTOF" not in d:
+        return None
+    tp, p, _, _ = mocap_and_tdoa(d)
+    t0 = d["estAcceleration"][0, 0]
+    fl = d["estFlow"]
+    tf = (fl[:, 0] - t0) * 1e-6
+    dt = np.diff(tf, prepend=tf[0] - 0.01)
+    dt = np.where(dt > 0.015, 0.01, dt)
+    ts = tf - dt / 2
+    pa = np.stack([np.interp(ts - 0.025, tp, p[:, i]) for i in (1, 2, 3)], 1)
+    pb = np.stack([np.interp(ts + 0.025, tp, p[:, i]) for i in (1, 2, 3)], 1)
+    q = np.stack([np.interp(ts, tp, p[:, i]) for i in (4, 5, 6, 7)], 1)
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    rot = rotation(q)
+    true_b = np.einsum("nji,nj->ni", rot, (pb - pa) / 0.05)
+    tof = d["estTOF"]
+    rng = np.interp(tf, (tof[:, 0] - t0) * 1e-6, tof[:, 1]) * 1e-3
+    g = d["estGyroscope"]
+    om = np.stack([np.interp(ts, (g[:, 0] - t0) * 1e-6, g[:, i]) for i in (1, 2, 3)], 1) * np.pi / 180
+    vx = rng * (-fl[:, 2] * RAD_PER_COUNT / dt + om[:, 1])
+    vy = rng * (-fl[:, 1] * RAD_PER_COUNT / dt - om[:, 0])
+    z = np.interp(ts, tp, p[:, 3])
+    good = (z > 0.3) & (dt > 0.005) & (rng > 0.1) & (rng < 4.0)
+    # Body-frame error (x, y; the vertical is the truth's), to the world.
+    eb = np.zeros((len(tf), 3))
+    eb[good, 0] = vx[good] - true_b[good, 0]
+    eb[good, 1] = vy[good] - true_b[good, 1]
+    ew = np.einsum("nij,nj->ni", rot, eb)
+    drift = np.cumsum(ew * dt[:, None], axis=0)
+    drift[:, 2] = 0.0
+
+    def at(t):
+        return np.stack([np.interp(t, tf, drift[:, i]) for i in range(3)], -1)
+
+    return at
+
+
+def flight(f, drift=None):
     """Horizontal RMSE of the per-epoch fixes and of each known-motion
-    solution, m."""
+    solution, m. With `drift` (a function of time), the motion is the
+    truth's plus it: the solutions' errors are the drift plus the fitted
+    offset."""
     f["ok"] = np.ones_like(f["ok"])
     pa, pb, z, ant, tt = (f[k] for k in ("pa", "pb", "z", "ant", "tt"))
     ra = np.linalg.norm(ant - pa, axis=1)
@@ -50,6 +105,13 @@ def flight(f):
     # d(rb - ra)/d(antenna position) at the truth, and what is left to fit.
     jac = (ant - pb) / rb[:, None] - (ant - pa) / ra[:, None]
     res = z - (rb - ra)
+    dr = np.zeros((len(tt), 3)) if drift is None else drift(tt)
+    if drift is not None:
+        # The motion is dead-reckoned from the first epoch: its error is
+        # the drift since then (linearised at the truth).
+        start = next(fix_epochs(f))[0][-1]
+        dr = dr - dr[start]
+        res = res - np.einsum("ni,ni->n", jac, dr)
     epochs = []
     fix_sq = []
     for idx, truth in fix_epochs(f):
@@ -86,22 +148,28 @@ def flight(f):
             if len(idx) and np.linalg.matrix_rank(info) == 3:
                 d = np.linalg.solve(info, rhs)
             if scored:
-                sq.append(d[0] ** 2 + d[1] ** 2)
+                e = d + dr[idx[-1]] if len(idx) else d
+                sq.append(e[0] ** 2 + e[1] ** 2)
         out.append(float(np.sqrt(np.mean(sq))))
     return out
 
 
 def main():
-    data_dir, rows = manifest(sys.argv, __doc__)
-    want = set(sys.argv[2:])
-    names = ["fix"] + [f"known-{w:g}" for w in MEMORIES_S]
+    flow = "--flow" in sys.argv
+    argv = [a for a in sys.argv if a != "--flow"]
+    data_dir, rows = manifest(argv, __doc__)
+    want = set(argv[2:])
+    names = ["fix"] + [f"{'flow' if flow else 'known'}-{w:g}" for w in MEMORIES_S]
     print(f"{'flight':18s} " + " ".join(f"{n:>9s}" for n in names) + "   (/ uwb_ls_ref_m)")
     cols = [[] for _ in names]
     for r in rows:
         if want and r["file"] not in want:
             continue
         ref = float(r["uwb_ls_ref_m"])
-        got = [v / ref for v in flight(prepare(data_dir, r["file"], r["anchors"]))]
+        drift = flow_drift(data_dir / r["file"]) if flow else None
+        if flow and drift is None:
+            continue
+        got = [v / ref for v in flight(prepare(data_dir, r["file"], r["anchors"]), drift)]
         for c, v in zip(cols, got):
             c.append(v)
         print(f"{r['file']:18s} " + " ".join(f"{v:9.3f}" for v in got), flush=True)
