@@ -452,7 +452,8 @@ pub fn write_tracks(
     Ok(())
 }
 
-/// The table of Table 1's shape, plus horizontal RMS, max distance, NEES and NIS.
+/// The table of Table 1's shape, plus horizontal RMS, max distance, NEES,
+/// NIS and the divergence monitor's resets inside the evaluated segment.
 #[must_use]
 pub fn format_table(title: &str, rows: &[(String, Metrics)]) -> String {
     use std::fmt::Write as _;
@@ -460,7 +461,7 @@ pub fn format_table(title: &str, rows: &[(String, Metrics)]) -> String {
     let _ = writeln!(s, "{title}");
     let _ = writeln!(
         s,
-        "{:<10} {:>8} {:>8} {:>8}  {:>19}  {:>19} {:>8} {:>8} {:>7} {:>7}",
+        "{:<10} {:>8} {:>8} {:>8}  {:>19}  {:>19} {:>8} {:>8} {:>7} {:>7} {:>7}",
         "",
         "RMSE E",
         "RMSE N",
@@ -470,13 +471,22 @@ pub fn format_table(title: &str, rows: &[(String, Metrics)]) -> String {
         "RMS hor",
         "max",
         "NEES",
-        "NIS"
+        "NIS",
+        "resets"
     );
     for (k, m) in rows {
         let opt = |v: Option<f64>| v.map_or("-".to_owned(), |x| format!("{x:.2}"));
+        // A count, or the mean over Monte-Carlo runs.
+        let resets = m.divergences.map_or("-".to_owned(), |x| {
+            if x.fract() == 0.0 {
+                format!("{x:.0}")
+            } else {
+                format!("{x:.2}")
+            }
+        });
         let _ = writeln!(
             s,
-            "{:<10} {:>8.4} {:>8.4} {:>8.4}  {:>8.4} ~ {:>8.4}  {:>8.4} ~ {:>8.4} {:>8.4} {:>8.4} {:>7} {:>7}",
+            "{:<10} {:>8.4} {:>8.4} {:>8.4}  {:>8.4} ~ {:>8.4}  {:>8.4} ~ {:>8.4} {:>8.4} {:>8.4} {:>7} {:>7} {:>7}",
             insuwb_eval::batch::solution_title(k),
             m.rmse_east,
             m.rmse_north,
@@ -488,7 +498,8 @@ pub fn format_table(title: &str, rows: &[(String, Metrics)]) -> String {
             m.rmse_horizontal,
             m.max_dist,
             opt(m.nees_mean),
-            opt(m.nis_mean)
+            opt(m.nis_mean),
+            resets
         );
     }
     s
