@@ -532,6 +532,9 @@ pub struct SolutionSummary {
     pub max_dist: Spread,
     /// Mean NEES per flight, for a solution with a covariance.
     pub nees_mean: Option<Spread>,
+    /// Resets (the divergence monitor's, inside the flight segment) per
+    /// flight, for a filter.
+    pub divergences: Option<Spread>,
 }
 
 /// Summarises each solution over the flights of `manifest`, whose metrics
@@ -575,6 +578,7 @@ pub fn summarize(manifest: &Manifest, results: &[FlightMetrics]) -> Vec<Solution
                 references,
                 max_dist: spread(&pick(|m| Some(m.max_dist)))?,
                 nees_mean: spread(&pick(|m| m.nees_mean)),
+                divergences: spread(&pick(|m| m.divergences)),
             })
         })
         .collect()
@@ -620,6 +624,9 @@ pub fn to_json(
         o.insert("max_dist".to_owned(), json!(s.max_dist));
         if let Some(n) = &s.nees_mean {
             o.insert("nees_mean".to_owned(), json!(n));
+        }
+        if let Some(n) = &s.divergences {
+            o.insert("divergences".to_owned(), json!(n));
         }
         sum.insert(s.key.clone(), Value::Object(o));
     }
@@ -689,7 +696,7 @@ pub fn format_flights(
 
 /// One row per solution: for each reference, the median and worst ratio of
 /// the horizontal RMSE to it and the flights above 1; then the median and
-/// worst horizontal RMSE, maximum distance error and mean NEES.
+/// worst horizontal RMSE, maximum distance error, mean NEES and resets.
 #[must_use]
 pub fn format_summary(manifest: &Manifest, summary: &[SolutionSummary]) -> String {
     use std::fmt::Write as _;
@@ -700,7 +707,7 @@ pub fn format_summary(manifest: &Manifest, summary: &[SolutionSummary]) -> Strin
     };
     let mut table: Vec<Vec<String>> = vec![std::iter::once("solution".to_owned())
         .chain(manifest.references.iter().cloned())
-        .chain(["RMSE hor (m)", "max dist (m)", "NEES"].map(String::from))
+        .chain(["RMSE hor (m)", "max dist (m)", "NEES", "resets"].map(String::from))
         .collect()];
     for sol in summary {
         let mut row = vec![solution_title(&sol.key)];
@@ -715,6 +722,7 @@ pub fn format_summary(manifest: &Manifest, summary: &[SolutionSummary]) -> Strin
         row.push(spread(Some(sol.rmse_horizontal), 3));
         row.push(spread(Some(sol.max_dist), 3));
         row.push(spread(sol.nees_mean, 1));
+        row.push(spread(sol.divergences, 0));
         table.push(row);
     }
     let widths: Vec<usize> = (0..table[0].len())
@@ -723,7 +731,7 @@ pub fn format_summary(manifest: &Manifest, summary: &[SolutionSummary]) -> Strin
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "summary over {} flights: ratio of the horizontal RMSE to each reference (median / worst / flights above 1); horizontal RMSE, max distance error and mean NEES (median / worst)",
+        "summary over {} flights: ratio of the horizontal RMSE to each reference (median / worst / flights above 1); horizontal RMSE, max distance error, mean NEES and resets in flight (median / worst)",
         manifest.flights.len()
     );
     for row in &table {
