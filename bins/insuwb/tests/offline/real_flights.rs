@@ -340,7 +340,7 @@ const FLOW_FLIGHTS: [&str; 16] = [
 /// --flights ... --aiding flow`, docs/REAL_FLIGHTS.md), with margin: the
 /// tight filter median 0.81, worst 1.10, at most 0.97x UTIL's filter,
 /// `max_dist` 0.60 m (held to the goal's 0.8 m), NEES median 3.9 (held to
-/// the goal's 2-8) and worst 18.9 (the goals of velocity aiding bound only
+/// the goal's 2-8) and worst 18.8 (the goals of velocity aiding bound only
 /// the median).
 const TODAY_FLOW: Bounds = Bounds {
     tight: 1.2,
@@ -379,7 +379,7 @@ fn tight_up(v: &Value) -> Vec<f64> {
 /// The flights with flow, aided by it: today's figures with margin, and
 /// better than the same flights unaided on the whole: the geometric mean
 /// over the flights of the aided over the unaided RMSE at most 0.98 (today
-/// 0.946; better on 10 of the 16, the median ratio to the reference 0.814
+/// 0.944; better on 10 of the 16, the median ratio to the reference 0.814
 /// aided, 0.834 unaided). The range finder gives the height: the tight
 /// filter's height RMSE at most 0.04 m at the median flight and 0.08 m on
 /// every one (today 0.017 and 0.028 m), where unaided it is above 0.1 m at
