@@ -65,12 +65,12 @@ def records(path, needed):
     return r, p[np.concatenate([[True], np.diff(p[:, 0]) > 1e-3])]
 
 
-def check(path, lag=0.0):
-    got = records(path, ("estFlow", "estTOF"))
-    if got is None:
-        return None
-    r, p = got
-    t = p[:, 0]
+def body_velocities(r, t, p, lag=0.0):
+    """The deck's body velocities against the motion capture's, per flow
+    read: `r` the records and `t`, `p` the poses' times and rows, all times
+    on one clock in seconds. Returns (flow read times, read intervals,
+    flow x, flow y, true body velocity (n x 3), the attitude's rotations,
+    range, reads in use: 0.3 m or more up, range in 0.1-4 m)."""
     fl = r["estFlow"]
     dt = np.diff(fl[:, 0], prepend=fl[0, 0] - 0.01)
     dt = np.where(dt > 0.015, 0.01, dt)
@@ -79,7 +79,8 @@ def check(path, lag=0.0):
     b = np.stack([np.interp(ts + 0.025, t, p[:, i]) for i in (1, 2, 3)], 1)
     q = np.stack([np.interp(ts, t, p[:, i]) for i in (4, 5, 6, 7)], 1)
     q /= np.linalg.norm(q, axis=1)[:, None]
-    true_b = np.einsum("nji,nj->ni", rotation(q), (b - a) / 0.05)
+    rot = rotation(q)
+    true_b = np.einsum("nji,nj->ni", rot, (b - a) / 0.05)
     z = np.interp(ts, t, p[:, 3])
     tof = r["estTOF"]
     rng = np.interp(fl[:, 0], tof[:, 0], tof[:, 1]) * 1e-3
@@ -87,8 +88,17 @@ def check(path, lag=0.0):
     om = np.stack([np.interp(ts, g[:, 0], g[:, i]) for i in (1, 2, 3)], 1) * np.pi / 180
     vx = rng * (-fl[:, 2] * RAD_PER_COUNT / dt + om[:, 1])
     vy = rng * (-fl[:, 1] * RAD_PER_COUNT / dt - om[:, 0])
-    sigma = rng * 2.0 * RAD_PER_COUNT / dt
     m = (z > 0.3) & (dt > 0.005) & (rng > 0.1) & (rng < 4.0)
+    return fl[:, 0], dt, vx, vy, true_b, rot, rng, m
+
+
+def check(path, lag=0.0):
+    got = records(path, ("estFlow", "estTOF"))
+    if got is None:
+        return None
+    r, p = got
+    _, dt, vx, vy, true_b, _, rng, m = body_velocities(r, p[:, 0], p, lag)
+    sigma = rng * 2.0 * RAD_PER_COUNT / dt
     ex, ey = vx[m] - true_b[m, 0], vy[m] - true_b[m, 1]
     n = len(ex) // 10 * 10
     e10 = np.concatenate([ex[:n].reshape(-1, 10).mean(1), ey[:n].reshape(-1, 10).mean(1)])

@@ -44,7 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from util_tdoa_bound import fix_epochs, load, manifest, mocap_and_tdoa, prepare, solve  # noqa: E402
-from util_flow_check import RAD_PER_COUNT, rotation  # noqa: E402
+from util_flow_check import body_velocities  # noqa: E402
 
 MEMORIES_S = (1.0, 3.0, 10.0)
 GATE_M = 1.0
@@ -59,26 +59,12 @@ def flow_drift(path):
     if "estFlow" not in d or "estTOF" not in d:
         return None
     tp, p, _, _ = mocap_and_tdoa(d)
+    # The records on `mocap_and_tdoa`'s clock, in seconds.
     t0 = d["estAcceleration"][0, 0]
-    fl = d["estFlow"]
-    tf = (fl[:, 0] - t0) * 1e-6
-    dt = np.diff(tf, prepend=tf[0] - 0.01)
-    dt = np.where(dt > 0.015, 0.01, dt)
-    ts = tf - dt / 2
-    pa = np.stack([np.interp(ts - 0.025, tp, p[:, i]) for i in (1, 2, 3)], 1)
-    pb = np.stack([np.interp(ts + 0.025, tp, p[:, i]) for i in (1, 2, 3)], 1)
-    q = np.stack([np.interp(ts, tp, p[:, i]) for i in (4, 5, 6, 7)], 1)
-    q /= np.linalg.norm(q, axis=1)[:, None]
-    rot = rotation(q)
-    true_b = np.einsum("nji,nj->ni", rot, (pb - pa) / 0.05)
-    tof = d["estTOF"]
-    rng = np.interp(tf, (tof[:, 0] - t0) * 1e-6, tof[:, 1]) * 1e-3
-    g = d["estGyroscope"]
-    om = np.stack([np.interp(ts, (g[:, 0] - t0) * 1e-6, g[:, i]) for i in (1, 2, 3)], 1) * np.pi / 180
-    vx = rng * (-fl[:, 2] * RAD_PER_COUNT / dt + om[:, 1])
-    vy = rng * (-fl[:, 1] * RAD_PER_COUNT / dt - om[:, 0])
-    z = np.interp(ts, tp, p[:, 3])
-    good = (z > 0.3) & (dt > 0.005) & (rng > 0.1) & (rng < 4.0)
+    r = {k: d[k].copy() for k in ("estFlow", "estTOF", "estGyroscope")}
+    for v in r.values():
+        v[:, 0] = (v[:, 0] - t0) * 1e-6
+    tf, dt, vx, vy, true_b, rot, _, good = body_velocities(r, tp, p)
     # Body-frame error (x, y; the vertical is the truth's), to the world.
     eb = np.zeros((len(tf), 3))
     eb[good, 0] = vx[good] - true_b[good, 0]

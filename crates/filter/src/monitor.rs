@@ -179,7 +179,7 @@ pub struct DivergenceMonitor {
     /// Time and whether an outlier of the measurements within the last
     /// `outlier_window_s` (at most [`MAX_OUTLIER_WINDOW_LEN`]).
     recent: VecDeque<(f64, bool)>,
-    /// How many of them were rejected.
+    /// How many of them were outliers.
     recent_outliers: usize,
     /// Time of the first measurement since the last clear, s.
     recent_since_s: Option<f64>,
@@ -200,12 +200,29 @@ impl DivergenceMonitor {
     /// [`MonitorConfigError`] when `cfg` does not validate.
     pub fn new(cfg: MonitorConfig) -> Result<Self, MonitorConfigError> {
         cfg.validate()?;
+        Ok(Self::with_config(cfg))
+    }
+
+    /// A monitor that never fires (window 0, no rejection runs, no
+    /// outliers' share).
+    #[must_use]
+    pub fn disabled() -> Self {
+        Self::with_config(MonitorConfig {
+            window: 0,
+            max_reject_run_s: 0.0,
+            outlier_window_s: 0.0,
+            ..MonitorConfig::default()
+        })
+    }
+
+    /// A monitor with empty windows for `cfg`, taken as valid.
+    fn with_config(cfg: MonitorConfig) -> Self {
         let recent_len = if cfg.outlier_window_s > 0.0 {
             MAX_OUTLIER_WINDOW_LEN
         } else {
             0
         };
-        Ok(Self {
+        Self {
             hist: VecDeque::with_capacity(cfg.window),
             cfg,
             bad: 0,
@@ -213,31 +230,12 @@ impl DivergenceMonitor {
             recent: VecDeque::with_capacity(recent_len),
             recent_outliers: 0,
             recent_since_s: None,
-        })
-    }
-
-    /// A monitor that never fires (window 0, no rejection runs).
-    #[must_use]
-    pub fn disabled() -> Self {
-        Self {
-            cfg: MonitorConfig {
-                window: 0,
-                max_reject_run_s: 0.0,
-                outlier_window_s: 0.0,
-                ..MonitorConfig::default()
-            },
-            hist: VecDeque::new(),
-            bad: 0,
-            reject_run_start_s: None,
-            recent: VecDeque::new(),
-            recent_outliers: 0,
-            recent_since_s: None,
         }
     }
 
     /// Records an update at `t_s` (s) of `dim` components and NIS `nis`,
     /// applied; it ends a run of rejections. True when the window (or the
-    /// rejections' share) says the filter diverged, after which the monitor
+    /// outliers' share) says the filter diverged, after which the monitor
     /// starts afresh. An update without components (`dim` 0, e.g. a
     /// measurement the filter skipped) or with a NIS that is not finite is
     /// not counted.
@@ -270,8 +268,10 @@ impl DivergenceMonitor {
     }
 
     /// Records a measurement at `t_s` (s) that the filter rejected outright
-    /// (not in the window); true when nothing but rejections came for
-    /// longer than `max_reject_run_s`, after which the monitor starts afresh.
+    /// (not in the window, an outlier of the share); true when nothing but
+    /// rejections came for longer than `max_reject_run_s`, or the outliers'
+    /// share says the filter diverged, after which the monitor starts
+    /// afresh.
     pub fn push_rejected(&mut self, t_s: f64) -> bool {
         if !t_s.is_finite() {
             return false;
