@@ -1,8 +1,9 @@
 //! `insuwb eval --flights MANIFEST.csv`: every flight of a manifest,
 //! evaluated in parallel as `insuwb eval FILE --anchors A` evaluates one,
 //! then one row per flight and a summary per solution against the
-//! manifest's reference columns. The progress bar on a terminal is
-//! `indicatif`'s.
+//! manifest's reference columns. With `--aiding flow`, a flight whose log
+//! holds no flow records is left out and named (the others are evaluated).
+//! The progress bar on a terminal is `indicatif`'s.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -11,6 +12,7 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use insuwb_eval::batch::{self, FlightMetrics, Manifest, ManifestFlight};
 
+use crate::dataset::NoFlowRecords;
 use crate::eval_cmd::{evaluate_file, print_result, write_plots, EvalArgs};
 
 /// Runs `insuwb eval --flights MANIFEST`.
@@ -67,6 +69,7 @@ pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
     );
     bar.finish();
     let results = results.map_err(|e| e.error.context(manifest.flight_label(e.index)))?;
+    let (manifest, results, left_out) = keep_evaluated(manifest, results)?;
     tracing::info!(
         "evaluated {} flights in {:.2} s on {} thread(s)",
         results.len(),
@@ -78,25 +81,71 @@ pub fn eval_flights(a: &EvalArgs, manifest_path: &Path) -> Result<()> {
         let file = insuwb_eval::plot::write_summary_figure(&manifest, &results, dir)?;
         tracing::info!("wrote {}", file.display());
     }
+    let mut head = manifest.path.display().to_string();
+    if !left_out.is_empty() {
+        head.push_str(&format!(
+            "\n{} of {} flights left out, their logs hold no optical-flow records: {}",
+            left_out.len(),
+            left_out.len() + results.len(),
+            left_out.join(", ")
+        ));
+    }
     let table = format!(
-        "{}\n{}\n{}",
-        manifest.path.display(),
+        "{head}\n{}\n{}",
         batch::format_flights(&manifest, &results, &summary),
         batch::format_summary(&manifest, &summary)
     );
     print_result(a.json, &table, || {
-        batch::to_json(&manifest, &results, &summary)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", manifest.path.display()))
+        let mut v = batch::to_json(&manifest, &results, &summary)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", manifest.path.display()))?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("left_out".into(), left_out.clone().into());
+        }
+        Ok(v)
     })
 }
 
+/// The manifest cut to the flights evaluated, their metrics, and the names
+/// of those left out (`None`: no records of the aiding).
+///
+/// # Errors
+/// Every flight was left out.
+pub(crate) fn keep_evaluated<T>(
+    manifest: Manifest,
+    results: Vec<Option<T>>,
+) -> Result<(Manifest, Vec<T>, Vec<String>)> {
+    let mut kept = Manifest {
+        flights: Vec::new(),
+        ..manifest.clone()
+    };
+    let mut metrics = Vec::new();
+    let mut left_out = Vec::new();
+    for (f, r) in manifest.flights.into_iter().zip(results) {
+        match r {
+            Some(m) => {
+                kept.flights.push(f);
+                metrics.push(m);
+            }
+            None => left_out.push(f.name),
+        }
+    }
+    if metrics.is_empty() {
+        anyhow::bail!(
+            "{}: no flight's log holds optical-flow records: --aiding flow needs logs of vehicles with a flow deck",
+            kept.path.display()
+        );
+    }
+    Ok((kept, metrics, left_out))
+}
+
 /// Evaluates one flight; with `--plot DIR`, its figures go to `DIR/<name>/`.
+/// `None`: the log holds none of the aiding's records.
 fn evaluate_flight(
     a: &EvalArgs,
     f: &ManifestFlight,
     calibration: Option<&crate::calibrate_cmd::CalibrationFile>,
-) -> Result<FlightMetrics> {
-    let (loaded, rep) = evaluate_file(
+) -> Result<Option<FlightMetrics>> {
+    let evaluated = evaluate_file(
         &f.file,
         f.anchors.as_ref(),
         a.config.as_deref(),
@@ -108,16 +157,24 @@ fn evaluate_flight(
             aiding: a.aiding,
             segment: a.segment.or(f.segment),
         },
-    )?;
+    );
+    let (loaded, rep) = match evaluated {
+        Err(e) if NoFlowRecords::is_cause_of(&e) => {
+            tracing::warn!("{e}: left out");
+            return Ok(None);
+        }
+        r => r?,
+    };
     if let Some(dir) = &a.plot {
         write_plots(&rep, &loaded.data, &dir.join(figure_folder(&f.name)))
             .context("writing the figures")?;
     }
-    Ok(rep
-        .solutions
-        .into_iter()
-        .map(|s| (s.key, s.metrics))
-        .collect())
+    Ok(Some(
+        rep.solutions
+            .into_iter()
+            .map(|s| (s.key, s.metrics))
+            .collect(),
+    ))
 }
 
 /// A flight's name as one folder name: path separators and dots that could

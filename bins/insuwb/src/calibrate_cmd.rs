@@ -13,7 +13,7 @@ use anyhow::{bail, Context, Result};
 use insuwb_eval::batch::{self, FlightMetrics, Manifest, ManifestFlight};
 use insuwb_uwb::calibration::{Family, GridParams, Sample, SiteCalibration};
 
-use crate::dataset::{self, Loaded};
+use crate::dataset::{self, Loaded, NoFlowRecords};
 use crate::eval_cmd::{evaluate_ref, print_result};
 
 /// Model family on the command line.
@@ -211,6 +211,9 @@ struct Flight {
     anchors: BTreeMap<u32, [f64; 3]>,
     anchors_origin: String,
     samples: Vec<Sample>,
+    /// The log holds the records `--aiding` asked for (else the flight is
+    /// learnt from but not evaluated).
+    aided: bool,
 }
 
 fn load_flight(a: &CalibrateArgs, f: &ManifestFlight) -> Result<Flight> {
@@ -220,7 +223,14 @@ fn load_flight(a: &CalibrateArgs, f: &ManifestFlight) -> Result<Flight> {
         a.config.as_deref(),
         a.ignore_crc,
     )?;
-    loaded.use_aiding(a.aiding, &f.file)?;
+    let aided = match loaded.use_aiding(a.aiding, &f.file) {
+        Err(e) if NoFlowRecords::is_cause_of(&e) => {
+            tracing::warn!("{e}: learnt from, not evaluated");
+            loaded.use_aiding(dataset::Aiding::None, &f.file)?;
+            false
+        }
+        r => r.map(|()| true)?,
+    };
     if !loaded.recorded.is_empty() {
         bail!("{}: the log holds no IMU and UWB records", f.file.display());
     }
@@ -231,6 +241,7 @@ fn load_flight(a: &CalibrateArgs, f: &ManifestFlight) -> Result<Flight> {
         anchors,
         anchors_origin,
         samples,
+        aided,
     })
 }
 
@@ -454,10 +465,19 @@ fn cross_validate(
 ) -> Result<()> {
     let families = parse_candidates(a)?;
     let n = flights.len();
-    // Item k: family k / n (the last "family" is none: uncalibrated), flight k % n.
+    // The flights evaluated: those with the aiding's records (all without
+    // --aiding); every flight is learnt from.
+    let evaluated: Vec<usize> = (0..n).filter(|&i| flights[i].aided).collect();
+    let m = evaluated.len();
+    let (evaluated_manifest, _, left_out) = crate::batch_cmd::keep_evaluated(
+        manifest.clone(),
+        flights.iter().map(|f| f.aided.then_some(())).collect(),
+    )?;
+    // Item k: family k / m (the last "family" is none: uncalibrated), flight
+    // evaluated[k % m].
     let per_flight = costs(manifest);
-    let item_costs: Vec<u64> = (0..(families.len() + 1) * n)
-        .map(|k| per_flight[k % n])
+    let item_costs: Vec<u64> = (0..(families.len() + 1) * m)
+        .map(|k| per_flight[evaluated[k % m]])
         .collect();
     let quiet = tracing::Dispatch::new(
         tracing_subscriber::fmt()
@@ -470,7 +490,7 @@ fn cross_validate(
         jobs,
         |k| -> Result<FlightMetrics> {
             tracing::dispatcher::with_default(&quiet, || {
-                let (fam, i) = (k / n, k % n);
+                let (fam, i) = (k / m, evaluated[k % m]);
                 let f = &flights[i];
                 let mut fusion = f.loaded.config.fusion.clone();
                 if let Some(family) = families.get(fam) {
@@ -488,8 +508,12 @@ fn cross_validate(
         },
         |_, _| {},
     )
-    .map_err(|e| e.error.context(manifest.flight_label(e.index % n)))?;
-    let blocks: Vec<&[FlightMetrics]> = results.chunks(n).collect();
+    .map_err(|e| {
+        e.error
+            .context(manifest.flight_label(evaluated[e.index % m]))
+    })?;
+    let manifest = &evaluated_manifest;
+    let blocks: Vec<&[FlightMetrics]> = results.chunks(m).collect();
     let Some((uncal, cal)) = blocks.split_last() else {
         bail!("nothing evaluated");
     };
@@ -500,6 +524,13 @@ fn cross_validate(
         manifest.path.display(),
         n.saturating_sub(1)
     );
+    if !left_out.is_empty() {
+        table.push_str(&format!(
+            "{} of {n} flights learnt from but not evaluated, their logs hold no optical-flow records: {}\n",
+            left_out.len(),
+            left_out.join(", ")
+        ));
+    }
     for (family, r) in families.iter().zip(cal.iter()) {
         table.push_str(&format_flights(manifest, &family.label(), r, uncal));
     }
@@ -516,7 +547,7 @@ fn cross_validate(
         }
         let u = batch::to_json(manifest, uncal, &uncal_sum)
             .map_err(|e| anyhow::anyhow!("{}: {e}", manifest.path.display()))?;
-        Ok(serde_json::json!({ "uncalibrated": u, "families": fams }))
+        Ok(serde_json::json!({ "uncalibrated": u, "families": fams, "left_out": left_out }))
     })
 }
 

@@ -140,6 +140,24 @@ impl Aiding {
     }
 }
 
+/// A log holds none of the velocity measurements `--aiding` asked for: a
+/// single log stops with it; a manifest (`insuwb eval --flights`,
+/// `insuwb calibrate --cross-validate`) leaves the flight out and names it.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: no optical-flow velocities (a UTIL log's estFlow records, a project log's body_vel records of a flow source): --aiding flow needs a log of a vehicle with a flow deck", path.display())]
+pub struct NoFlowRecords {
+    /// The log.
+    pub path: PathBuf,
+}
+
+impl NoFlowRecords {
+    /// Whether `e`, or an error it wraps, is this one.
+    #[must_use]
+    pub fn is_cause_of(e: &anyhow::Error) -> bool {
+        e.chain().any(|c| c.is::<Self>())
+    }
+}
+
 /// What a run overrides of a log's settings (`insuwb eval --vehicle
 /// --aiding`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -222,10 +240,10 @@ impl Loaded {
                     .copied()
                     .collect();
                 if flow.is_empty() {
-                    bail!(
-                        "{}: no optical-flow velocities (a UTIL log's estFlow records, a project log's body_vel records of a flow source): --aiding flow needs a log of a vehicle with a flow deck",
-                        path.display()
-                    );
+                    return Err(NoFlowRecords {
+                        path: path.to_path_buf(),
+                    }
+                    .into());
                 }
                 self.data.velocity = flow;
                 self.data.height.clone_from(&self.height);
