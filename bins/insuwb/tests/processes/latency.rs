@@ -70,7 +70,7 @@ fn fixes_become_fused_states_that_follow_their_inputs() {
     let out = Command::new(insuwb())
         .arg("launch")
         .arg(dir.join("robot.toml"))
-        .args(["--duration", "10", "--json"])
+        .args(["--duration", "7", "--json"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -83,12 +83,12 @@ fn fixes_become_fused_states_that_follow_their_inputs() {
 
     let r = analyse(&records, &[], &AnalysisConfig::default()).unwrap();
     eprintln!(
-        "10 s group: {} fixes, {} missed, UWB -> fused p50 {:.0} us p99 {:.0} us, period jitter p50 {:.0} us p99 {:.0} us",
+        "7 s group: {} fixes, {} missed, UWB -> fused p50 {:.0} us p99 {:.0} us, period jitter p50 {:.0} us p99 {:.0} us",
         r.fixes, r.missed_cycles, r.e2e_uwb_fused.p50_us, r.e2e_uwb_fused.p99_us, r.jitter.p50_us, r.jitter.p99_us
     );
-    // About 8 s of data after the start epoch, less the INS alignment at rest.
+    // About 5 s of data after the start epoch, less the INS alignment at rest.
     assert!(
-        r.fixes >= 50,
+        r.fixes >= 30,
         "only {} fixes in the steady state: {r:?}",
         r.fixes
     );
@@ -128,7 +128,7 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
             "bench",
             "latency",
             "--duration",
-            "8",
+            "5",
             "--rounds",
             "1",
             "--json",
@@ -230,8 +230,8 @@ fn bench_latency_prints_one_json_object_with_the_issues_keys() {
         let rows: Vec<Vec<u64>> = lines
             .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
             .collect();
-        // 8 s minus the 1 s warm-up and 0.5 s tail at 10 Hz.
-        assert!(rows.len() >= 50, "{graph}: {} cycles", rows.len());
+        // 5 s minus the 1 s warm-up and 0.5 s tail at 10 Hz (35).
+        assert!(rows.len() >= 25, "{graph}: {} cycles", rows.len());
         for r in &rows {
             let (meas, uwb, imu, ins, fused, recv) = (r[1], r[2], r[3], r[4], r[5], r[6]);
             assert!(uwb >= meas && imu >= meas, "{graph}: {r:?}");

@@ -134,7 +134,7 @@ fn launch_cmd(cfg: &Path) -> Command {
 fn a_second_launch_of_a_running_group_is_refused_and_leaves_it_alone() {
     let _lock = one_at_a_time();
     let g = Group::new("twice", SIM, "iakf");
-    let mut first = start(&g, 10.0);
+    let mut first = start(&g, 7.0);
     wait_until_running(&g, &mut first);
     let pid = first.id();
 
@@ -183,7 +183,7 @@ fn a_second_launch_of_a_running_group_is_refused_and_leaves_it_alone() {
 fn a_stage_started_by_hand_beside_its_group_is_refused() {
     let _lock = one_at_a_time();
     let g = Group::new("byhand", SIM, "iakf");
-    let mut launcher = start(&g, 10.0);
+    let mut launcher = start(&g, 7.0);
     wait_until_running(&g, &mut launcher);
     let bin_dir = insuwb().parent().unwrap().to_owned();
     for role in [StageRole::Ins, StageRole::Fusion, StageRole::Imu] {

@@ -75,7 +75,7 @@ fn updates_after_restart(recs: &[Record], stage: &str) -> usize {
 #[test]
 fn group_runs_at_10hz_and_survives_a_sigkill_of_every_stage() {
     let _lock = lock();
-    let base = Group::new("base", SIM, "iakf").launch(10.0, &[]);
+    let base = Group::new("base", SIM, "iakf").launch(7.0, &[]);
     assert_fused_rate("undisturbed", &base);
     assert!((99.0..=101.0).contains(&f(&base, "imu_rate_hz")), "{base}");
     let base_rmse = f(&base, "rmse_horizontal");
@@ -84,11 +84,11 @@ fn group_runs_at_10hz_and_survives_a_sigkill_of_every_stage() {
 
     for stage in ["fusion", "imu", "uwb", "ins"] {
         let g = Group::new(stage, SIM, "iakf");
-        let r = g.launch(10.0, &[&format!("{stage}@4")]);
+        let r = g.launch(7.0, &[&format!("{stage}@3")]);
         assert!(f(&r, "restarts") >= 1.0, "{stage}: no restart: {r}");
         assert_fused_rate(stage, &r);
         // The group recovers: valid updates go on with the restarted stage
-        // (about 50 in the 5 s after a restart on a quiet machine).
+        // (about 40 in the 4 s after a restart on a quiet machine).
         let after = updates_after_restart(&records(&g.log_dir()), stage);
         assert!(
             after >= 10,
@@ -96,8 +96,8 @@ fn group_runs_at_10hz_and_survives_a_sigkill_of_every_stage() {
         );
         let gap = f(&r, "max_gap_ms");
         let rmse = f(&r, "rmse_horizontal");
-        eprintln!("{stage} killed at 4 s: rmse {rmse:.4} m (undisturbed {base_rmse:.4} m), max gap {gap:.0} ms, {after} valid updates after the restart, restarts {}", f(&r, "restarts"));
-        // One fault in 10 s costs a little: killed stages measured 0.84-1.32x
+        eprintln!("{stage} killed at 3 s: rmse {rmse:.4} m (undisturbed {base_rmse:.4} m), max gap {gap:.0} ms, {after} valid updates after the restart, restarts {}", f(&r, "restarts"));
+        // One fault in 7 s costs a little: killed stages measured 0.84-1.32x
         // the undisturbed error over clean-CI runs, and 0.95-1.10x with two
         // CPU hogs beside the group (the fix epochs around the restart
         // differ from run to run, and a busy machine drops a few fixes); a
@@ -199,16 +199,16 @@ fn replay_at_10x_through_the_processes_equals_eval() {
 }
 
 #[test]
-fn chaos_for_45_s_loses_nothing_and_leaves_nothing() {
+fn chaos_for_30_s_loses_nothing_and_leaves_nothing() {
     let _lock = lock();
     let out = Command::new(insuwb())
-        .args(["chaos", "--duration", "45", "--seed", "11", "--json"])
+        .args(["chaos", "--duration", "30", "--seed", "11", "--json"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "chaos failed:\n{stderr}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    eprintln!("chaos 45 s: {v}");
+    eprintln!("chaos 30 s: {v}");
     // No stretch of 5 s without a valid fused state; the longest gap (a
     // frozen stage: the 500 ms watchdog, then the restart) is a figure of
     // the chaos runs in docs/RELIABILITY.md.
@@ -217,7 +217,7 @@ fn chaos_for_45_s_loses_nothing_and_leaves_nothing() {
     // Where it was: inside the run, and named after the fault before it
     // (the first fault comes 1-5 s in; a gap before it names none).
     let at = f(&v, "max_gap_at_s");
-    assert!((0.0..45.0).contains(&at), "{v}");
+    assert!((0.0..30.0).contains(&at), "{v}");
     if at > 5.0 {
         let after = v["max_gap_after"].as_str().unwrap_or_default();
         assert!(
@@ -230,7 +230,9 @@ fn chaos_for_45_s_loses_nothing_and_leaves_nothing() {
     }
     assert_eq!(f(&v, "records_lost"), 0.0, "{v}");
     assert_eq!(f(&v, "leftover_files"), 0.0, "{v}");
-    assert!(f(&v, "faults") >= 12.0, "{v}");
+    // The seeded schedule holds 8 faults in 30 s (one every 1-5 s, none in
+    // the last 3 s); one at the edge may fall out.
+    assert!(f(&v, "faults") >= 6.0, "{v}");
     assert!(f(&v, "restarts") >= 1.0, "{v}");
     // Restarts cost accuracy only around the faults: against the same
     // scenario run undisturbed beside it. A restarted INS that lost its bias

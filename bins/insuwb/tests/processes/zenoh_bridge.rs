@@ -184,7 +184,7 @@ fn the_demo_publishes_as_its_robot_id_to_its_endpoint() {
     let out_json = dir.join("received.json");
     let mut sub = subscriber(&py, &endpoint, "d7", 2.0, &out_json);
     let mut demo = Command::new(insuwb())
-        .args(["demo", "--duration", "12", "--json", "--zenoh", &endpoint])
+        .args(["demo", "--duration", "8", "--json", "--zenoh", &endpoint])
         .args(["--robot", "d7"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
