@@ -28,10 +28,10 @@ use insuwb_runtime::monotonic_ns;
 use crate::common;
 use common::{f, insuwb, one_at_a_time as lock};
 
-/// Runs `insuwb demo` for 12 s with `extra` arguments; returns the JSON
+/// Runs `insuwb demo` for 10 s with `extra` arguments; returns the JSON
 /// report.
 fn demo(extra: &[&str]) -> serde_json::Value {
-    let mut args = vec!["--duration", "12"];
+    let mut args = vec!["--duration", "10"];
     args.extend_from_slice(extra);
     common::demo_json(&args)
 }

@@ -65,7 +65,7 @@ fn resident_memory_stays_flat_over_a_long_run_at_full_speed() {
         .replace("SCENARIO", &scenario_path.display().to_string());
     std::fs::write(&cfg, text).unwrap();
 
-    let run_s = 28.0;
+    let run_s = 22.0;
     let mut child = Command::new(insuwb())
         .arg("launch")
         .arg(&cfg)
@@ -87,7 +87,7 @@ fn resident_memory_stays_flat_over_a_long_run_at_full_speed() {
             break;
         }
         let s = sample(pid);
-        if start.is_empty() && t0.elapsed() >= Duration::from_secs(10) {
+        if start.is_empty() && t0.elapsed() >= Duration::from_secs(8) {
             start = s;
         } else if !start.is_empty() {
             end = s;
@@ -98,7 +98,7 @@ fn resident_memory_stays_flat_over_a_long_run_at_full_speed() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let states = v["rmse_states"].as_f64().unwrap_or(0.0);
     eprintln!(
-        "long run {run_s} s at speed max: {states} valid fused states compared with ground truth; RssAnon KiB at 10 s -> end: {}",
+        "long run {run_s} s at speed max: {states} valid fused states compared with ground truth; RssAnon KiB at 8 s -> end: {}",
         start
             .iter()
             .map(|(n, a)| format!("{n} {a} -> {}", end.get(n).map_or("gone".into(), |b| b.to_string())))

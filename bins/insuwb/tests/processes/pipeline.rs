@@ -199,16 +199,16 @@ fn replay_at_10x_through_the_processes_equals_eval() {
 }
 
 #[test]
-fn chaos_for_30_s_loses_nothing_and_leaves_nothing() {
+fn chaos_for_24_s_loses_nothing_and_leaves_nothing() {
     let _lock = lock();
     let out = Command::new(insuwb())
-        .args(["chaos", "--duration", "30", "--seed", "11", "--json"])
+        .args(["chaos", "--duration", "24", "--seed", "11", "--json"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "chaos failed:\n{stderr}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    eprintln!("chaos 30 s: {v}");
+    eprintln!("chaos 24 s: {v}");
     // No stretch of 5 s without a valid fused state; the longest gap (a
     // frozen stage: the 500 ms watchdog, then the restart) is a figure of
     // the chaos runs in docs/RELIABILITY.md.
@@ -217,7 +217,7 @@ fn chaos_for_30_s_loses_nothing_and_leaves_nothing() {
     // Where it was: inside the run, and named after the fault before it
     // (the first fault comes 1-5 s in; a gap before it names none).
     let at = f(&v, "max_gap_at_s");
-    assert!((0.0..30.0).contains(&at), "{v}");
+    assert!((0.0..24.0).contains(&at), "{v}");
     if at > 5.0 {
         let after = v["max_gap_after"].as_str().unwrap_or_default();
         assert!(
@@ -230,9 +230,9 @@ fn chaos_for_30_s_loses_nothing_and_leaves_nothing() {
     }
     assert_eq!(f(&v, "records_lost"), 0.0, "{v}");
     assert_eq!(f(&v, "leftover_files"), 0.0, "{v}");
-    // The seeded schedule holds 8 faults in 30 s (one every 1-5 s, none in
-    // the last 3 s); one at the edge may fall out.
-    assert!(f(&v, "faults") >= 6.0, "{v}");
+    // One fault every 1-5 s of the seeded schedule, none in the last 3 s
+    // (8 in 30 s).
+    assert!(f(&v, "faults") >= 4.0, "{v}");
     assert!(f(&v, "restarts") >= 1.0, "{v}");
     // Restarts cost accuracy only around the faults: against the same
     // scenario run undisturbed beside it. A restarted INS that lost its bias

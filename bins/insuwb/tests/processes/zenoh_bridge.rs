@@ -36,12 +36,12 @@ use serde_json::Value;
 
 const SIM: &str = "imu = \"sim\"\nuwb = \"sim\"\nscenario = \"nlos-long\"\nseed = 1";
 /// Seconds the group runs.
-const GROUP_S: f64 = 28.0;
+const GROUP_S: f64 = 23.0;
 /// Seconds the subscriber listens after its first pose.
-const LISTEN_S: f64 = 16.0;
+const LISTEN_S: f64 = 13.0;
 /// When the bridge gets SIGKILL, s after start: while the subscriber
 /// listens.
-const KILL_AT_S: f64 = 14.0;
+const KILL_AT_S: f64 = 10.0;
 /// Bound of every wait.
 const BOUND: Duration = Duration::from_secs(120);
 /// The robot id.
