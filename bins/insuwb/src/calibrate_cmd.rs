@@ -467,12 +467,15 @@ fn cross_validate(
     let n = flights.len();
     // The flights evaluated: those with the aiding's records (all without
     // --aiding); every flight is learnt from.
-    let evaluated: Vec<usize> = (0..n).filter(|&i| flights[i].aided).collect();
-    let m = evaluated.len();
-    let (evaluated_manifest, _, left_out) = crate::batch_cmd::keep_evaluated(
+    let (evaluated_manifest, evaluated, left_out) = crate::batch_cmd::keep_evaluated(
         manifest.clone(),
-        flights.iter().map(|f| f.aided.then_some(())).collect(),
+        flights
+            .iter()
+            .enumerate()
+            .map(|(i, f)| f.aided.then_some(i))
+            .collect(),
     )?;
+    let m = evaluated.len();
     // Item k: family k / m (the last "family" is none: uncalibrated), flight
     // evaluated[k % m].
     let per_flight = costs(manifest);
