@@ -220,8 +220,29 @@ impl Write for AboveBar {
 
 #[cfg(test)]
 mod tests {
-    use super::figure_folder;
+    use super::{figure_folder, keep_evaluated};
+    use insuwb_eval::batch::Manifest;
     use std::path::Path;
+
+    #[test]
+    fn flights_without_the_aiding_are_left_out_by_name_in_order() {
+        let path = Path::new("/m/flights.csv");
+        let text = "file,anchors,uwb_ls_ref_m\na,x.txt,0.1\nb,x.txt,0.2\nc,x.txt,0.3\n";
+        let m = Manifest::parse(text, path).unwrap();
+        let (kept, metrics, left_out) =
+            keep_evaluated(m.clone(), vec![Some(1), None, Some(3)]).unwrap();
+        let names: Vec<&str> = kept.flights.iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(names, ["a", "c"]);
+        assert_eq!(kept.flights[1].references, [Some(0.3)]);
+        assert_eq!(metrics, [1, 3]);
+        assert_eq!(left_out, ["b"]);
+        let err = keep_evaluated::<u8>(m, vec![None, None, None]).unwrap_err();
+        assert!(
+            err.to_string()
+                .starts_with("/m/flights.csv: no flight's log holds optical-flow records"),
+            "{err}"
+        );
+    }
 
     #[test]
     fn figure_folders_stay_inside_the_plot_folder() {
