@@ -576,18 +576,22 @@ fn flow_aiding_without_flow_records_stops_naming_the_file() {
     let Some(dir) = data_dir() else {
         return;
     };
+    // `insuwb eval ARGS --aiding flow`: it must fail; its standard error.
+    let refused = |args: &[&std::ffi::OsStr]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_insuwb"))
+            .arg("eval")
+            .args(args)
+            .args(["--aiding", "flow", "--filters", "iakf_tdoa"])
+            .env("RUST_LOG", "warn")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(!out.status.success(), "{err}");
+        err
+    };
     let log = dir.join("flight-175aea83");
-    let out = Command::new(env!("CARGO_BIN_EXE_insuwb"))
-        .arg("eval")
-        .arg(&log)
-        .arg("--anchors")
-        .arg(dir.join("anchors-const3.txt"))
-        .args(["--aiding", "flow", "--filters", "iakf_tdoa"])
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{err}");
+    let anchors = dir.join("anchors-const3.txt");
+    let err = refused(&[log.as_os_str(), "--anchors".as_ref(), anchors.as_os_str()]);
     assert!(
         err.contains(&format!("{}: no optical-flow velocities", log.display())),
         "{err}"
@@ -595,26 +599,10 @@ fn flow_aiding_without_flow_records_stops_naming_the_file() {
     let tmp = std::env::temp_dir().join(format!("insuwb-no-flow-{}", std::process::id()));
     std::fs::create_dir_all(&tmp).unwrap();
     let manifest = tmp.join("no-flow.csv");
-    std::fs::write(
-        &manifest,
-        format!(
-            "file,anchors,uwb_ls_ref_m\n{},{},0.105\n",
-            log.display(),
-            dir.join("anchors-const3.txt").display()
-        ),
-    )
-    .unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_insuwb"))
-        .arg("eval")
-        .arg("--flights")
-        .arg(&manifest)
-        .args(["--aiding", "flow", "--filters", "iakf_tdoa"])
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap();
+    let row = format!("{},{},0.105", log.display(), anchors.display());
+    std::fs::write(&manifest, format!("file,anchors,uwb_ls_ref_m\n{row}\n")).unwrap();
+    let err = refused(&["--flights".as_ref(), manifest.as_os_str()]);
     let _ = std::fs::remove_dir_all(&tmp);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{err}");
     assert!(
         err.contains(&format!(
             "{}: no flight's log holds optical-flow records",
