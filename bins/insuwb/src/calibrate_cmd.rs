@@ -300,33 +300,92 @@ fn constellation(manifest: &Manifest, flights: &[Flight]) -> Result<BTreeMap<u32
     Ok(first.anchors.clone())
 }
 
-/// An anchor whose offset over a flight is beyond this is named, m: on the
-/// shared UTIL flights the largest per flight is 0.06-0.23 m, but 0.37-0.46
-/// m on four (docs/REAL_FLIGHTS.md, "Site calibration").
+/// An anchor whose offset over a flight (after the frame's) is beyond this
+/// is named, m: on the shared UTIL flights the largest per flight is
+/// 0.03-0.24 m, 0.32 m on one (docs/REAL_FLIGHTS.md, "Site calibration").
 const ANCHOR_OFFSET_WARN_M: f64 = 0.3;
 
-/// Each flight's anchor offsets ([`insuwb_uwb::survey::anchor_offsets`]),
-/// by flight label; an anchor beyond [`ANCHOR_OFFSET_WARN_M`] is warned of.
-fn survey(manifest: &Manifest, flights: &[Flight]) -> Vec<(String, BTreeMap<u32, f64>)> {
+/// A frame offset longer than this is named, m: above the radio's
+/// in-flight error; on the shared UTIL flights 0.03-0.29 m, but 0.66-0.68
+/// m on two.
+const FRAME_OFFSET_WARN_M: f64 = 0.4;
+
+/// One flight's survey check ([`insuwb_uwb::survey`]).
+struct Survey {
+    /// The flight's name.
+    flight: String,
+    /// Its frame offset, if one was solved.
+    frame: Option<insuwb_uwb::survey::FrameOffset>,
+    /// Each anchor's offset, after the frame's.
+    anchors: BTreeMap<u32, f64>,
+}
+
+impl Survey {
+    fn to_json(&self) -> serde_json::Value {
+        let by_id: serde_json::Map<String, serde_json::Value> = self
+            .anchors
+            .iter()
+            .map(|(id, v)| (id.to_string(), (*v).into()))
+            .collect();
+        serde_json::json!({
+            "flight": self.flight,
+            "frame_offset_m": self.frame.map(|f| f.offset_m),
+            "frame_rms_before_m": self.frame.map(|f| f.rms_before_m),
+            "frame_rms_after_m": self.frame.map(|f| f.rms_after_m),
+            "offsets": by_id,
+        })
+    }
+}
+
+/// Each flight's frame offset ([`insuwb_uwb::survey::frame_offset`]) and
+/// anchor offsets after it ([`insuwb_uwb::survey::anchor_offsets`]); a
+/// frame beyond [`FRAME_OFFSET_WARN_M`] and an anchor beyond
+/// [`ANCHOR_OFFSET_WARN_M`] are warned of.
+fn survey(manifest: &Manifest, flights: &[Flight]) -> Vec<Survey> {
+    use insuwb_uwb::survey::{anchor_offsets, frame_offset, remove_frame_offset};
     let mut out = Vec::new();
     for (i, f) in flights.iter().enumerate() {
         if f.samples.is_empty() {
             continue;
         }
-        let name = f.loaded.data.name.clone();
-        match insuwb_uwb::survey::anchor_offsets(&f.samples) {
+        let label = manifest.flight_label(i);
+        let frame = match frame_offset(&f.samples, &f.anchors) {
+            Ok(o) => Some(o),
+            Err(e) => {
+                tracing::warn!("{label}: no frame offset: {e}");
+                None
+            }
+        };
+        let rest = frame.map(|o| remove_frame_offset(&f.samples, &f.anchors, &o.offset_m));
+        if let Some(o) = frame {
+            let [x, y, z] = o.offset_m;
+            if (x * x + y * y + z * z).sqrt() > FRAME_OFFSET_WARN_M {
+                tracing::warn!(
+                    "{label}: the radio places the tag ({x:+.2}, {y:+.2}, {z:+.2}) m (east, north, up) \
+                     from the ground truth over the whole flight (residual RMS {:.2} m, {:.2} m less \
+                     that): the anchors' survey and the ground truth's frame disagree; a \
+                     calibration learns it as this site's bias",
+                    o.rms_before_m,
+                    o.rms_after_m
+                );
+            }
+        }
+        match anchor_offsets(rest.as_deref().unwrap_or(&f.samples)) {
             Ok(o) => {
                 for (id, v) in o.iter().filter(|(_, v)| v.abs() > ANCHOR_OFFSET_WARN_M) {
                     tracing::warn!(
-                        "{}: anchor {id} reads {v:+.2} m against the others over the flight \
-                         (its survey, its antenna delay or the tag's frame): a calibration \
-                         learns it as this site's bias",
-                        manifest.flight_label(i)
+                        "{label}: anchor {id} reads {v:+.2} m against the others over the flight \
+                         (its survey or its antenna delay): a calibration learns it as this \
+                         site's bias"
                     );
                 }
-                out.push((name, o));
+                out.push(Survey {
+                    flight: f.loaded.data.name.clone(),
+                    frame,
+                    anchors: o,
+                });
             }
-            Err(e) => tracing::warn!("{}: no anchor offsets: {e}", manifest.flight_label(i)),
+            Err(e) => tracing::warn!("{label}: no anchor offsets: {e}"),
         }
     }
     out
@@ -443,14 +502,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
             "pairs": c.pairs().len(),
             "cells": cells,
             "noise_median_m": batch::median(&noise),
-            "anchor_offsets_m": offsets
-                .iter()
-                .map(|(name, o)| {
-                    let by_id: serde_json::Map<String, serde_json::Value> =
-                        o.iter().map(|(id, v)| (id.to_string(), (*v).into())).collect();
-                    serde_json::json!({ "flight": name, "offsets": by_id })
-                })
-                .collect::<Vec<_>>(),
+            "anchor_offsets_m": offsets.iter().map(Survey::to_json).collect::<Vec<_>>(),
         }))
     })
 }

@@ -313,7 +313,7 @@ pub(crate) fn median_of(v: &mut [f64]) -> Option<f64> {
 }
 
 /// Robust SD (1.4826 times the median absolute deviation from `centre`).
-fn robust_sd(v: &[f64], centre: f64) -> f64 {
+pub(crate) fn robust_sd(v: &[f64], centre: f64) -> f64 {
     let mut d: Vec<f64> = v.iter().map(|r| (r - centre).abs()).collect();
     MAD_TO_SD * median_of(&mut d).unwrap_or(0.0)
 }
