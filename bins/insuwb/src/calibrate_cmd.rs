@@ -337,40 +337,34 @@ impl Survey {
     }
 }
 
-/// Each flight's frame offset ([`insuwb_uwb::survey::frame_offset`]) and
-/// anchor offsets after it ([`insuwb_uwb::survey::anchor_offsets`]); a
-/// frame beyond [`FRAME_OFFSET_WARN_M`] and an anchor beyond
+/// Each flight's survey check ([`insuwb_uwb::survey::check`]); a frame
+/// beyond [`FRAME_OFFSET_WARN_M`] and an anchor beyond
 /// [`ANCHOR_OFFSET_WARN_M`] are warned of.
 fn survey(manifest: &Manifest, flights: &[Flight]) -> Vec<Survey> {
-    use insuwb_uwb::survey::{anchor_offsets, frame_offset, remove_frame_offset};
     let mut out = Vec::new();
     for (i, f) in flights.iter().enumerate() {
         if f.samples.is_empty() {
             continue;
         }
         let label = manifest.flight_label(i);
-        let frame = match frame_offset(&f.samples, &f.anchors) {
-            Ok(o) => Some(o),
-            Err(e) => {
-                tracing::warn!("{label}: no frame offset: {e}");
-                None
+        let check = insuwb_uwb::survey::check(&f.samples, &f.anchors);
+        match &check.frame {
+            Ok(o) => {
+                let [x, y, z] = o.offset_m;
+                if (x * x + y * y + z * z).sqrt() > FRAME_OFFSET_WARN_M {
+                    tracing::warn!(
+                        "{label}: the radio places the tag ({x:+.2}, {y:+.2}, {z:+.2}) m (east, north, \
+                         up) from the ground truth over the whole flight (residual RMS {:.2} m, \
+                         {:.2} m less that): the anchors' survey and the ground truth's frame \
+                         disagree; a calibration learns it as this site's bias",
+                        o.rms_before_m,
+                        o.rms_after_m
+                    );
+                }
             }
-        };
-        let rest = frame.map(|o| remove_frame_offset(&f.samples, &f.anchors, &o.offset_m));
-        if let Some(o) = frame {
-            let [x, y, z] = o.offset_m;
-            if (x * x + y * y + z * z).sqrt() > FRAME_OFFSET_WARN_M {
-                tracing::warn!(
-                    "{label}: the radio places the tag ({x:+.2}, {y:+.2}, {z:+.2}) m (east, north, up) \
-                     from the ground truth over the whole flight (residual RMS {:.2} m, {:.2} m less \
-                     that): the anchors' survey and the ground truth's frame disagree; a \
-                     calibration learns it as this site's bias",
-                    o.rms_before_m,
-                    o.rms_after_m
-                );
-            }
+            Err(e) => tracing::warn!("{label}: no frame offset: {e}"),
         }
-        match anchor_offsets(rest.as_deref().unwrap_or(&f.samples)) {
+        match check.anchors {
             Ok(o) => {
                 for (id, v) in o.iter().filter(|(_, v)| v.abs() > ANCHOR_OFFSET_WARN_M) {
                     tracing::warn!(
@@ -381,7 +375,7 @@ fn survey(manifest: &Manifest, flights: &[Flight]) -> Vec<Survey> {
                 }
                 out.push(Survey {
                     flight: f.loaded.data.name.clone(),
-                    frame,
+                    frame: check.frame.ok(),
                     anchors: o,
                 });
             }

@@ -25,8 +25,9 @@
 //!   and eight offsets trade against each other over one flight's
 //!   geometry (on the UTIL flights by up to a metre).
 //!
-//! Either is a flight's bias that a site calibration learns, and one no
-//! filter can tell from the position within the flight.
+//! [`check`] runs both in that order. Either is a flight's bias that a site
+//! calibration learns, and one no filter can tell from the position within
+//! the flight.
 //!
 //! Written here, not with a crate: two weighted least-squares fits (a 3 x 3
 //! normal matrix; the anchor graph's Laplacian), a few lines of nalgebra.
@@ -217,6 +218,29 @@ pub fn remove_frame_offset(
             }
         })
         .collect()
+}
+
+/// A flight's survey check: its frame offset, then each anchor's offset
+/// on what the frame leaves (on the residuals themselves where no frame
+/// could be solved).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurveyCheck {
+    /// The frame offset ([`frame_offset`]).
+    pub frame: Result<FrameOffset, FrameOffsetError>,
+    /// Each anchor's offset ([`anchor_offsets`]) after the frame's.
+    pub anchors: Result<BTreeMap<u32, f64>, AnchorOffsetsError>,
+}
+
+/// The survey check of one flight's residuals `samples` (anchor positions
+/// `anchors`): the frame first, the simpler explanation, then the anchors.
+#[must_use]
+pub fn check(samples: &[Sample], anchors: &BTreeMap<u32, [f64; 3]>) -> SurveyCheck {
+    let frame = frame_offset(samples, anchors);
+    let anchors = match &frame {
+        Ok(f) => anchor_offsets(&remove_frame_offset(samples, anchors, &f.offset_m)),
+        Err(_) => anchor_offsets(samples),
+    };
+    SurveyCheck { frame, anchors }
 }
 
 /// A sample's pair key (lower id first) and its residual in that order.
@@ -464,8 +488,7 @@ mod tests {
         let anchors = constellation(0.2, 3.0);
         let offset = |id: u32| if id == 5 { 0.4 } else { 0.0 };
         let s = translated_flight(&anchors, [0.0, 0.1, -0.3], |a, b| offset(b) - offset(a));
-        let f = frame_offset(&s, &anchors).unwrap();
-        let o = anchor_offsets(&remove_frame_offset(&s, &anchors, &f.offset_m)).unwrap();
+        let o = check(&s, &anchors).anchors.unwrap();
         let (worst, v) = o
             .iter()
             .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
