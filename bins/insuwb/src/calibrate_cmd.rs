@@ -321,6 +321,38 @@ struct Survey {
 }
 
 impl Survey {
+    /// The table of the survey checks, a flight a row.
+    fn table(all: &[Self]) -> String {
+        use std::fmt::Write as _;
+        let mut t = String::from(
+            "survey check (the radio's frame against the ground truth's, then the anchor \
+             furthest off after it):\nflight                  frame e/n/u (m)     residual RMS (m)  \
+             anchor\n",
+        );
+        for s in all {
+            let name = Path::new(&s.flight)
+                .file_name()
+                .map_or(s.flight.clone(), |n| n.to_string_lossy().into_owned());
+            let frame = s.frame.map_or_else(
+                || format!("{:<19} {:<17}", "-", "-"),
+                |f| {
+                    let [x, y, z] = f.offset_m;
+                    format!(
+                        "{x:+.2} {y:+.2} {z:+.2}   {:.3} -> {:.3}",
+                        f.rms_before_m, f.rms_after_m
+                    )
+                },
+            );
+            let worst = s
+                .anchors
+                .iter()
+                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                .map_or_else(|| "-".to_owned(), |(id, v)| format!("{id}: {v:+.2}"));
+            let _ = writeln!(t, "{name:<23} {frame}    {worst}");
+        }
+        t
+    }
+
     fn to_json(&self) -> serde_json::Value {
         let by_id: serde_json::Map<String, serde_json::Value> = self
             .anchors
@@ -479,7 +511,8 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     noise.sort_by(f64::total_cmp);
     let cells: usize = c.pairs().values().map(|p| p.cells.len()).sum();
     let table = format!(
-        "{}: {} from {with_truth} flights of {}: {} anchors, {} pairs, {cells} cells, noise after the bias {:.3} m at the median pair\n",
+        "{}{}: {} from {with_truth} flights of {}: {} anchors, {} pairs, {cells} cells, noise after the bias {:.3} m at the median pair\n",
+        Survey::table(&offsets),
         out.display(),
         family.label(),
         manifest.path.display(),

@@ -313,6 +313,11 @@ fn the_frames_and_anchors_a_flight_reads_off_are_named() {
     }
     moved.sort();
     assert_eq!(moved, ["flight-4f5069f6", "flight-daf31394"]);
+    // The table of every flight's check, on standard error beside the JSON.
+    assert!(
+        stderr.contains("survey check (the radio's frame") && stderr.contains("1: +0.3"),
+        "{stderr}"
+    );
     for name in &moved {
         assert!(
             stderr.contains(&format!("{name} (")) && stderr.contains("the radio places the tag"),
