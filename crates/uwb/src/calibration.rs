@@ -312,6 +312,17 @@ pub(crate) fn median_of(v: &mut [f64]) -> Option<f64> {
     })
 }
 
+/// A pair's residuals `v` (sorted in place): their median and the distance
+/// from it beyond which one is a gross outlier ([`GROSS_SIGMAS`] robust
+/// SDs, at least [`GROSS_MIN_M`]); `None` when empty.
+pub(crate) fn gross_gate(v: &mut [f64]) -> Option<(f64, f64)> {
+    let centre = median_of(v)?;
+    Some((
+        centre,
+        (GROSS_SIGMAS * robust_sd(v, centre)).max(GROSS_MIN_M),
+    ))
+}
+
 /// Robust SD (1.4826 times the median absolute deviation from `centre`).
 pub(crate) fn robust_sd(v: &[f64], centre: f64) -> f64 {
     let mut d: Vec<f64> = v.iter().map(|r| (r - centre).abs()).collect();
@@ -424,10 +435,9 @@ impl SiteCalibration {
                 continue;
             }
             let mut all: Vec<f64> = rows.iter().map(|r| r.1).collect();
-            let Some(centre) = median_of(&mut all) else {
+            let Some((centre, gate)) = gross_gate(&mut all) else {
                 continue;
             };
-            let gate = (GROSS_SIGMAS * robust_sd(&all, centre)).max(GROSS_MIN_M);
             let inliers: Vec<&Located> = rows
                 .iter()
                 .filter(|r| (r.1 - centre).abs() <= gate)

@@ -7,8 +7,10 @@
 //! - [`frame_offset`]: the one translation `t` of the tag that explains the
 //!   residuals best. A difference read at `p + t` instead of `p` is off by
 //!   `g · t`, `g` the gradient of `|p - b| - |p - a|` at `p`; `t` is the
-//!   least-squares solution over every sample (each pair's gross outliers
-//!   left out as [`crate::calibration`] leaves them out). An anchor survey
+//!   least-squares solution over every sample, then reweighted (Huber, at
+//!   1.5 robust SDs of what it leaves) so that NLOS stretches do not pull
+//!   it; each pair's gross outliers are left out first, as
+//!   [`crate::calibration`] leaves them out. An anchor survey
 //!   whose origin is not the reference's (or a reference frame moved
 //!   between flights) shows here, for the whole flight, and no estimator
 //!   without the reference can tell it from the position.
@@ -36,7 +38,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
-use crate::calibration::{median_of, robust_sd, Sample, GROSS_MIN_M, GROSS_SIGMAS};
+use crate::calibration::{gross_gate, median_of, robust_sd, Sample};
 
 /// Fewest samples of a pair for its median to count.
 pub const MIN_PAIR_SAMPLES: usize = 20;
@@ -127,9 +129,8 @@ pub fn frame_offset(
         if v.len() < MIN_PAIR_SAMPLES {
             continue;
         }
-        if let Some(centre) = median_of(&mut v) {
-            let gate = (GROSS_SIGMAS * robust_sd(&v, centre)).max(GROSS_MIN_M);
-            gates.insert(key, (centre, gate));
+        if let Some(gate) = gross_gate(&mut v) {
+            gates.insert(key, gate);
         }
     }
     let mut used = Vec::new();
