@@ -334,7 +334,7 @@ impl Survey {
                 .file_name()
                 .map_or(s.flight.clone(), |n| n.to_string_lossy().into_owned());
             let frame = s.frame.map_or_else(
-                || format!("{:<19} {:<17}", "-", "-"),
+                || format!("{:<17}   {:<14}", "-", "-"),
                 |f| {
                     let [x, y, z] = f.offset_m;
                     format!(
