@@ -50,6 +50,11 @@ pub struct CalibrateArgs {
     /// samples keeps n / (n + this) of its departure.
     #[arg(long, default_value_t = GridParams::default().shrink_count)]
     pub shrink_count: f64,
+    /// The share of each grid cell's departure from its pair's constant
+    /// that the calibration applies, in [0, 1] (0: the pair's constant, 1:
+    /// the cell's median).
+    #[arg(long, default_value_t = GridParams::default().weight)]
+    pub cell_weight: f64,
     /// Take the value of the cell holding the position instead of
     /// interpolating bilinearly between cell centres.
     #[arg(long)]
@@ -59,8 +64,10 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "out")]
     pub cross_validate: bool,
     /// Candidate families for --cross-validate, comma-separated:
-    /// `pair_constant`, `grid:CELL_M` (bilinear) or `grid:CELL_M:nearest`
-    /// (default: pair_constant,grid:0.5,grid:1,grid:2,grid:1:nearest).
+    /// `pair_constant` or `grid:CELL_M`, followed by `:nearest` (else
+    /// bilinear) and `:wWEIGHT` (the cells' weight, else --cell-weight) in
+    /// any order (default: pair_constant,grid:0.5,grid:1,grid:2,grid:1:w1,
+    /// grid:1:nearest).
     #[arg(long, requires = "cross_validate")]
     pub candidates: Option<String>,
     /// Config file or preset name (default: the loader's choice per log, as for `insuwb eval`).
@@ -441,6 +448,7 @@ fn family_of(a: &CalibrateArgs) -> Family {
             cell_m: a.cell_m,
             min_count: a.min_count,
             shrink_count: a.shrink_count,
+            weight: a.cell_weight,
             bilinear: !a.nearest,
         }),
     }
@@ -451,32 +459,44 @@ fn parse_candidates(a: &CalibrateArgs) -> Result<Vec<Family>> {
     let text = a
         .candidates
         .as_deref()
-        .unwrap_or("pair_constant,grid:0.5,grid:1,grid:2,grid:1:nearest");
-    let grid = |cell_m: f64, bilinear: bool| {
-        Family::Grid(GridParams {
-            cell_m,
-            min_count: a.min_count,
-            shrink_count: a.shrink_count,
-            bilinear,
-        })
-    };
+        .unwrap_or("pair_constant,grid:0.5,grid:1,grid:2,grid:1:w1,grid:1:nearest");
     text.split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
         .map(|s| {
             let parts: Vec<&str> = s.split(':').collect();
-            let cell = |p: &str| {
-                p.parse::<f64>()
-                    .with_context(|| format!("--candidates: '{s}': '{p}' is not a cell size in m"))
-            };
             match parts.as_slice() {
                 ["pair_constant"] => Ok(Family::PairConstant),
-                ["grid"] => Ok(grid(a.cell_m, !a.nearest)),
-                ["grid", c] => Ok(grid(cell(c)?, true)),
-                ["grid", c, "nearest"] => Ok(grid(cell(c)?, false)),
-                ["grid", c, "bilinear"] => Ok(grid(cell(c)?, true)),
+                ["grid", rest @ ..] => {
+                    let mut g = GridParams {
+                        cell_m: a.cell_m,
+                        min_count: a.min_count,
+                        shrink_count: a.shrink_count,
+                        weight: a.cell_weight,
+                        bilinear: !a.nearest,
+                    };
+                    for (i, p) in rest.iter().enumerate() {
+                        if i == 0 {
+                            g.cell_m = p.parse().with_context(|| {
+                                format!("--candidates: '{s}': '{p}' is not a cell size in m")
+                            })?;
+                            g.bilinear = true;
+                        } else if *p == "nearest" {
+                            g.bilinear = false;
+                        } else if *p == "bilinear" {
+                            g.bilinear = true;
+                        } else if let Some(w) = p.strip_prefix('w') {
+                            g.weight = w.parse().with_context(|| {
+                                format!("--candidates: '{s}': '{w}' is not a weight")
+                            })?;
+                        } else {
+                            bail!("--candidates: '{s}': '{p}' is neither `nearest` nor `wWEIGHT`");
+                        }
+                    }
+                    Ok(Family::Grid(g))
+                }
                 _ => bail!(
-                    "--candidates: '{s}' is not a family (pair_constant, grid:CELL_M, grid:CELL_M:nearest)"
+                    "--candidates: '{s}' is not a family (pair_constant, grid:CELL_M[:nearest][:wWEIGHT])"
                 ),
             }
         })

@@ -67,6 +67,13 @@ pub struct GridParams {
     /// Shrinkage: a cell of `n` samples keeps `n / (n + shrink_count)` of
     /// its median's departure from the pair's constant.
     pub shrink_count: f64,
+    /// The share of each cell's departure (after `shrink_count`) that the
+    /// calibration applies, in [0, 1]: 0 is the pair's constant, 1 the
+    /// cell's median. What a cell learnt on some flights holds repeats
+    /// only in part on others (the vehicle, the survey day), and leave
+    /// one flight out scores half best on the UTIL flights
+    /// (docs/REAL_FLIGHTS.md, "Site calibration").
+    pub weight: f64,
     /// Interpolate bilinearly between the four cell centres around the
     /// position (else: the value of the cell holding it).
     pub bilinear: bool,
@@ -78,6 +85,7 @@ impl Default for GridParams {
             cell_m: 1.0,
             min_count: 20,
             shrink_count: 20.0,
+            weight: 0.5,
             bilinear: true,
         }
     }
@@ -108,9 +116,10 @@ impl Family {
         match self {
             Self::PairConstant => "pair_constant".to_owned(),
             Self::Grid(g) => format!(
-                "grid {} m{}",
+                "grid {} m{} weight {}",
                 g.cell_m,
-                if g.bilinear { " bilinear" } else { "" }
+                if g.bilinear { " bilinear" } else { "" },
+                g.weight
             ),
         }
     }
@@ -128,6 +137,9 @@ impl Family {
                     "shrink_count",
                     format!("must be finite and >= 0, got {}", g.shrink_count),
                 ));
+            }
+            if !(0.0..=1.0).contains(&g.weight) {
+                return Err(("weight", format!("must be in [0, 1], got {}", g.weight)));
             }
             if g.min_count == 0 {
                 return Err(("min_count", "must be >= 1, got 0".to_owned()));
@@ -467,7 +479,7 @@ impl SiteCalibration {
                         continue;
                     }
                     if let Some(m) = median_of(&mut v) {
-                        let w = n as f64 / (n as f64 + g.shrink_count);
+                        let w = g.weight * n as f64 / (n as f64 + g.shrink_count);
                         model.cells.insert(c, (bias_m + w * (m - bias_m), n32));
                     }
                 }
@@ -603,12 +615,13 @@ impl SiteCalibration {
     /// # Errors
     /// The serialiser's message (not expected for a learnt calibration).
     pub fn to_toml(&self) -> Result<String, String> {
-        let (cell_m, min_count, shrink_count, bilinear) = match &self.family {
-            Family::PairConstant => (None, None, None, None),
+        let (cell_m, min_count, shrink_count, weight, bilinear) = match &self.family {
+            Family::PairConstant => (None, None, None, None, None),
             Family::Grid(g) => (
                 Some(g.cell_m),
                 Some(g.min_count),
                 Some(g.shrink_count),
+                Some(g.weight),
                 Some(g.bilinear),
             ),
         };
@@ -619,6 +632,7 @@ impl SiteCalibration {
                 cell_m,
                 min_count,
                 shrink_count,
+                weight,
                 bilinear,
                 anchors: self
                     .anchors
@@ -719,6 +733,9 @@ impl SiteCalibration {
                         .ok_or_else(|| invalid("site.cell_m".into(), "missing".into()))?,
                     min_count: s.min_count.unwrap_or(d.min_count),
                     shrink_count: s.shrink_count.unwrap_or(d.shrink_count),
+                    // A file without it was learnt with the cells' whole
+                    // departure.
+                    weight: s.weight.unwrap_or(1.0),
                     bilinear: s.bilinear.unwrap_or(d.bilinear),
                 })
             }
@@ -824,6 +841,8 @@ struct SiteRepr {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     shrink_count: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    weight: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     bilinear: Option<bool>,
     anchors: Vec<AnchorRepr>,
 }
@@ -928,10 +947,19 @@ mod tests {
             cell_m: 0.5,
             min_count: 5,
             shrink_count: 0.0,
+            weight: 1.0,
             bilinear: true,
         });
         let c = SiteCalibration::learn(anchors(), grid, &s).unwrap();
         let k = SiteCalibration::learn(anchors(), Family::PairConstant, &s).unwrap();
+        let half = Family::Grid(GridParams {
+            cell_m: 0.5,
+            min_count: 5,
+            shrink_count: 0.0,
+            weight: 0.5,
+            bilinear: true,
+        });
+        let h = SiteCalibration::learn(anchors(), half, &s).unwrap();
         assert_eq!(c.pairs().len(), 4);
         for p in [[-2.2, 1.3, 1.0], [0.4, -0.7, 1.0], [2.0, 2.0, 1.0]] {
             for (a, b) in [(0, 1), (1, 2), (2, 3), (0, 3)] {
@@ -945,6 +973,9 @@ mod tests {
                 let at0 = true_bias(a, b, &[0.0, 0.0, 0.0]);
                 assert!((k.bias(a, b, Some(&p)) - at0).abs() < 0.02);
                 assert!((c.bias(a, b, None) - at0).abs() < 0.02);
+                // Half the cells' departure from the constant.
+                let mid = 0.5 * (c.bias(a, b, Some(&p)) + k.bias(a, b, Some(&p)));
+                assert!((h.bias(a, b, Some(&p)) - mid).abs() < 1e-9);
             }
         }
         // Noise: uniform 0.1 m wide, SD 0.029 (robust SD about 0.037).
@@ -1079,6 +1110,16 @@ mod tests {
         )
         .unwrap_err();
         assert!(matches!(e, LearnError::Family { key: "cell_m", .. }), "{e}");
+        let e = SiteCalibration::learn(
+            anchors(),
+            Family::Grid(GridParams {
+                weight: 1.5,
+                ..GridParams::default()
+            }),
+            &samples(),
+        )
+        .unwrap_err();
+        assert!(matches!(e, LearnError::Family { key: "weight", .. }), "{e}");
         let e = SiteCalibration::learn(anchors(), Family::PairConstant, &[]).unwrap_err();
         assert_eq!(e, LearnError::TooFewSamples { samples: 0 });
     }

@@ -35,8 +35,8 @@ const FAMILY: &str = "grid:1";
 
 /// Today's cross-validated figures with a margin, ratio to
 /// [`REFERENCE`]: (solution, largest median, largest worst, most flights
-/// above 1), calibrated with [`FAMILY`]. Today: the fix 0.906 / 1.228 / 5,
-/// the tight filter 0.742 / 0.996 / 0 (docs/REAL_FLIGHTS.md).
+/// above 1), calibrated with [`FAMILY`]. Today: the fix 0.900 / 1.178 / 5,
+/// the tight filter 0.730 / 0.980 / 0 (docs/REAL_FLIGHTS.md).
 const BOUNDS: [(&str, f64, f64, usize); 2] = [("uwb", 0.95, 1.30, 8), ("iakf_tdoa", 0.80, 1.05, 2)];
 
 fn data_dir() -> Option<PathBuf> {
@@ -129,7 +129,7 @@ fn cross_validated_figures_hold() {
 const WITHOUT_FLOW: usize = 7;
 
 /// The flow deck and the site calibration together (`--aiding flow`):
-/// today the tight filter 0.676 / 1.010 / 1 of 16 (flight-1229e2e7), against
+/// today the tight filter 0.667 / 0.996 / 0 of 16, against
 /// 0.814 / 1.105 / 2 uncalibrated with the flow (docs/REAL_FLIGHTS.md);
 /// held to 0.75 / 1.1 / 2, and the uncalibrated to 0.9 / 1.2.
 #[test]
