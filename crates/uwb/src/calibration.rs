@@ -1100,26 +1100,18 @@ mod tests {
 
     #[test]
     fn bad_settings_are_refused() {
-        let e = SiteCalibration::learn(
-            anchors(),
-            Family::Grid(GridParams {
-                cell_m: 0.0,
-                ..GridParams::default()
-            }),
-            &samples(),
-        )
-        .unwrap_err();
-        assert!(matches!(e, LearnError::Family { key: "cell_m", .. }), "{e}");
-        let e = SiteCalibration::learn(
-            anchors(),
-            Family::Grid(GridParams {
-                weight: 1.5,
-                ..GridParams::default()
-            }),
-            &samples(),
-        )
-        .unwrap_err();
-        assert!(matches!(e, LearnError::Family { key: "weight", .. }), "{e}");
+        let d = GridParams::default();
+        for (bad, key) in [
+            (GridParams { cell_m: 0.0, ..d }, "cell_m"),
+            (GridParams { weight: 1.5, ..d }, "weight"),
+            (GridParams { weight: -0.1, ..d }, "weight"),
+        ] {
+            let e = SiteCalibration::learn(anchors(), Family::Grid(bad), &samples()).unwrap_err();
+            assert!(
+                matches!(e, LearnError::Family { key: k, .. } if k == key),
+                "{e}"
+            );
+        }
         let e = SiteCalibration::learn(anchors(), Family::PairConstant, &[]).unwrap_err();
         assert_eq!(e, LearnError::TooFewSamples { samples: 0 });
     }
