@@ -66,8 +66,8 @@ pub struct CalibrateArgs {
     /// Candidate families for --cross-validate, comma-separated:
     /// `pair_constant` or `grid:CELL_M`, followed by `:nearest` (else
     /// bilinear) and `:wWEIGHT` (the cells' weight, else --cell-weight) in
-    /// any order (default: pair_constant,grid:0.5,grid:1,grid:2,grid:1:w1,
-    /// grid:1:nearest).
+    /// any order (default:
+    /// pair_constant,grid:0.5,grid:1,grid:2,grid:1:w1,grid:1:nearest).
     #[arg(long, requires = "cross_validate")]
     pub candidates: Option<String>,
     /// Config file or preset name (default: the loader's choice per log, as for `insuwb eval`).
