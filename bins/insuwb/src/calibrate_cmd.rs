@@ -763,7 +763,55 @@ fn format_summary(
 mod tests {
     #![allow(clippy::unwrap_used)]
 
-    use super::rotate;
+    use super::{parse_candidates, rotate, CalibrateArgs};
+    use clap::Parser;
+    use insuwb_uwb::calibration::{Family, GridParams};
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: CalibrateArgs,
+    }
+
+    fn candidates(text: &str) -> anyhow::Result<Vec<Family>> {
+        let cli = Cli::try_parse_from(
+            ["calibrate", "--flights", "m.csv", "--cross-validate"]
+                .into_iter()
+                .chain(["--candidates", text]),
+        )?;
+        parse_candidates(&cli.args)
+    }
+
+    #[test]
+    fn candidates_name_the_cell_its_lookup_and_its_weight() {
+        let d = GridParams::default();
+        let got = candidates(
+            "pair_constant, grid:2, grid:1:w1, grid:1:nearest:w0.25, grid:0.5:w0:bilinear",
+        )
+        .unwrap();
+        assert_eq!(
+            got,
+            [
+                Family::PairConstant,
+                Family::Grid(GridParams { cell_m: 2.0, ..d }),
+                Family::Grid(GridParams { weight: 1.0, ..d }),
+                Family::Grid(GridParams {
+                    weight: 0.25,
+                    bilinear: false,
+                    ..d
+                }),
+                Family::Grid(GridParams {
+                    cell_m: 0.5,
+                    weight: 0.0,
+                    ..d
+                }),
+            ]
+        );
+        for bad in ["grid:x", "grid:1:wx", "grid:1:far", "table:1"] {
+            let e = candidates(bad).unwrap_err().to_string();
+            assert!(e.contains(bad), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn rotation_by_a_quaternion() {
