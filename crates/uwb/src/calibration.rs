@@ -1044,6 +1044,11 @@ mod tests {
         let text = "format_version = 1\n[site]\nfamily = \"pair_constant\"\nanchors = [{ id = 0, pos_m = [0, 0, 0] }, { id = 1, pos_m = [1, 0, 0] }]\n[[pairs]]\na = 1\nb = 0\nbias_m = 0.1\nnoise_m = 0.2\n";
         let c = SiteCalibration::from_toml(text, "x.toml").unwrap();
         assert_eq!(c.bias(0, 1, None), -0.1);
+        // A grid file without `weight` was learnt with the cells' whole
+        // departure.
+        let old = text.replace("\"pair_constant\"", "\"grid\"\ncell_m = 1.0");
+        let c = SiteCalibration::from_toml(&old, "x.toml").unwrap();
+        assert!(matches!(c.family(), Family::Grid(g) if g.weight == 1.0));
         let e = SiteCalibration::from_toml(&text.replace("= 1\n[site]", "= 7\n[site]"), "x.toml")
             .unwrap_err()
             .to_string();
