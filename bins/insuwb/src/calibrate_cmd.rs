@@ -444,13 +444,18 @@ fn learn(
 fn family_of(a: &CalibrateArgs) -> Family {
     match a.model {
         ModelArg::PairConstant => Family::PairConstant,
-        ModelArg::Grid => Family::Grid(GridParams {
-            cell_m: a.cell_m,
-            min_count: a.min_count,
-            shrink_count: a.shrink_count,
-            weight: a.cell_weight,
-            bilinear: !a.nearest,
-        }),
+        ModelArg::Grid => Family::Grid(grid_of(a)),
+    }
+}
+
+/// The grid's settings on the command line.
+fn grid_of(a: &CalibrateArgs) -> GridParams {
+    GridParams {
+        cell_m: a.cell_m,
+        min_count: a.min_count,
+        shrink_count: a.shrink_count,
+        weight: a.cell_weight,
+        bilinear: !a.nearest,
     }
 }
 
@@ -468,20 +473,16 @@ fn parse_candidates(a: &CalibrateArgs) -> Result<Vec<Family>> {
             match parts.as_slice() {
                 ["pair_constant"] => Ok(Family::PairConstant),
                 ["grid", rest @ ..] => {
-                    let mut g = GridParams {
-                        cell_m: a.cell_m,
-                        min_count: a.min_count,
-                        shrink_count: a.shrink_count,
-                        weight: a.cell_weight,
-                        bilinear: !a.nearest,
+                    let mut g = grid_of(a);
+                    let Some((cell, options)) = rest.split_first() else {
+                        return Ok(Family::Grid(g));
                     };
-                    for (i, p) in rest.iter().enumerate() {
-                        if i == 0 {
-                            g.cell_m = p.parse().with_context(|| {
-                                format!("--candidates: '{s}': '{p}' is not a cell size in m")
-                            })?;
-                            g.bilinear = true;
-                        } else if *p == "nearest" {
+                    g.cell_m = cell.parse().with_context(|| {
+                        format!("--candidates: '{s}': '{cell}' is not a cell size in m")
+                    })?;
+                    g.bilinear = true;
+                    for p in options {
+                        if *p == "nearest" {
                             g.bilinear = false;
                         } else if *p == "bilinear" {
                             g.bilinear = true;
