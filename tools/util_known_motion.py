@@ -16,7 +16,7 @@ estimator would leave it out (truth does not choose them):
             against the offset so far (the first epoch's: its fix's):
             what a filter whose velocity sensor were perfect (and whose
             heading were right) would do with the radio, with a memory of
-            W seconds (1, 3, 10 s).
+            W seconds (1, 3, 10 s; `--memories W,W,...` for others).
 
 With `--flow` (the flights whose logs hold the flow deck's records), the
 motion is no longer the truth's but dead-reckoned from the deck's body
@@ -33,7 +33,7 @@ The offset's fit is linearised at the truth (the differences' geometry
 there); truth starts the solver and scores it, and gives the trajectory:
 an analysis of the data, not an estimator.
 
-Usage: python3 tools/util_known_motion.py DATA_DIR [--flow] [FLIGHT ...]
+Usage: python3 tools/util_known_motion.py DATA_DIR [--flow] [--memories W,...] [FLIGHT ...]
 (DATA_DIR holds flights.csv; numpy required.)
 """
 import statistics as st
@@ -79,7 +79,7 @@ def flow_drift(path):
     return at
 
 
-def flight(f, drift=None):
+def flight(f, drift=None, memories=MEMORIES_S):
     """Horizontal RMSE of the per-epoch fixes and of each known-motion
     solution, m. With `drift` (a function of time), the motion is the
     truth's plus it: the solutions' errors are the drift plus the fitted
@@ -112,7 +112,7 @@ def flight(f, drift=None):
             fix_sq.append(np.sum((x[:2] - truth[:2]) ** 2))
         epochs.append((idx, ok, x - truth))
     out = [float(np.sqrt(np.mean(fix_sq)))]
-    for w in MEMORIES_S:
+    for w in memories:
         info = np.zeros((3, 3))
         rhs = np.zeros(3)
         prev = None
@@ -143,9 +143,19 @@ def flight(f, drift=None):
 def main():
     flow = "--flow" in sys.argv
     argv = [a for a in sys.argv if a != "--flow"]
+    memories = MEMORIES_S
+    if "--memories" in argv:
+        i = argv.index("--memories")
+        try:
+            memories = tuple(float(w) for w in argv[i + 1].split(","))
+        except (IndexError, ValueError):
+            sys.exit("--memories takes seconds separated by commas, e.g. 0.5,1,2")
+        if not memories or any(not w > 0 for w in memories):
+            sys.exit("--memories: every memory must be above 0 s")
+        del argv[i : i + 2]
     data_dir, rows = manifest(argv, __doc__)
     want = set(argv[2:])
-    names = ["fix"] + [f"{'flow' if flow else 'known'}-{w:g}" for w in MEMORIES_S]
+    names = ["fix"] + [f"{'flow' if flow else 'known'}-{w:g}" for w in memories]
     print(f"{'flight':18s} " + " ".join(f"{n:>9s}" for n in names) + "   (/ uwb_ls_ref_m)")
     cols = [[] for _ in names]
     for r in rows:
@@ -155,7 +165,7 @@ def main():
         drift = flow_drift(data_dir / r["file"]) if flow else None
         if flow and drift is None:
             continue
-        got = [v / ref for v in flight(prepare(data_dir, r["file"], r["anchors"]), drift)]
+        got = [v / ref for v in flight(prepare(data_dir, r["file"], r["anchors"]), drift, memories)]
         for c, v in zip(cols, got):
             c.append(v)
         print(f"{r['file']:18s} " + " ".join(f"{v:9.3f}" for v in got), flush=True)
