@@ -18,8 +18,8 @@ If each difference's error were its pair's own, both would be about
 zero. A shared covariance near half the variance says the error is the
 anchors' (each difference reads two anchors' errors); its decay with
 the lag is their correlation time. This is what the tight filter's
-per-anchor Gauss-Markov states (`[fusion.eskf] anchor_bias_sigma_m`,
-`anchor_bias_corr_time_s`) model.
+per-anchor Gauss-Markov states (`[fusion.eskf] tdoa_anchor_sigma_m`,
+`tdoa_anchor_corr_time_s`) model.
 
 Usage: python3 tools/util_anchor_corr.py DATA_DIR [FLIGHT ...]
 (DATA_DIR holds flights.csv; numpy required.)
