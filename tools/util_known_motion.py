@@ -150,7 +150,7 @@ def main():
             memories = tuple(float(w) for w in argv[i + 1].split(","))
         except (IndexError, ValueError):
             sys.exit("--memories takes seconds separated by commas, e.g. 0.5,1,2")
-        if not memories or any(not w > 0 for w in memories):
+        if any(not w > 0 for w in memories):
             sys.exit("--memories: every memory must be above 0 s")
         del argv[i : i + 2]
     data_dir, rows = manifest(argv, __doc__)
