@@ -44,8 +44,19 @@ def smooth(y, n):
     return np.stack([np.convolve(y[:, i], k, "same") for i in range(y.shape[1])], 1)
 
 
-def flight(path, drag):
-    d = load(path)
+def model_error(d, drag):
+    """A loaded log's multirotor model under the motion capture's attitude:
+    the 100 Hz grid's times (s, the log's clock from its first accelerometer
+    sample), the model's acceleration error (ENU, m/s^2) and which rows are
+    in the air."""
+    t, _, _, _, pred_drag, a_true, air = grid(d, drag)
+    return t, pred_drag - a_true, air
+
+
+def grid(d, drag):
+    """The flight on a 100 Hz grid: times, the body-frame velocity, the
+    specific force, the thrust-only and thrust-and-drag predictions of the
+    acceleration, the true acceleration and the rows in the air."""
     t0 = d["estAcceleration"][0, 0]
     acc = d["estAcceleration"]
     ta = (acc[:, 0] - t0) * 1e-6
@@ -67,11 +78,6 @@ def flight(path, drag):
     q_inv = q.copy()
     q_inv[:, :3] *= -1
     vb = rotate(q_inv, v)
-    coef = []
-    for ax in (0, 1):
-        m = np.column_stack([vb[air, ax], np.ones(air.sum())])
-        c = np.linalg.lstsq(m, f[air, ax], rcond=None)[0]
-        coef.append((-c[0], c[1]))
     gravity = np.array([0.0, 0.0, -G])
     thrust = np.zeros_like(f)
     thrust[:, 2] = f[:, 2]
@@ -80,6 +86,16 @@ def flight(path, drag):
     with_drag[:, 0] = -drag * vb[:, 0]
     with_drag[:, 1] = -drag * vb[:, 1]
     pred_drag = rotate(q, with_drag) + gravity
+    return t, vb, f, pred_thrust, pred_drag, a_true, air
+
+
+def flight(path, drag):
+    _, vb, f, pred_thrust, pred_drag, a_true, air = grid(load(path), drag)
+    coef = []
+    for ax in (0, 1):
+        m = np.column_stack([vb[air, ax], np.ones(air.sum())])
+        c = np.linalg.lstsq(m, f[air, ax], rcond=None)[0]
+        coef.append((-c[0], c[1]))
 
     def rms(e):
         return float(np.sqrt(np.mean(np.sum(e[air, :2] ** 2, 1))))

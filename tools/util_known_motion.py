@@ -27,13 +27,27 @@ with what these vehicles' motion sensor gives, under a perfect attitude
 and height (an optimistic bound on what the deck allows a filter that
 weights the radio so). The columns then read `flow-W`.
 
+With `--imu` (every flight), the motion is dead-reckoned from the IMU
+through the multirotor model (`util_drag_check.py`: the specific force
+along the true body z plus linear drag of DRAG /s, default 0.4, in body x
+and y) under the motion capture's attitude, the truth's vertical kept,
+less the model's mean error over the flight (a filter takes that up as a
+tilt): what the vehicle model gives under a perfect attitude. A filter
+fed so must learn its velocity from the radio too, so each fit is then of
+an offset and a velocity (`imu-W`): an optimistic bound on what the IMU
+allows a filter that weights the radio so. `--fit-velocity` fits the
+velocity too with the truth's or the deck's motion (`known+v-W`,
+`flow+v-W`): what the motion's shape is worth when the velocity is learnt
+from the radio.
+
 Printed: the horizontal RMSE of each, as a ratio to the manifest's
 `uwb_ls_ref_m`, per flight and the median / worst / flights above 1.0.
 The offset's fit is linearised at the truth (the differences' geometry
 there); truth starts the solver and scores it, and gives the trajectory:
 an analysis of the data, not an estimator.
 
-Usage: python3 tools/util_known_motion.py DATA_DIR [--flow] [--memories W,...] [FLIGHT ...]
+Usage: python3 tools/util_known_motion.py DATA_DIR [--flow | --imu [--drag DRAG]] [--fit-velocity]
+       [--memories W,...] [FLIGHT ...]
 (DATA_DIR holds flights.csv; numpy required.)
 """
 import statistics as st
@@ -45,6 +59,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from util_tdoa_bound import fix_epochs, load, manifest, mocap_and_tdoa, prepare, solve  # noqa: E402
 from util_flow_check import body_velocities  # noqa: E402
+from util_drag_check import model_error  # noqa: E402
 
 MEMORIES_S = (1.0, 3.0, 10.0)
 GATE_M = 1.0
@@ -79,11 +94,29 @@ def flow_drift(path):
     return at
 
 
-def flight(f, drift=None, memories=MEMORIES_S):
+def imu_drift(path, drag):
+    """The dead-reckoning error of the multirotor model under the motion
+    capture's attitude, as a function of time (s, the log's clock of
+    `mocap_and_tdoa`): the double integral, from zero, of its horizontal
+    acceleration error less that error's flight mean."""
+    t, err, air = model_error(load(path), drag)
+    err = err - err[air].mean(0)
+    err[:, 2] = 0.0
+    dt = np.diff(t, prepend=t[0])
+    drift = np.cumsum(np.cumsum(err * dt[:, None], axis=0) * dt[:, None], axis=0)
+
+    def at(tq):
+        return np.stack([np.interp(tq, t, drift[:, i]) for i in range(3)], -1)
+
+    return at
+
+
+def flight(f, drift=None, memories=MEMORIES_S, rate=False):
     """Horizontal RMSE of the per-epoch fixes and of each known-motion
     solution, m. With `drift` (a function of time), the motion is the
     truth's plus it: the solutions' errors are the drift plus the fitted
-    offset."""
+    offset. With `rate`, each fit is of an offset and a velocity (the
+    offset at the epoch's time is scored)."""
     f["ok"] = np.ones_like(f["ok"])
     pa, pb, z, ant, tt = (f[k] for k in ("pa", "pb", "z", "ant", "tt"))
     ra = np.linalg.norm(ant - pa, axis=1)
@@ -112,27 +145,44 @@ def flight(f, drift=None, memories=MEMORIES_S):
             fix_sq.append(np.sum((x[:2] - truth[:2]) ** 2))
         epochs.append((idx, ok, x - truth))
     out = [float(np.sqrt(np.mean(fix_sq)))]
+    n = 6 if rate else 3
     for w in memories:
-        info = np.zeros((3, 3))
-        rhs = np.zeros(3)
+        # The fit's information and right-hand side, of the offset at the
+        # last epoch's time (and, with `rate`, the velocity).
+        info = np.zeros((n, n))
+        rhs = np.zeros(n)
         prev = None
         sq = []
         d = None
+        theta = None
         for idx, scored, first in epochs:
             t = tt[idx[-1]]
             if d is None:
                 d = first
-            idx = idx[np.abs(res[idx] - jac[idx] @ d) < GATE_M]
             if prev is not None:
                 decay = np.exp(-(t - prev) / w)
                 info *= decay
                 rhs *= decay
+                if rate:
+                    # To the offset at t: theta_t = A theta_prev.
+                    a_inv = np.eye(6)
+                    a_inv[:3, 3:] = -(t - prev) * np.eye(3)
+                    info = a_inv.T @ info @ a_inv
+                    rhs = a_inv.T @ rhs
+                    d = d + theta[3:] * (t - prev) if theta is not None else d
             prev = t
+            inl = idx[np.abs(res[idx] - jac[idx] @ d) < GATE_M]
+            # With `rate`, a fit the epoch disagrees with entirely (a
+            # velocity fitted from the first epochs alone) does not gate it.
+            idx = idx if rate and len(inl) < 4 else inl
             j = jac[idx]
+            if rate:
+                j = np.hstack([j, j * (tt[idx] - t)[:, None]])
             info += j.T @ j
             rhs += j.T @ res[idx]
-            if len(idx) and np.linalg.matrix_rank(info) == 3:
-                d = np.linalg.solve(info, rhs)
+            if len(idx) and np.linalg.matrix_rank(info) == n:
+                theta = np.linalg.solve(info, rhs)
+                d = theta[:3]
             if scored:
                 e = d + dr[idx[-1]] if len(idx) else d
                 sq.append(e[0] ** 2 + e[1] ** 2)
@@ -142,7 +192,19 @@ def flight(f, drift=None, memories=MEMORIES_S):
 
 def main():
     flow = "--flow" in sys.argv
-    argv = [a for a in sys.argv if a != "--flow"]
+    imu = "--imu" in sys.argv
+    if flow and imu:
+        sys.exit("--flow and --imu: one motion at a time")
+    rate = imu or "--fit-velocity" in sys.argv
+    argv = [a for a in sys.argv if a not in ("--flow", "--imu", "--fit-velocity")]
+    drag = 0.4
+    if "--drag" in argv:
+        i = argv.index("--drag")
+        try:
+            drag = float(argv[i + 1])
+        except (IndexError, ValueError):
+            sys.exit("--drag takes the drag coefficient in 1/s, e.g. 0.4")
+        del argv[i : i + 2]
     memories = MEMORIES_S
     if "--memories" in argv:
         i = argv.index("--memories")
@@ -155,7 +217,10 @@ def main():
         del argv[i : i + 2]
     data_dir, rows = manifest(argv, __doc__)
     want = set(argv[2:])
-    names = ["fix"] + [f"{'flow' if flow else 'known'}-{w:g}" for w in memories]
+    kind = "flow" if flow else "imu" if imu else "known"
+    if rate and not imu:
+        kind += "+v"
+    names = ["fix"] + [f"{kind}-{w:g}" for w in memories]
     print(f"{'flight':18s} " + " ".join(f"{n:>9s}" for n in names) + "   (/ uwb_ls_ref_m)")
     cols = [[] for _ in names]
     for r in rows:
@@ -165,7 +230,10 @@ def main():
         drift = flow_drift(data_dir / r["file"]) if flow else None
         if flow and drift is None:
             continue
-        got = [v / ref for v in flight(prepare(data_dir, r["file"], r["anchors"]), drift, memories)]
+        if imu:
+            drift = imu_drift(data_dir / r["file"], drag)
+        f = prepare(data_dir, r["file"], r["anchors"])
+        got = [v / ref for v in flight(f, drift, memories, rate=rate)]
         for c, v in zip(cols, got):
             c.append(v)
         print(f"{r['file']:18s} " + " ".join(f"{v:9.3f}" for v in got), flush=True)
