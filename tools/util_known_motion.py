@@ -38,7 +38,11 @@ an offset and a velocity (`imu-W`): an optimistic bound on what the IMU
 allows a filter that weights the radio so. `--fit-velocity` fits the
 velocity too with the truth's or the deck's motion (`known+v-W`,
 `flow+v-W`): what the motion's shape is worth when the velocity is learnt
-from the radio.
+from the radio. `--random-walk Q,...` replaces the memories by a Kalman
+filter of the offset, a random walk of Q m^2/s, and a velocity constant
+over the flight (prior 1 m/s), every difference weighted alike (0.3 m),
+the same gate (`rw+v-Q`): the velocity never forgotten, as a filter
+with a perfect accelerometer could hold it.
 
 Printed: the horizontal RMSE of each, as a ratio to the manifest's
 `uwb_ls_ref_m`, per flight and the median / worst / flights above 1.0.
@@ -46,8 +50,8 @@ The offset's fit is linearised at the truth (the differences' geometry
 there); truth starts the solver and scores it, and gives the trajectory:
 an analysis of the data, not an estimator.
 
-Usage: python3 tools/util_known_motion.py DATA_DIR [--flow | --imu [--drag DRAG]] [--fit-velocity]
-       [--memories W,...] [FLIGHT ...]
+Usage: python3 tools/util_known_motion.py DATA_DIR [--flow | --imu [--drag DRAG]]
+       [--fit-velocity] [--memories W,... | --random-walk Q,...] [FLIGHT ...]
 (DATA_DIR holds flights.csv; numpy required.)
 """
 import statistics as st
@@ -63,6 +67,11 @@ from util_drag_check import model_error  # noqa: E402
 
 MEMORIES_S = (1.0, 3.0, 10.0)
 GATE_M = 1.0
+# `--random-walk`'s filter: the offset's and the velocity's prior
+# variances (m^2, m^2/s^2) and each difference's (m^2).
+RW_OFFSET_VAR = 0.3
+RW_VELOCITY_VAR = 1.0
+RW_R_M2 = 0.09
 
 
 def flow_drift(path):
@@ -111,12 +120,48 @@ def imu_drift(path, drag):
     return at
 
 
-def flight(f, drift=None, memories=MEMORIES_S, rate=False):
+def random_walk_fit(epochs, jac, res, tt, dr, q):
+    """Horizontal RMSE of the Kalman filter of `--random-walk` (offset
+    random walk `q` m^2/s, constant velocity), m."""
+    x = None
+    p = None
+    prev = None
+    sq = []
+    for idx, scored, first in epochs:
+        t = tt[idx[-1]]
+        if x is None:
+            x = np.concatenate([first, np.zeros(3)])
+            p = np.diag([RW_OFFSET_VAR] * 3 + [RW_VELOCITY_VAR] * 3)
+            prev = t
+        dt = t - prev
+        prev = t
+        f = np.eye(6)
+        f[:3, 3:] = dt * np.eye(3)
+        x = f @ x
+        p = f @ p @ f.T
+        p[:3, :3] += q * dt * np.eye(3)
+        h = np.hstack([jac[idx], np.zeros((len(idx), 3))])
+        v = res[idx] - h @ x
+        keep = np.abs(v) < GATE_M
+        if keep.any():
+            h, v = h[keep], v[keep]
+            s = h @ p @ h.T + RW_R_M2 * np.eye(len(v))
+            k = np.linalg.solve(s, h @ p).T
+            x = x + k @ v
+            p = (np.eye(6) - k @ h) @ p
+        if scored:
+            e = x[:3] + dr[idx[-1]]
+            sq.append(e[0] ** 2 + e[1] ** 2)
+    return float(np.sqrt(np.mean(sq)))
+
+
+def flight(f, drift=None, memories=MEMORIES_S, rate=False, walks=()):
     """Horizontal RMSE of the per-epoch fixes and of each known-motion
     solution, m. With `drift` (a function of time), the motion is the
     truth's plus it: the solutions' errors are the drift plus the fitted
     offset. With `rate`, each fit is of an offset and a velocity (the
-    offset at the epoch's time is scored)."""
+    offset at the epoch's time is scored). With `walks`, the columns are
+    those of `random_walk_fit` instead."""
     f["ok"] = np.ones_like(f["ok"])
     pa, pb, z, ant, tt = (f[k] for k in ("pa", "pb", "z", "ant", "tt"))
     ra = np.linalg.norm(ant - pa, axis=1)
@@ -145,6 +190,8 @@ def flight(f, drift=None, memories=MEMORIES_S, rate=False):
             fix_sq.append(np.sum((x[:2] - truth[:2]) ** 2))
         epochs.append((idx, ok, x - truth))
     out = [float(np.sqrt(np.mean(fix_sq)))]
+    if walks:
+        return out + [random_walk_fit(epochs, jac, res, tt, dr, q) for q in walks]
     n = 6 if rate else 3
     for w in memories:
         # The fit's information and right-hand side, of the offset at the
@@ -215,12 +262,24 @@ def main():
         if any(not w > 0 for w in memories):
             sys.exit("--memories: every memory must be above 0 s")
         del argv[i : i + 2]
+    walks = ()
+    if "--random-walk" in argv:
+        i = argv.index("--random-walk")
+        try:
+            walks = tuple(float(q) for q in argv[i + 1].split(","))
+        except (IndexError, ValueError):
+            sys.exit("--random-walk takes variances in m^2/s separated by commas, e.g. 1e-3,1e-2")
+        if any(not q > 0 for q in walks):
+            sys.exit("--random-walk: every variance must be above 0")
+        del argv[i : i + 2]
     data_dir, rows = manifest(argv, __doc__)
     want = set(argv[2:])
     kind = "flow" if flow else "imu" if imu else "known"
     if rate and not imu:
         kind += "+v"
     names = ["fix"] + [f"{kind}-{w:g}" for w in memories]
+    if walks:
+        names = ["fix"] + [f"rw+v-{q:g}" for q in walks]
     print(f"{'flight':18s} " + " ".join(f"{n:>9s}" for n in names) + "   (/ uwb_ls_ref_m)")
     cols = [[] for _ in names]
     for r in rows:
@@ -233,7 +292,7 @@ def main():
         if imu:
             drift = imu_drift(data_dir / r["file"], drag)
         f = prepare(data_dir, r["file"], r["anchors"])
-        got = [v / ref for v in flight(f, drift, memories, rate=rate)]
+        got = [v / ref for v in flight(f, drift, memories, rate=rate, walks=walks)]
         for c, v in zip(cols, got):
             c.append(v)
         print(f"{r['file']:18s} " + " ".join(f"{v:9.3f}" for v in got), flush=True)
