@@ -237,6 +237,22 @@ def flight(f, drift=None, memories=MEMORIES_S, rate=False, walks=()):
     return out
 
 
+def option(argv, name, takes, default):
+    """The positive numbers after `name` in `argv` (separated by commas;
+    both removed), or `default` without it."""
+    if name not in argv:
+        return default
+    i = argv.index(name)
+    try:
+        values = tuple(float(v) for v in argv[i + 1].split(","))
+    except (IndexError, ValueError):
+        sys.exit(f"{name} takes {takes}")
+    if any(not v > 0 for v in values):
+        sys.exit(f"{name}: every value must be above 0")
+    del argv[i : i + 2]
+    return values
+
+
 def main():
     flow = "--flow" in sys.argv
     imu = "--imu" in sys.argv
@@ -244,34 +260,9 @@ def main():
         sys.exit("--flow and --imu: one motion at a time")
     rate = imu or "--fit-velocity" in sys.argv
     argv = [a for a in sys.argv if a not in ("--flow", "--imu", "--fit-velocity")]
-    drag = 0.4
-    if "--drag" in argv:
-        i = argv.index("--drag")
-        try:
-            drag = float(argv[i + 1])
-        except (IndexError, ValueError):
-            sys.exit("--drag takes the drag coefficient in 1/s, e.g. 0.4")
-        del argv[i : i + 2]
-    memories = MEMORIES_S
-    if "--memories" in argv:
-        i = argv.index("--memories")
-        try:
-            memories = tuple(float(w) for w in argv[i + 1].split(","))
-        except (IndexError, ValueError):
-            sys.exit("--memories takes seconds separated by commas, e.g. 0.5,1,2")
-        if any(not w > 0 for w in memories):
-            sys.exit("--memories: every memory must be above 0 s")
-        del argv[i : i + 2]
-    walks = ()
-    if "--random-walk" in argv:
-        i = argv.index("--random-walk")
-        try:
-            walks = tuple(float(q) for q in argv[i + 1].split(","))
-        except (IndexError, ValueError):
-            sys.exit("--random-walk takes variances in m^2/s separated by commas, e.g. 1e-3,1e-2")
-        if any(not q > 0 for q in walks):
-            sys.exit("--random-walk: every variance must be above 0")
-        del argv[i : i + 2]
+    drag = option(argv, "--drag", "the drag coefficient in 1/s, e.g. 0.4", (0.4,))[0]
+    memories = option(argv, "--memories", "seconds separated by commas, e.g. 0.5,1,2", MEMORIES_S)
+    walks = option(argv, "--random-walk", "variances in m^2/s separated by commas, e.g. 1e-3,1e-2", ())
     data_dir, rows = manifest(argv, __doc__)
     want = set(argv[2:])
     kind = "flow" if flow else "imu" if imu else "known"
