@@ -74,6 +74,16 @@ RW_VELOCITY_VAR = 1.0
 RW_R_M2 = 0.09
 
 
+def interpolator(times, rows):
+    """A function of time giving `rows` (n x 3) linearly interpolated
+    between `times`."""
+
+    def at(t):
+        return np.stack([np.interp(t, times, rows[:, i]) for i in range(3)], -1)
+
+    return at
+
+
 def flow_drift(path):
     """The dead-reckoning error of the deck's velocities as a function of
     time (s, the log's clock of `mocap_and_tdoa`): the world-frame
@@ -96,11 +106,7 @@ def flow_drift(path):
     ew = np.einsum("nij,nj->ni", rot, eb)
     drift = np.cumsum(ew * dt[:, None], axis=0)
     drift[:, 2] = 0.0
-
-    def at(t):
-        return np.stack([np.interp(t, tf, drift[:, i]) for i in range(3)], -1)
-
-    return at
+    return interpolator(tf, drift)
 
 
 def imu_drift(path, drag):
@@ -113,11 +119,7 @@ def imu_drift(path, drag):
     err[:, 2] = 0.0
     dt = np.diff(t, prepend=t[0])
     drift = np.cumsum(np.cumsum(err * dt[:, None], axis=0) * dt[:, None], axis=0)
-
-    def at(tq):
-        return np.stack([np.interp(tq, t, drift[:, i]) for i in range(3)], -1)
-
-    return at
+    return interpolator(t, drift)
 
 
 def random_walk_fit(epochs, jac, res, tt, dr, q):
@@ -277,11 +279,10 @@ def main():
         if want and r["file"] not in want:
             continue
         ref = float(r["uwb_ls_ref_m"])
-        drift = flow_drift(data_dir / r["file"]) if flow else None
+        path = data_dir / r["file"]
+        drift = flow_drift(path) if flow else imu_drift(path, drag) if imu else None
         if flow and drift is None:
             continue
-        if imu:
-            drift = imu_drift(data_dir / r["file"], drag)
         f = prepare(data_dir, r["file"], r["anchors"])
         got = [v / ref for v in flight(f, drift, memories, rate=rate, walks=walks)]
         for c, v in zip(cols, got):
